@@ -1,0 +1,450 @@
+"""The node runtime: sockets, event loop, timers, latched topics, statistics, shutdown.
+
+A node subclasses `Node`, declares `Input`/`Output`/`Param` class attributes, and implements
+``on_<input name>(msg)`` handlers, optionally ``on_start``/``on_stop`` and timers. The runtime:
+
+- binds one XPUB socket for all of the node's outputs; the XPUB sees every subscription, which
+  is how latched values reach late joiners and how the start-up handshake knows that every
+  subscriber in the graph is connected before the first frame is sent (no slow-joiner loss);
+- opens one SUB socket per input (so queue depth is per subscription) connected to every
+  publisher of its topic;
+- counts per edge: rate from sender stamps, latency, sequence gaps, rejected frames, and
+  publishes them on ``diagnostics`` once a second.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import resource
+import signal
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import zmq
+
+from ..messages import DecodeError, Diagnostics, Envelope, Message, decode_envelope, decode_payload, encode
+from ..messages.codec import topic_frame
+from ..messages.registry import UnknownTypeError, lookup
+from .ports import Input, Interface, Output, Param, ParamError
+from .stats import InputStats
+
+DIAGNOSTICS_TOPIC = "diagnostics"
+DIAGNOSTICS_PERIOD_S = 1.0
+LOG_FORMAT = "%(levelname)s %(message)s"
+
+
+class NodeConfigError(ValueError):
+    """Parameters or wiring that a node cannot run with."""
+
+
+@dataclass
+class Wiring:
+    """How the launcher connects one node: its endpoint, its topics and their publishers.
+
+    inputs: input name -> {"topic": str, "endpoints": [publisher endpoints]}
+    outputs: output name -> {"topic": str, "subscribers": expected subscriber count}
+    """
+
+    node: str
+    pub_endpoint: str = ""
+    inputs: dict[str, dict[str, Any]] = field(default_factory=dict)
+    outputs: dict[str, dict[str, Any]] = field(default_factory=dict)
+    control: str = ""
+    diagnostics_subscribers: int = 0
+
+    def to_json(self) -> str:
+        return json.dumps(self.__dict__)
+
+    @classmethod
+    def from_json(cls, text: str) -> "Wiring":
+        return cls(**json.loads(text))
+
+
+class OutputPort:
+    """A bound output: ``publish(msg)`` sends it to every subscriber of its topic."""
+
+    def __init__(self, node: "Node", decl: Output, topic: str) -> None:
+        self.node = node
+        self.decl = decl
+        self.topic = topic
+        self.latched = decl.is_latched
+        self.seq = 0
+        self.last_frames: list | None = None
+        self._topic_frame = topic_frame(topic)
+
+    def publish(self, msg: Message, capture_ns: int | None = None) -> None:
+        """Send ``msg``. ``capture_ns`` is when the data was captured (defaults to now)."""
+        if not isinstance(msg, self.decl.msg_type):
+            raise TypeError(f"{self.decl.name} publishes {self.decl.type_name}, not {type(msg).__name__}")
+        self.seq += 1
+        now = time.time_ns()
+        frames = encode(self.topic, msg, self.seq, now if capture_ns is None else capture_ns,
+                        self.node.name, now, self.latched)
+        if self.latched:
+            frames = [bytes(f) for f in frames]  # keep a copy we own for resends
+            self.last_frames = frames
+        self.node._pub.send_multipart(frames, copy=len(frames[-1]) < 65536)
+
+
+class InputPort:
+    """A bound input: the latest message, its envelope, and statistics."""
+
+    def __init__(self, node: "Node", decl: Input, topic: str) -> None:
+        self.node = node
+        self.decl = decl
+        self.topic = topic
+        self.latest: Message | None = None
+        self.envelope: Envelope | None = None
+        self.stats = InputStats()
+        self.socket: zmq.Socket | None = None
+        self.handler: Callable[..., Any] | None = None
+
+
+class Node:
+    """Base class of every node. See the module docstring for the contract."""
+
+    #: one-line description shown by ``mocapgraph node list``
+    summary: str = ""
+
+    def __init__(self, name: str, params: dict[str, Any] | None = None, wiring: Wiring | None = None) -> None:
+        self.name = name
+        self.log = logging.getLogger(name)
+        iface = self.interface(params or {})
+        self.params = self.check_params(params or {}, iface)
+        self.wiring = wiring or Wiring(node=name)
+        self._iface = iface
+        self._ports: dict[str, InputPort | OutputPort] = {}
+        self._timers: list[list[Any]] = []  # [next_due_s, period_s, callback]
+        self._stop = False
+        self._started = False
+        self._t0 = time.monotonic()
+        self._ctx = zmq.Context.instance()
+        self._pub: zmq.Socket | None = None
+        self._poller = zmq.Poller()
+        self._sub_counts: dict[bytes, int] = {}
+        self._ready_sent = False
+        self._control: zmq.Socket | None = None
+        self._parent_pid = os.getppid()
+
+    # ----- declarations -------------------------------------------------------------------
+    @classmethod
+    def interface(cls, params: dict[str, Any]) -> Interface:
+        """Declared inputs, outputs and parameters. Override to shape ports from ``params``."""
+        iface = Interface()
+        for klass in reversed(cls.__mro__):
+            for key, value in vars(klass).items():
+                if isinstance(value, Input):
+                    iface.inputs[key] = value
+                elif isinstance(value, Output):
+                    iface.outputs[key] = value
+                elif isinstance(value, Param):
+                    iface.params[key] = value
+        return iface
+
+    @classmethod
+    def check_params(cls, given: dict[str, Any], iface: Interface | None = None) -> dict[str, Any]:
+        """Defaults merged with ``given``; raises NodeConfigError naming the bad key."""
+        iface = iface or cls.interface(given)
+        unknown = sorted(set(given) - set(iface.params))
+        if unknown:
+            raise NodeConfigError(f"unknown parameter {unknown[0]!r}")
+        out = {}
+        for key, p in iface.params.items():
+            try:
+                out[key] = p.check(given[key]) if key in given else p.default
+            except ParamError as exc:
+                raise NodeConfigError(f"parameter {key!r} {exc}") from None
+        return out
+
+    # ----- for subclasses -------------------------------------------------------------------
+    def on_start(self) -> None:
+        """Called once when the whole graph is ready (sources start publishing here)."""
+
+    def on_stop(self) -> None:
+        """Called once on shutdown, before sockets close (flush files here)."""
+
+    def add_timer(self, period_s: float, callback: Callable[[], Any], first_delay_s: float | None = None) -> list:
+        """Call ``callback`` every ``period_s`` seconds of monotonic time (no drift)."""
+        t = [time.monotonic() + (period_s if first_delay_s is None else first_delay_s), period_s, callback]
+        self._timers.append(t)
+        return t
+
+    def cancel_timer(self, timer: list) -> None:
+        if timer in self._timers:
+            self._timers.remove(timer)
+
+    def request_stop(self) -> None:
+        """Leave the event loop after the current callback (a finished file source calls this)."""
+        self._stop = True
+
+    @property
+    def uptime_s(self) -> float:
+        return time.monotonic() - self._t0
+
+    # ----- runtime ----------------------------------------------------------------------------
+    def setup(self) -> None:
+        """Bind, connect and subscribe according to the wiring."""
+        w = self.wiring
+        self._pub = self._ctx.socket(zmq.XPUB)
+        self._pub.setsockopt(zmq.XPUB_VERBOSE, 1)
+        self._pub.setsockopt(zmq.SNDHWM, 0)  # never drop on our side; receivers' HWM decides
+        self._pub.setsockopt(zmq.LINGER, 500)
+        if w.pub_endpoint:
+            self._pub.bind(w.pub_endpoint)
+        else:
+            self._pub.bind("tcp://127.0.0.1:*")
+            w.pub_endpoint = self._pub.getsockopt_string(zmq.LAST_ENDPOINT)
+        self._poller.register(self._pub, zmq.POLLIN)
+        for name, decl in self._iface.outputs.items():
+            topic = w.outputs.get(name, {}).get("topic", decl.topic)
+            self._ports[name] = OutputPort(self, decl, topic)
+        self._ports["__diagnostics__"] = OutputPort(
+            self, Output(DIAGNOSTICS_TOPIC, Diagnostics, latched=False, name="diagnostics"), DIAGNOSTICS_TOPIC
+        )
+        for name, decl in self._iface.inputs.items():
+            spec = w.inputs.get(name, {})
+            port = InputPort(self, decl, spec.get("topic", decl.topic))
+            port.handler = getattr(self, f"on_{name}", None)
+            sock = self._ctx.socket(zmq.SUB)
+            sock.setsockopt(zmq.RCVHWM, 0 if decl.queue <= 0 else decl.queue)
+            sock.setsockopt(zmq.RECONNECT_IVL, 20)
+            sock.setsockopt(zmq.RECONNECT_IVL_MAX, 500)
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.setsockopt(zmq.SUBSCRIBE, topic_frame(port.topic))
+            for ep in spec.get("endpoints", []):
+                sock.connect(ep)
+            port.socket = sock
+            self._poller.register(sock, zmq.POLLIN)
+            self._ports[name] = port
+        if w.control:
+            self._control = self._ctx.socket(zmq.DEALER)
+            self._control.setsockopt(zmq.IDENTITY, self.name.encode())
+            self._control.setsockopt(zmq.LINGER, 200)
+            self._control.connect(w.control)
+            self._poller.register(self._control, zmq.POLLIN)
+            self._control.send_multipart([b"hello", str(os.getpid()).encode()])
+        self.add_timer(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
+
+    def _expected_subscriptions(self) -> dict[bytes, int]:
+        want: dict[bytes, int] = {}
+        for name, spec in self.wiring.outputs.items():
+            port = self._ports.get(name)
+            if isinstance(port, OutputPort):
+                key = topic_frame(port.topic)
+                want[key] = want.get(key, 0) + int(spec.get("subscribers", 0))
+        if self.wiring.diagnostics_subscribers:
+            key = topic_frame(DIAGNOSTICS_TOPIC)
+            want[key] = want.get(key, 0) + self.wiring.diagnostics_subscribers
+        return want
+
+    def _check_ready(self) -> None:
+        if self._ready_sent:
+            return
+        want = self._expected_subscriptions()
+        if all(self._sub_counts.get(k, 0) >= n for k, n in want.items()):
+            self._ready_sent = True
+            if self._control is not None:
+                self._control.send_multipart([b"ready"])
+            else:
+                self._start()
+
+    def _start(self) -> None:
+        if not self._started:
+            self._started = True
+            self.on_start()
+
+    def _on_subscription(self) -> None:
+        while True:
+            try:
+                ev = self._pub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            if not ev or ev[0] != 1:
+                continue
+            key = ev[1:]
+            self._sub_counts[key] = self._sub_counts.get(key, 0) + 1
+            for port in self._ports.values():
+                if isinstance(port, OutputPort) and port.last_frames is not None and port._topic_frame == key:
+                    self._pub.send_multipart(port.last_frames)
+        self._check_ready()
+
+    def _on_control(self) -> None:
+        while True:
+            try:
+                frames = self._control.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            cmd = frames[0]
+            if cmd == b"start":
+                self._start()
+            elif cmd == b"stop":
+                self._stop = True
+
+    def _on_input(self, port: InputPort) -> None:
+        sock = port.socket
+        newest: tuple[Envelope, list[bytes]] | None = None
+        for _ in range(256):  # bounded so one busy input cannot starve the others
+            try:
+                frames = sock.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            now = time.time_ns()
+            try:
+                env = decode_envelope(frames)
+            except DecodeError as exc:
+                port.stats.rejected += 1
+                self._reject(port, exc)
+                continue
+            if env.topic != port.topic:
+                continue
+            edge = port.stats.edge(env.topic, env.sender)
+            if not edge.accept(env.seq, env.publish_ns, now):
+                continue
+            if port.decl.latest_only:
+                newest = (env, frames)
+                continue
+            self._deliver(port, env, frames)
+            if self._stop:
+                return
+        if newest is not None:
+            self._deliver(port, *newest)
+
+    def _deliver(self, port: InputPort, env: Envelope, frames: list[bytes]) -> None:
+        want = port.decl.msg_type
+        try:
+            cls = lookup(env.type_name) if want is None else want
+            if want is not None and env.type_name != want.type_name:
+                raise DecodeError(f"type {env.type_name} where {want.type_name} was expected")
+            msg = decode_payload(cls, env, frames)
+        except (DecodeError, UnknownTypeError) as exc:
+            port.stats.rejected += 1
+            self._reject(port, exc)
+            return
+        port.latest = msg
+        port.envelope = env
+        if port.handler is not None:
+            port.handler(msg)
+
+    def _reject(self, port: InputPort, exc: Exception) -> None:
+        n = port.stats.rejected
+        if n <= 5 or n % 1000 == 0:  # logged, but never a flood
+            self.log.warning("input %s: rejected frame #%d: %s", port.decl.name, n, exc)
+
+    def diagnostics(self) -> Diagnostics:
+        """Current statistics as a message."""
+        topics, senders, rate, lat, latmax, recv, gaps, rej = [], [], [], [], [], [], [], []
+        for port in self._ports.values():
+            if not isinstance(port, InputPort):
+                continue
+            edges = list(port.stats.edges.values())
+            if not edges and port.stats.rejected:
+                topics.append(port.topic)
+                senders.append("?")
+                rate.append(0.0), lat.append(float("nan")), latmax.append(float("nan"))
+                recv.append(0), gaps.append(0), rej.append(port.stats.rejected)
+            for i, e in enumerate(edges):
+                p50, pmax = e.latency_ms()
+                topics.append(e.topic)
+                senders.append(e.sender)
+                rate.append(e.rate_hz())
+                lat.append(p50)
+                latmax.append(pmax)
+                recv.append(e.received)
+                gaps.append(e.gaps)
+                rej.append(port.stats.rejected if i == 0 else 0)
+        outs = [p for p in self._ports.values() if isinstance(p, OutputPort)]
+        ru = resource.getrusage(resource.RUSAGE_SELF)
+        return Diagnostics(
+            node=self.name, pid=os.getpid(), uptime_s=self.uptime_s, cpu_s=ru.ru_utime + ru.ru_stime,
+            edge_topics=topics, edge_senders=senders, edge_rate_hz=rate, edge_latency_ms=lat,
+            edge_latency_max_ms=latmax, edge_received=recv, edge_gaps=gaps, edge_rejected=rej,
+            output_topics=[p.topic for p in outs], output_sent=[p.seq for p in outs],
+        )
+
+    def _publish_diagnostics(self) -> None:
+        self._ports["__diagnostics__"].publish(self.diagnostics())
+        if os.getppid() != self._parent_pid and self.wiring.control:
+            self.log.error("launcher is gone; stopping")
+            self._stop = True
+
+    def spin_once(self, timeout_s: float) -> None:
+        """Serve sockets and timers for at most ``timeout_s`` seconds."""
+        now = time.monotonic()
+        due = min((t[0] for t in self._timers), default=now + timeout_s) if self._started else now + timeout_s
+        wait = max(0.0, min(due, now + timeout_s) - now)
+        # zmq_poll has millisecond resolution: poll short of the deadline, then sleep the rest,
+        # so that timer-driven sources keep sub-millisecond timing.
+        events = dict(self._poller.poll(int(wait * 1000) if wait > 0.002 else 0))
+        if self._pub in events:
+            self._on_subscription()
+        if self._control is not None and self._control in events:
+            self._on_control()
+        for port in self._ports.values():
+            if isinstance(port, InputPort) and port.socket in events:
+                self._on_input(port)
+                if self._stop:
+                    return
+        if not events and 0 < wait <= 0.002:
+            time.sleep(max(0.0, due - time.monotonic()) * 0.9)
+        if self._started:
+            self._run_timers()
+
+    def _run_timers(self) -> None:
+        now = time.monotonic()
+        for t in list(self._timers):
+            if t[0] <= now and t in self._timers:
+                t[0] += t[1]
+                if t[0] < now:  # fell behind (a slow callback): skip, do not burst
+                    t[0] = now + t[1]
+                t[2]()
+                if self._stop:
+                    return
+
+    def run(self) -> int:
+        """Set up, serve until stopped, clean up. Returns the process exit code."""
+        self.setup()
+        self._check_ready()
+        try:
+            while not self._stop:
+                self.spin_once(0.1)
+        finally:
+            try:
+                self.on_stop()
+            finally:
+                self.close()
+        return 0
+
+    def close(self) -> None:
+        for port in self._ports.values():
+            if isinstance(port, InputPort) and port.socket is not None:
+                port.socket.close(0)
+        if self._control is not None:
+            try:
+                self._control.send_multipart([b"bye"], zmq.NOBLOCK)
+            except zmq.ZMQError:
+                pass
+            self._control.close()
+        if self._pub is not None:
+            self._pub.close()
+
+
+def install_signal_handlers(node: Node) -> None:
+    """SIGINT/SIGTERM end the loop cleanly (on_stop runs, files are flushed)."""
+
+    def handler(signum: int, frame: Any) -> None:
+        node._stop = True
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
+def check_params_or_exit(cls: type[Node], params: dict[str, Any]) -> dict[str, Any]:
+    try:
+        return cls.check_params(params)
+    except NodeConfigError as exc:
+        raise SystemExit(f"{cls.__name__}: {exc}") from None
+
+
+__all__ = ["Node", "Input", "Output", "Param", "Wiring", "NodeConfigError", "install_signal_handlers"]

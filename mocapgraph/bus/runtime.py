@@ -1,0 +1,57 @@
+"""Process entry of one node: ``python -m mocapgraph.bus.runtime WIRING.json``.
+
+The launcher writes the wiring file (node name, class, params, endpoints) and starts this
+module as a child process. The child asks the kernel to send it SIGTERM when the launcher dies,
+so no node outlives its launcher, even one killed with SIGKILL.
+"""
+from __future__ import annotations
+
+import ctypes
+import importlib
+import json
+import logging
+import signal
+import sys
+from typing import Any
+
+from .node import LOG_FORMAT, Node, NodeConfigError, Wiring, install_signal_handlers
+
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent() -> None:
+    """Linux: SIGTERM this process when its parent exits (preexec hook of the launcher)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass  # not Linux: the runtime's own parent-pid check is the fallback
+
+
+def load_class(spec: str) -> type[Node]:
+    """``package.module:ClassName`` -> the class."""
+    module, _, attr = spec.partition(":")
+    cls = getattr(importlib.import_module(module), attr)
+    if not (isinstance(cls, type) and issubclass(cls, Node)):
+        raise TypeError(f"{spec} is not a mocapgraph Node")
+    return cls
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
+    with open(argv[0]) as f:
+        spec: dict[str, Any] = json.load(f)
+    wiring = Wiring(**spec["wiring"])
+    cls = load_class(spec["class"])
+    try:
+        node = cls(wiring.node, spec.get("params", {}), wiring)
+    except NodeConfigError as exc:
+        logging.getLogger(wiring.node).error("%s", exc)
+        return 2
+    install_signal_handlers(node)
+    return node.run()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,80 @@
+"""Per-edge statistics: rate from sender stamps, latency, sequence gaps, rejects.
+
+An edge is one (topic, sending node) pair seen by one subscriber. Sequence numbers are per
+sender and topic and start at 1, so a restarted sender (seq back to 1) is a new stream, not loss.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+WINDOW = 512
+
+
+@dataclass
+class EdgeStats:
+    """Counters and a ring of recent (publish stamp, latency) for one edge."""
+
+    topic: str
+    sender: str
+    last_seq: int = 0
+    received: int = 0
+    gaps: int = 0
+    duplicates: int = 0
+    restarts: int = 0
+    _pub: np.ndarray = field(default_factory=lambda: np.zeros(WINDOW, np.int64))
+    _lat: np.ndarray = field(default_factory=lambda: np.zeros(WINDOW, np.int64))
+    _n: int = 0
+
+    def accept(self, seq: int, publish_ns: int, now_ns: int) -> bool:
+        """Record one arrival; False when it is a duplicate (a latched resend) to be dropped."""
+        last = self.last_seq
+        if seq == last or (0 < seq < last and seq != 1):
+            self.duplicates += 1
+            return False
+        if seq < last:  # the sender restarted
+            self.restarts += 1
+        elif last and seq > last + 1:
+            self.gaps += seq - last - 1
+        elif not last and seq > 1 and self.received == 0:
+            pass  # joined a running stream: earlier messages were never ours to lose
+        self.last_seq = seq
+        self.received += 1
+        i = self._n % WINDOW
+        self._pub[i] = publish_ns
+        self._lat[i] = now_ns - publish_ns
+        self._n += 1
+        return True
+
+    def rate_hz(self) -> float:
+        """Rate over the window from the sender's own publish stamps (immune to our jitter)."""
+        n = min(self._n, WINDOW)
+        if n < 2:
+            return 0.0
+        stamps = self._pub[:n]
+        span = float(stamps.max() - stamps.min())
+        return (n - 1) * 1e9 / span if span > 0 else 0.0
+
+    def latency_ms(self) -> tuple[float, float]:
+        """Median and maximum latency over the window, ms."""
+        n = min(self._n, WINDOW)
+        if n == 0:
+            return float("nan"), float("nan")
+        lat = self._lat[:n]
+        return float(np.median(lat)) / 1e6, float(lat.max()) / 1e6
+
+
+@dataclass
+class InputStats:
+    """All edges of one input, plus frames rejected before a sender was known."""
+
+    edges: dict[tuple[str, str], EdgeStats] = field(default_factory=dict)
+    rejected: int = 0
+
+    def edge(self, topic: str, sender: str) -> EdgeStats:
+        key = (topic, sender)
+        e = self.edges.get(key)
+        if e is None:
+            e = self.edges[key] = EdgeStats(topic, sender)
+        return e
