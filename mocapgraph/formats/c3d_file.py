@@ -1,0 +1,431 @@
+"""C3D marker files: :func:`read_c3d` -> :class:`MarkerTrial`, :func:`write_c3d`.
+
+Reading goes through ezc3d; where ezc3d refuses a file that the pure-Python ``c3d`` package
+can read (e.g. PhoeniX files with a non-integer ANALOG:OFFSET) that package is used instead
+and its warnings are collected into ``trial.notes``.
+
+Before either library sees the file, a small bounded walk over the 512-byte header and the
+parameter section checks it is whole and consistent (ezc3d can spend tens of seconds on a file
+cut inside its parameter section, and silently returns fewer frames for one cut inside its
+data). Faults become a one-line :class:`FormatError`, e.g.
+``mocap36.c3d: POINT:LABELS parameter is broken (...)``.
+
+What the reader does to the data, every time saying so in ``trial.conversions``:
+
+* POINT:UNITS (mm, cm, m, in) -> metres; a file already in metres is left alone.
+* Up axis -> world Z up, X forward (right-handed): an explicit ``up_axis`` argument wins;
+  otherwise POINT:Y_SCREEN names the up axis (X_SCREEN/Y_SCREEN is how C3D says how to show
+  the data); otherwise Z up is assumed. If marker heights contradict the declared sign (most
+  samples below the floor) the sign is flipped and a note says so (Qualisys QTM writes
+  Y_SCREEN = -Z for Z-up data). Forward is the file's +X (its +Y when X is up).
+* Points coded missing (negative residual, or exactly 0,0,0) -> NaN.
+* Unlabelled points (``*NNN`` or empty labels) are left out unless ``include_unlabelled``.
+  PhoeniX ``ChannelNNN`` names are kept as markers: those are active LEDs identified by the
+  hardware, so the name is a stable identity, not an anonymous trajectory.
+* Vicon model outputs stored as points (angles, forces, moments, powers, modelled markers,
+  segment axes such as PELO/PELA/PELL/PELP) go to ``trial.model_outputs`` instead of being
+  markers (``include_model_outputs=True`` keeps them as markers too).
+"""
+from __future__ import annotations
+
+import re
+import struct
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .axes import axis_name, default_forward, describe_rotation, parse_axis, to_world_rotation
+from .errors import FormatError
+from .marker_trial import MarkerTrial
+
+UNIT_TO_M = {"mm": 1e-3, "millimeter": 1e-3, "millimeters": 1e-3, "millimetre": 1e-3,
+             "cm": 1e-2, "m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0,
+             "in": 0.0254, "inch": 0.0254, "inches": 0.0254, "dm": 0.1}
+
+# POINT parameters listing which points are model outputs rather than markers (Vicon, BTK).
+_OUTPUT_GROUPS = {"ANGLES": "angle", "FORCES": "force", "MOMENTS": "moment", "POWERS": "power",
+                  "SCALARS": "scalar", "REACTIONS": "reaction",
+                  "MODELED_MARKERS": "position", "MODELLED_MARKERS": "position"}
+_OUTPUT_UNIT_PARAM = {"angle": "ANGLE_UNITS", "force": "FORCE_UNITS", "moment": "MOMENT_UNITS",
+                      "power": "POWER_UNITS", "scalar": "SCALAR_UNITS",
+                      "reaction": "REACTION_UNITS"}
+_UNLABELLED = re.compile(r"^\*\d+$")
+_MAX_HEADER_FRAMES = 65535  # header frame numbers are uint16; longer files need parameters
+
+
+# ---------------------------------------------------------------------------------------
+# structural check (pure Python, bounded by the file size: it cannot hang)
+# ---------------------------------------------------------------------------------------
+@dataclass
+class C3DLayout:
+    """What the header and parameter walk found (file units, 1-based frames)."""
+
+    n_points: int
+    analog_per_frame: int
+    first_frame: int
+    last_frame: int
+    float_data: bool
+    data_start_byte: int
+    frame_bytes: int
+    frames_in_file: int
+    parameters: list[str] = field(default_factory=list)  # "GROUP:NAME" in file order
+    notes: list[str] = field(default_factory=list)
+
+
+def inspect_c3d(path: str | Path) -> C3DLayout:
+    """Check a C3D file's header, parameter section and data size; FormatError on a fault.
+
+    Runs in time linear in the number of parameters and never reads the data block.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise FormatError(path, f"cannot read file ({e.strerror or e})") from None
+    size = len(raw)
+    if size < 512:
+        raise FormatError(path, f"not a C3D file: {size} bytes, shorter than the 512-byte header")
+    pblock, key = raw[0], raw[1]
+    if key != 0x50 or pblock < 2:
+        raise FormatError(path, "not a C3D file (header key byte is not 0x50)")
+    poff = (pblock - 1) * 512
+    if poff + 4 > size:
+        raise FormatError(path, "file is truncated before its parameter section")
+    proc = raw[poff + 3]
+    if proc not in (84, 85, 86):
+        raise FormatError(path, f"unknown processor type {proc} in the parameter section")
+    end = ">" if proc == 86 else "<"
+    n_points, n_analog, first, last = struct.unpack(end + "HHHH", raw[2:10])
+    data_start_block = struct.unpack(end + "H", raw[16:18])[0]
+    # sign bit of the header scale factor: negative scale = float32 data
+    sign_byte = {84: raw[15], 85: raw[13], 86: raw[12]}[proc]
+    float_data = bool(sign_byte & 0x80)
+
+    groups: dict[int, str] = {}
+    params: list[str] = []
+    i = poff + 4
+    while True:
+        if i + 2 > size:
+            raise FormatError(path, "file is truncated inside its parameter section")
+        nlen = struct.unpack("b", raw[i:i + 1])[0]
+        gid = struct.unpack("b", raw[i + 1:i + 2])[0]
+        if nlen == 0:
+            break
+        j = i + 2 + abs(nlen)
+        if j + 2 > size:
+            raise FormatError(path, "file is truncated inside its parameter section")
+        name = raw[i + 2:j].decode("latin-1", "replace").strip().upper()
+        off = struct.unpack(end + "h", raw[j:j + 2])[0]
+        nxt = j + off
+        if gid < 0:
+            groups[-gid] = name
+        else:
+            full = f"{groups.get(gid, f'GROUP{gid}')}:{name}"
+            if j + 4 > size:
+                raise FormatError(path, f"file is truncated inside parameter {full}")
+            ptype = struct.unpack("b", raw[j + 2:j + 3])[0]
+            ndim = raw[j + 3]
+            dims = list(raw[j + 4:j + 4 + ndim])
+            n = 1
+            for d in dims:
+                n *= d
+            content_end = j + 4 + ndim + abs(ptype) * n
+            if content_end >= size:
+                raise FormatError(path, f"file is truncated inside parameter {full}")
+            content_end += 1 + raw[content_end]  # description
+            if ptype not in (-1, 1, 2, 4):
+                raise FormatError(path, f"{full} parameter is broken (unknown data type {ptype})")
+            if off != 0 and content_end > nxt:
+                shape = "x".join(map(str, dims)) or "scalar"
+                raise FormatError(path, f"{full} parameter is broken (its {shape} values "
+                                        f"overrun the next entry by {content_end - nxt} bytes)")
+            params.append(full)
+        if off == 0:
+            break
+        if off < 0 or nxt <= i:
+            raise FormatError(path, f"parameter section is broken (entry {name!r} points backwards)")
+        i = nxt
+
+    if data_start_block < 1:
+        raise FormatError(path, "header gives no data start block")
+    data_start = (data_start_block - 1) * 512
+    frame_bytes = (4 * n_points + n_analog) * (4 if float_data else 2)
+    avail = max(size - data_start, 0)
+    frames_in_file = avail // frame_bytes if frame_bytes else 0
+    layout = C3DLayout(n_points, n_analog, first, last, float_data, data_start, frame_bytes,
+                       frames_in_file, params)
+    expected = last - first + 1
+    if frame_bytes and last < _MAX_HEADER_FRAMES and expected > 0:
+        if frames_in_file < expected - 1:
+            raise FormatError(path, f"file is truncated: data block holds {frames_in_file} of the "
+                                    f"{expected} frames the header promises")
+        if frames_in_file == expected - 1:
+            layout.notes.append(f"header promises {expected} frames but the data block holds "
+                                f"{frames_in_file}; the last frame is missing")
+    return layout
+
+
+# ---------------------------------------------------------------------------------------
+# the two backends, returning the same raw structure (file units and axes)
+# ---------------------------------------------------------------------------------------
+@dataclass
+class _Raw:
+    labels: list[str]
+    points: np.ndarray  # [T, M, 3] file units, NaN where missing
+    residuals: np.ndarray  # [T, M] file units, NaN where missing
+    rate: float
+    first_frame: int  # 1-based
+    strings: dict[str, list[str]]  # POINT string parameters (UNITS, X_SCREEN, ANGLES...)
+    backend: str
+    notes: list[str] = field(default_factory=list)
+
+
+def _str_list(v) -> list[str]:
+    if isinstance(v, str):
+        return [v.strip()]
+    return [str(s).strip() for s in v]
+
+
+def _read_ezc3d(path: Path) -> _Raw:
+    import ezc3d
+
+    c = ezc3d.c3d(str(path))
+    p = c["parameters"]["POINT"]
+    labels: list[str] = []
+    for key in ["LABELS"] + [f"LABELS{k}" for k in range(2, 100)]:
+        if key not in p:
+            break
+        labels += _str_list(p[key]["value"])
+    pts = np.asarray(c["data"]["points"], dtype=np.float64)  # [4, M, T]
+    res = np.asarray(c["data"]["meta_points"]["residuals"], dtype=np.float64)[0]  # [M, T]
+    strings = {k: _str_list(v["value"]) for k, v in p.items()
+               if isinstance(v, dict) and v.get("type") == -1}
+    hdr = c["header"]["points"]
+    return _Raw(labels, pts[:3].transpose(2, 1, 0), res.T, float(hdr["frame_rate"]),
+                int(hdr["first_frame"]) + 1, strings, "ezc3d")
+
+
+def _read_c3dpkg(path: Path) -> _Raw:
+    import c3d
+
+    with open(path, "rb") as fh, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = c3d.Reader(fh)
+        frames = [pts[:, :4].copy() for _, pts, _ in r.read_frames(copy=False)]
+        group = r.get("POINT")
+        strings: dict[str, list[str]] = {}
+        for name in list(group.param_keys()):
+            prm = group.get(name)
+            if prm is not None and prm.bytes_per_element == -1:
+                try:
+                    strings[name.upper()] = _str_list(prm.string_array.reshape(-1))
+                except Exception:  # noqa: BLE001 - a broken optional string is just skipped
+                    pass
+        labels = _str_list(r.point_labels)
+        rate = float(r.point_rate)
+        first = int(r.first_frame)
+    notes = [f"c3d package: {' '.join(str(w.message).split())}" for w in caught
+             if "unclosed file" not in str(w.message)]
+    arr = np.stack(frames).astype(np.float64) if frames else np.zeros((0, len(labels), 4))
+    pts = arr[..., :3]
+    res = arr[..., 3]
+    pts[res < 0] = np.nan
+    res = np.where(res < 0, np.nan, res)
+    return _Raw(labels, pts, res, rate, first, strings, "c3d", notes)
+
+
+def _load(path: Path) -> tuple[_Raw, list[str]]:
+    notes: list[str] = []
+    try:
+        return _read_ezc3d(path), notes
+    except Exception as e1:  # noqa: BLE001 - any refusal sends us to the fallback
+        first_error = " ".join(str(e1).split()) or type(e1).__name__
+    try:
+        raw = _read_c3dpkg(path)
+    except Exception as e2:  # noqa: BLE001
+        second = " ".join(str(e2).split()) or type(e2).__name__
+        raise FormatError(path, f"unreadable C3D (ezc3d: {first_error}; c3d: {second})") from None
+    notes.append(f"read with the c3d package because ezc3d refused the file ({first_error})")
+    return raw, notes
+
+
+# ---------------------------------------------------------------------------------------
+# from raw to MarkerTrial
+# ---------------------------------------------------------------------------------------
+def _segment_axis_points(labels: list[str]) -> set[str]:
+    """Vicon "bone" outputs: a 3-letter stem with all of O, A, L, P present (PELO, PELA...)."""
+    have = set(labels)
+    out: set[str] = set()
+    for lab in labels:
+        if len(lab) == 4 and lab.endswith("O"):
+            quad = {lab[:3] + s for s in "OALP"}
+            if quad <= have:
+                out |= quad
+    return out
+
+
+def _classify(raw: _Raw) -> dict[str, str]:
+    """label -> kind for model outputs."""
+    kinds: dict[str, str] = {}
+    group_names = dict(_OUTPUT_GROUPS)
+    tg = raw.strings.get("TYPE_GROUPS", [])
+    for k in range(0, len(tg) - 1, 2):  # Vicon: pairs (parameter name, type)
+        group_names.setdefault(tg[k].upper(), tg[k + 1].lower())
+    for group, kind in group_names.items():
+        for lab in raw.strings.get(group, []):
+            if lab:
+                kinds[lab] = "position" if kind in ("modeled_marker", "modelled_marker") else kind
+    for lab in _segment_axis_points(raw.labels):
+        kinds.setdefault(lab, "position")
+    return kinds
+
+
+def _resolve_up(raw: _Raw, pts_marker: np.ndarray, up_axis: str | None,
+                notes: list[str]) -> tuple[str, str, str]:
+    """(up, forward, why) in file axes."""
+    if up_axis is not None:
+        up = axis_name(parse_axis(up_axis))
+        return up, default_forward(up), "as requested"
+    ys = raw.strings.get("Y_SCREEN", [""])
+    ys = ys[0] if ys else ""
+    try:
+        up = axis_name(parse_axis(ys))
+        why = f"from POINT:Y_SCREEN={ys}"
+    except ValueError:
+        up, why = "+Z", "assumed (no usable POINT:Y_SCREEN)"
+    v = parse_axis(up)
+    h = pts_marker.reshape(-1, 3) @ v
+    h = h[~np.isnan(h)]
+    if h.size >= 10 and np.mean(h < 0) > 0.9:
+        flipped = axis_name(-v)
+        notes.append(f"POINT:Y_SCREEN says {up} is up but {100 * np.mean(h < 0):.0f}% of marker "
+                     f"samples lie below 0 along it; used {flipped} as up")
+        up, why = flipped, f"{why}, sign corrected from the marker heights"
+    return up, default_forward(up), why
+
+
+def read_c3d(path: str | Path, *, include_unlabelled: bool = False, up_axis: str | None = None,
+             include_model_outputs: bool = False) -> MarkerTrial:
+    """Read a C3D file's 3-D points into a :class:`MarkerTrial` (metres, Z-up world).
+
+    include_unlabelled: keep ``*NNN`` / unnamed points as markers.
+    up_axis: the file's up axis ("+Y", "Z", ...) overriding POINT:Y_SCREEN.
+    include_model_outputs: also keep model outputs (angles, segment axes...) as markers.
+    Raises FormatError (one line, names the file) for anything unreadable.
+    """
+    path = Path(path)
+    layout = inspect_c3d(path)
+    raw, notes = _load(path)
+    notes = layout.notes + notes + raw.notes
+    T = raw.points.shape[0]
+    M = raw.points.shape[1]
+    labels = list(raw.labels[:M]) + [""] * max(0, M - len(raw.labels))
+    if len(raw.labels) < M:
+        notes.append(f"POINT:LABELS names {len(raw.labels)} of {M} points; the rest are unlabelled")
+    labels = [lab if lab else f"*{k}" for k, lab in enumerate(labels)]
+    if T == 0:
+        raise FormatError(path, "file holds no point frames")
+
+    conversions: list[str] = []
+    pts = raw.points.copy()
+    res = raw.residuals.copy()
+    zero = np.all(pts == 0.0, axis=2)
+    if zero.any():
+        conversions.append(f"{int(zero.sum())} zero-coded samples (0,0,0) -> NaN")
+    missing = zero | np.isnan(pts).any(axis=2) | ~(res >= 0)
+    pts[missing] = np.nan
+    res[missing] = np.nan
+
+    unit = (raw.strings.get("UNITS") or ["mm"])[0].strip().lower() or "mm"
+    if unit not in UNIT_TO_M:
+        raise FormatError(path, f"POINT:UNITS {unit!r} is not a length unit")
+    scale = UNIT_TO_M[unit]
+    if not raw.strings.get("UNITS"):
+        notes.append("no POINT:UNITS; assumed mm")
+    if scale != 1.0:
+        conversions.append(f"units {unit} -> m")
+
+    kinds = _classify(raw)
+    unlabelled = [k for k, lab in enumerate(labels) if _UNLABELLED.match(lab)]
+    is_output = [k for k, lab in enumerate(labels) if lab in kinds]
+    marker_cols = [k for k in range(M)
+                   if (include_unlabelled or k not in unlabelled)
+                   and (include_model_outputs or labels[k] not in kinds)]
+
+    up, fwd, why = _resolve_up(raw, pts[:, [k for k in range(M) if k not in is_output
+                                            and k not in unlabelled]], up_axis, notes)
+    R = to_world_rotation(up, fwd)
+    if not np.allclose(R, np.eye(3)):
+        conversions.append(f"{up}-up -> Z-up ({why}; {describe_rotation(R)})")
+
+    world = np.einsum("ij,tmj->tmi", R * scale, pts)
+    model_outputs: dict[str, np.ndarray] = {}
+    model_kinds: dict[str, str] = {}
+    for k in is_output:
+        lab, kind = labels[k], kinds[labels[k]]
+        if kind == "position":
+            model_outputs[lab] = world[:, k].copy()
+            model_kinds[lab] = "position [m, world]"
+            continue
+        unit_param = _OUTPUT_UNIT_PARAM.get(kind)
+        u = (raw.strings.get(unit_param) or [""])[0] if unit_param else ""
+        v = pts[:, k].copy()
+        if kind == "angle" and u.lower().startswith("deg"):
+            v = np.deg2rad(v)
+            u = "rad"
+        model_outputs[lab] = v
+        model_kinds[lab] = f"{kind} [{u or 'file units'}, file axes]"
+    if is_output:
+        conversions.append(f"{len(is_output)} model-output points put aside in model_outputs"
+                           + (" (also kept as markers)" if include_model_outputs else ""))
+    if unlabelled and not include_unlabelled:
+        conversions.append(f"{len(unlabelled)} unlabelled points left out")
+
+    return MarkerTrial(
+        labels=[labels[k] for k in marker_cols],
+        positions=world[:, marker_cols],
+        residuals=res[:, marker_cols] * scale,
+        rate_hz=raw.rate,
+        first_frame=raw.first_frame,
+        source=str(path),
+        conversions=conversions,
+        notes=notes,
+        model_outputs=model_outputs,
+        model_output_kinds=model_kinds,
+        extra={"backend": raw.backend, "file_units": unit, "file_up": up, "file_forward": fwd,
+               "file_to_world": R, "n_unlabelled": len(unlabelled)},
+    )
+
+
+def write_c3d(path: str | Path, trial: MarkerTrial, *, units: str = "mm") -> None:
+    """Write ``trial``'s markers as a float C3D (Z up, POINT:UNITS ``units``).
+
+    Missing samples are written the C3D way (residual -1, coordinates 0). Residual values
+    and model outputs are not written.
+    """
+    import ezc3d
+
+    if units not in ("mm", "m", "cm"):
+        raise ValueError(f"units must be mm, cm or m, not {units!r}")
+    path = Path(path)
+    pos = trial.positions / UNIT_TO_M[units]
+    miss = np.isnan(pos).any(axis=2)  # [T, M]
+    pts = np.ones((4, trial.n_markers, trial.n_frames))
+    pts[:3] = np.where(miss[..., None], 0.0, pos).transpose(2, 1, 0)
+    res = np.where(miss, -1.0, 0.0).T[None]
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [float(trial.rate_hz)]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(trial.labels)
+    c["data"]["points"] = pts
+    c["data"]["meta_points"] = {"residuals": res,
+                                "camera_masks": np.zeros((7, trial.n_markers, trial.n_frames),
+                                                         dtype=bool)}
+    c.add_parameter("POINT", "UNITS", units)
+    c.add_parameter("POINT", "X_SCREEN", "+X")
+    c.add_parameter("POINT", "Y_SCREEN", "+Z")
+    try:
+        c.write(str(path))
+    except Exception as e:  # noqa: BLE001
+        raise FormatError(path, f"cannot write C3D ({' '.join(str(e).split())})") from None

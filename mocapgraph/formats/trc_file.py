@@ -1,0 +1,210 @@
+"""TRC (OpenSim / Motion Analysis track row column) marker files.
+
+Layout of a well-formed file (tab separated)::
+
+    PathFileType  4  (X/Y/Z)  name.trc
+    DataRate  CameraRate  NumFrames  NumMarkers  Units  OrigDataRate  OrigDataStartFrame  OrigNumFrames
+    60.00     60.00       300        49          mm     60.00         1                   300
+    Frame#  Time  M1 <tab><tab>  M2 ...
+                  X1  Y1  Z1  X2  Y2  Z2 ...
+    <blank line>
+    1  0.000  x y z  x y z ...
+
+:func:`read_trc` tolerates what real files do: spaces instead of tabs in the header, names
+row with one tab between names, fewer names than data columns (the rest are named
+``Marker<k>``), trailing empty columns, a missing X1/Y1/Z1 row or blank line, DataRate
+missing or 0 (CameraRate used), NumFrames/NumMarkers disagreeing with the data (the data
+wins, with a note), blank or ``nan`` fields for missing values (-> NaN).
+
+OpenSim is Y-up with X forward; the reader converts to the world frame (Z up, X forward):
+(x, y, z)_world = (x, -z, y)_file, and units (mm, cm, m) to metres, saying so in
+``trial.conversions``. ``up_axis`` overrides the Y-up assumption for files exported Z-up.
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .axes import axis_name, default_forward, describe_rotation, parse_axis, to_world_rotation
+from .errors import FormatError
+from .marker_trial import MarkerTrial
+
+_UNITS = {"mm": 1e-3, "millimeters": 1e-3, "cm": 1e-2, "m": 1.0, "meters": 1.0, "in": 0.0254}
+_XYZ = re.compile(r"^[XYZ]\d+$", re.IGNORECASE)
+
+
+def _split(line: str) -> list[str]:
+    """Tab split when the line has tabs, whitespace split otherwise; right blanks trimmed."""
+    line = line.rstrip("\r\n")
+    return [t.strip() for t in line.split("\t")] if "\t" in line else line.split()
+
+
+def _float(tok: str) -> float:
+    tok = tok.strip()
+    if not tok:
+        return math.nan
+    return float(tok)  # "nan"/"NaN" parse; anything else raises ValueError
+
+
+def read_trc(path: str | Path, *, up_axis: str = "+Y") -> MarkerTrial:
+    """Read a TRC file into a :class:`MarkerTrial` (metres, Z-up world).
+
+    up_axis: the file's up axis, "+Y" for OpenSim files (default).
+    Raises FormatError (one line naming the file) for a broken header or data.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as e:
+        raise FormatError(path, f"cannot read file ({e.strerror or e})") from None
+    lines = text.splitlines()
+    notes: list[str] = []
+    if len(lines) < 5 or not lines[0].strip().lower().startswith("pathfiletype"):
+        raise FormatError(path, "not a TRC file (first line does not start with PathFileType)")
+
+    keys = [k.strip().lower() for k in _split(lines[1]) if k.strip()]
+    vals = [v for v in _split(lines[2]) if v.strip()]
+    if not keys or "datarate" not in keys and "camerarate" not in keys:
+        raise FormatError(path, "TRC header is broken (line 2 has neither DataRate nor CameraRate)")
+    if len(vals) < len(keys):
+        raise FormatError(path, f"TRC header is broken (line 3 has {len(vals)} values for "
+                                f"{len(keys)} keys on line 2)")
+    head = dict(zip(keys, vals))
+
+    def num(key: str) -> float | None:
+        if key not in head:
+            return None
+        try:
+            return float(head[key])
+        except ValueError:
+            raise FormatError(path, f"TRC header is broken ({key} = {head[key]!r} is not a "
+                                    f"number)") from None
+
+    rate = num("datarate")
+    cam = num("camerarate")
+    if not rate or rate <= 0:
+        if not cam or cam <= 0:
+            raise FormatError(path, "TRC header is broken (no positive DataRate or CameraRate)")
+        notes.append(f"DataRate missing or 0; used CameraRate {cam:g} Hz")
+        rate = cam
+    elif cam and abs(cam - rate) > 1e-6:
+        notes.append(f"DataRate {rate:g} Hz used (CameraRate {cam:g} Hz differs)")
+    unit = head.get("units", "").strip().lower()
+    if not unit:
+        unit = "mm"
+        notes.append("no Units in the header; assumed mm")
+    if unit not in _UNITS:
+        raise FormatError(path, f"TRC header is broken (Units {head.get('units')!r} is not a "
+                                f"length unit)")
+
+    name_tokens = _split(lines[3])
+    if len(name_tokens) < 2 or name_tokens[0].lower().rstrip("#") not in ("frame", "frame#"):
+        raise FormatError(path, "TRC header is broken (line 4 should start with Frame# Time)")
+    names = [t for t in name_tokens[2:] if t]
+    row = 4
+    n_xyz = 0
+    xyz_tokens = [t for t in _split(lines[4]) if t]
+    if xyz_tokens and all(_XYZ.match(t) for t in xyz_tokens):
+        n_xyz = len(xyz_tokens) // 3
+        row = 5
+    else:
+        notes.append("no X1 Y1 Z1 row")
+
+    data_rows: list[list[str]] = []
+    for k in range(row, len(lines)):
+        line = lines[k]
+        if not line.strip():
+            continue
+        data_rows.append(_split(line))
+    if not data_rows:
+        raise FormatError(path, "TRC file holds no data rows")
+    width = max(len(r) for r in data_rows)
+    while width > 2 and all(len(r) < width or not r[width - 1] for r in data_rows):
+        width -= 1  # trailing empty columns
+    n_data = -(-(width - 2) // 3)  # ceil: a last marker with blank trailing fields still counts
+    M = max(len(names), n_xyz, n_data)
+    declared = num("nummarkers")
+    if declared is not None and int(declared) != M:
+        notes.append(f"header NumMarkers {int(declared)} but the file has {M} markers")
+    if len(names) < M:
+        notes.append(f"names row names {len(names)} of {M} markers; others named Marker<k>")
+        names = names + [f"Marker{k + 1}" for k in range(len(names), M)]
+
+    T = len(data_rows)
+    arr = np.full((T, 2 + 3 * M), np.nan)
+    try:
+        for t, r in enumerate(data_rows):
+            vals_t = [_float(x) for x in r[: 2 + 3 * M]]
+            arr[t, : len(vals_t)] = vals_t
+    except ValueError as e:
+        raise FormatError(path, f"data row {t + 1} (line {row + t + 1}) is not numeric ({e})") from None
+    declared_frames = num("numframes")
+    if declared_frames is not None and int(declared_frames) != T:
+        notes.append(f"header NumFrames {int(declared_frames)} but {T} data rows")
+
+    frames_col = arr[:, 0]
+    first_frame = int(frames_col[0]) if not math.isnan(frames_col[0]) else 1
+    times = arr[:, 1]
+    pts = arr[:, 2:].reshape(T, M, 3)
+    conversions: list[str] = []
+    zero = np.all(pts == 0.0, axis=2)
+    if zero.any():
+        conversions.append(f"{int(zero.sum())} zero-coded samples (0,0,0) -> NaN")
+    miss = zero | np.isnan(pts).any(axis=2)
+    pts[miss] = np.nan
+
+    scale = _UNITS[unit]
+    if scale != 1.0:
+        conversions.append(f"units {unit} -> m")
+    up = axis_name(parse_axis(up_axis))
+    R = to_world_rotation(up, default_forward(up))
+    if not np.allclose(R, np.eye(3)):
+        conversions.append(f"{up}-up -> Z-up ({describe_rotation(R)})")
+    world = np.einsum("ij,tmj->tmi", R * scale, pts)
+    if T > 2 and np.all(np.isfinite(times)):
+        dt = np.diff(times)
+        if np.max(np.abs(dt - 1.0 / rate)) > 0.5 / rate:
+            notes.append("Time column is not evenly spaced at the header rate")
+    return MarkerTrial(
+        labels=names, positions=world,
+        residuals=np.where(miss, np.nan, 0.0),
+        rate_hz=rate, first_frame=first_frame, source=str(path),
+        conversions=conversions, notes=notes,
+        extra={"file_units": unit, "file_up": up, "file_to_world": R, "time_s": times},
+    )
+
+
+def write_trc(path: str | Path, trial: MarkerTrial, *, units: str = "mm",
+              up_axis: str = "+Y", decimals: int = 6) -> None:
+    """Write ``trial`` as an OpenSim TRC (Y up by default, ``units`` mm or m).
+
+    Missing samples are written as blank fields; ``read_trc`` of the result gives back the
+    trial (to the written precision).
+    """
+    if units not in _UNITS:
+        raise ValueError(f"units must be one of {sorted(_UNITS)}")
+    path = Path(path)
+    up = axis_name(parse_axis(up_axis))
+    R = to_world_rotation(up, default_forward(up))
+    file_pts = np.einsum("ji,tmj->tmi", R, trial.positions) / _UNITS[units]  # R^T: world->file
+    T, M = trial.n_frames, trial.n_markers
+    rate = trial.rate_hz
+    out = ["PathFileType\t4\t(X/Y/Z)\t" + path.name,
+           "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\t"
+           "OrigDataStartFrame\tOrigNumFrames",
+           f"{rate:.2f}\t{rate:.2f}\t{T}\t{M}\t{units}\t{rate:.2f}\t{trial.first_frame}\t{T}",
+           "Frame#\tTime\t" + "\t\t\t".join(trial.labels) + "\t\t",
+           "\t\t" + "\t".join(f"X{k + 1}\tY{k + 1}\tZ{k + 1}" for k in range(M)),
+           ""]
+    fmt = f"{{:.{decimals}f}}"
+    flat = file_pts.reshape(T, 3 * M)
+    for t in range(T):
+        cells = ["" if math.isnan(v) else fmt.format(v) for v in flat[t].tolist()]
+        out.append(f"{trial.first_frame + t}\t{t / rate:.6f}\t" + "\t".join(cells))
+    try:
+        path.write_text("\n".join(out) + "\n", encoding="utf-8")
+    except OSError as e:
+        raise FormatError(path, f"cannot write file ({e.strerror or e})") from None
