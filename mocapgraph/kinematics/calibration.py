@@ -1,0 +1,295 @@
+"""Actor calibration from a base pose and a gym (range-of-motion) capture (Kiip 3.3, 4.3).
+
+1. Base pose: the first frame in which every marker is visible.
+2. Limb rotations in every gym frame relative to the base pose (weighted Kabsch, rigid.py).
+3. Per joint, the offsets from the two limbs' base-pose centroids to the joint by least squares
+   over all frames (Kiip Eq 7 / SCoRE, Ehrig 2006): ``[R_a  -R_b] [o_a; o_b] = c_b - c_a``, with
+   Huber IRLS down-weighting outlier frames. Hinge joints get their axis from the same system's
+   null space (SARA, Ehrig 2007); directions the motion does not determine (the hinge axis, or
+   everything for a joint that hardly moved) are fixed by a prior: the point nearest to the
+   midpoint of the two limbs' marker centroids.
+4. Bone lengths: median joint-to-parent distance over the gym frames.
+"""
+from __future__ import annotations
+
+import warnings
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocapgraph.kinematics.model import JointQuality, SkeletonModel
+from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
+
+# Directions of the 6-D offset space whose eigenvalue (relative to the largest) is below this
+# are numerically undetermined and are fixed by the prior.
+_NULL_TOL = 1e-9
+# For joints with too little motion, every direction weaker than this is fixed by the prior.
+_LOW_MOTION_TOL = 1e-2
+
+
+class CalibrationError(ValueError):
+    """The capture cannot produce a skeleton model (message names the fault)."""
+
+
+class CalibrationWarning(UserWarning):
+    """The model was built, but some joints are unreliable (message names them)."""
+
+
+def find_base_pose(
+    markers: np.ndarray,
+    labels: Sequence[str],
+    max_frames: int | None = None,
+    source: str = "capture",
+) -> int:
+    """Index of the first frame of float[T,M,3] with every marker visible.
+
+    Only the first ``max_frames`` frames are searched (the timeout). Raises CalibrationError
+    listing the markers never seen, or those missing from the most complete frame.
+    """
+    markers = np.asarray(markers, dtype=float)
+    window = markers[: max_frames if max_frames else None]
+    if window.shape[0] == 0:
+        raise CalibrationError(f"{source}: no frames to search for a base pose")
+    vis = np.isfinite(window).all(-1)  # [T,M]
+    full = np.flatnonzero(vis.all(1))
+    if full.size:
+        return int(full[0])
+    never = [labels[m] for m in np.flatnonzero(~vis.any(0))]
+    span = f"the first {window.shape[0]} frames"
+    if never:
+        raise CalibrationError(
+            f"{source}: no base pose in {span}: markers never visible: {', '.join(never)}")
+    best = int(np.argmax(vis.sum(1)))
+    missing = [labels[m] for m in np.flatnonzero(~vis[best])]
+    raise CalibrationError(
+        f"{source}: no base pose in {span}: no frame shows all markers at once "
+        f"(best frame {best} lacks {', '.join(missing)})")
+
+
+def _check_definition(definition: Any, markers: np.ndarray, source: str) -> np.ndarray:
+    labels = tuple(definition.marker_labels)
+    if markers.ndim != 3 or markers.shape[1:] != (len(labels), 3):
+        raise CalibrationError(
+            f"{source}: markers have shape {markers.shape}, expected [T, {len(labels)}, 3] "
+            f"in the order of layout '{definition.name}'")
+    idx = np.asarray(definition.limb_marker_index())
+    counts = (idx >= 0).sum(1)
+    few = [f"{definition.limb_names[l]} ({counts[l]})" for l in np.flatnonzero(counts < MIN_MARKERS)]
+    if few:
+        raise CalibrationError(
+            f"{source}: layout '{definition.name}': limbs with fewer than {MIN_MARKERS} markers "
+            f"cannot be tracked: {', '.join(few)}")
+    jl = np.asarray(definition.joint_limbs)
+    lonely = [definition.joint_names[j] for j in range(len(jl)) if (jl[j] < 0).any()]
+    if lonely:
+        raise CalibrationError(
+            f"{source}: layout '{definition.name}': joints need two limbs to be calibrated: "
+            f"{', '.join(lonely)}")
+    return idx
+
+
+def _range_of_motion(q_rel: np.ndarray, max_samples: int = 240) -> float:
+    """Largest rotation angle (rad) between any two of the relative orientations (wxyz [N,4])."""
+    if q_rel.shape[0] < 2:
+        return 0.0
+    sel = q_rel[np.linspace(0, q_rel.shape[0] - 1, min(max_samples, q_rel.shape[0])).astype(int)]
+    dots = np.abs(sel @ sel.T).clip(0.0, 1.0)
+    return float(2.0 * np.arccos(dots.min()))
+
+
+def _solve_offsets(
+    nmat: np.ndarray, g: np.ndarray, hinge: bool, low_motion: bool
+) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """Minimise the SCoRE system (normal matrix nmat [6,6], g [6]) with prior on weak directions.
+
+    The prior pulls the joint's base-pose position (mean of both limbs' estimates) to the midpoint
+    of the two centroids, i.e. it minimises |o_a + o_b| (offsets are from each centroid and the
+    midpoint term cancels when written with the centroid difference folded into g).
+    Returns x = [o_a, o_b] relative to the midpoint-based parametrisation, the hinge axis, method.
+    """
+    lam, vec = np.linalg.eigh(nmat)
+    lmax = max(lam[-1], 1e-300)
+    keep = lam > (_LOW_MOTION_TOL if low_motion else _NULL_TOL) * lmax
+    axis = None
+    if hinge:
+        u = vec[:, 0]
+        axis = u[:3] + u[3:]
+        nrm = np.linalg.norm(axis)
+        axis = axis / nrm if nrm > 1e-12 else None
+        keep[0] = False
+    vk, lk = vec[:, keep], lam[keep]
+    x0 = vk @ ((vk.T @ g) / lk)
+    weak = vec[:, ~keep]
+    if weak.shape[1]:
+        gmat = np.hstack([np.eye(3), np.eye(3)]) * 0.5
+        s, *_ = np.linalg.lstsq(gmat @ weak, -(gmat @ x0), rcond=None)
+        x0 = x0 + weak @ s
+    n_weak = int((~keep).sum()) - (1 if hinge else 0)
+    method = ("hinge" if hinge else "ball") + ("+prior" if n_weak > 0 else "")
+    if n_weak >= 3:
+        method = "prior"
+    return x0, axis, method
+
+
+def calibrate(
+    definition: Any,
+    markers: np.ndarray,
+    *,
+    base_frame: int | None = None,
+    rate_hz: float | None = None,
+    max_base_search_s: float | None = 10.0,
+    min_rom_deg: float = 25.0,
+    huber_k: float = 3.0,
+    irls_iterations: int = 8,
+    source: str = "capture",
+) -> SkeletonModel:
+    """Build a SkeletonModel from float[T,M,3] markers (layout order, metres, NaN = unseen).
+
+    definition: a SkeletonDefinition (name, limb/joint/marker names and indices).
+    base_frame: the base pose frame; by default the first frame with every marker visible,
+    searched within ``max_base_search_s`` (needs ``rate_hz``; otherwise the whole capture).
+    All frames (base pose included) are the gym motion. Joints whose two limbs rotate less than
+    ``min_rom_deg`` relative to each other get a CalibrationWarning naming them and a centre
+    from the prior; if no joint moved enough, CalibrationError.
+    """
+    markers = np.asarray(markers, dtype=float)
+    idx = _check_definition(definition, markers, source)
+    labels = tuple(definition.marker_labels)
+    if base_frame is None:
+        max_frames = int(round(max_base_search_s * rate_hz)) if (rate_hz and max_base_search_s) else None
+        base_frame = find_base_pose(markers, labels, max_frames, source)
+    elif not np.isfinite(markers[base_frame]).all():
+        missing = [labels[m] for m in np.flatnonzero(~np.isfinite(markers[base_frame]).all(-1))]
+        raise CalibrationError(f"{source}: base frame {base_frame} lacks markers {', '.join(missing)}")
+    base = markers[base_frame]
+    ref = gather_limb_markers(base, idx)                      # [L,K,3]
+    c0 = np.nanmean(ref, axis=1)                              # [L,3]
+    w0 = (idx >= 0).astype(float)
+    fit = fit_rigid(ref, gather_limb_markers(markers, idx), w0)
+    rot = fit.rotation                                        # [T,L,3,3]
+    cen = (rot @ c0[:, :, None])[..., 0] + fit.translation    # base centroid carried along
+    jl = np.asarray(definition.joint_limbs)
+    la, lb = jl[:, 0], jl[:, 1]
+    J = len(jl)
+    names = tuple(definition.joint_names)
+    hinge = np.asarray(definition.joint_hinge, dtype=bool)
+
+    valid = fit.valid[:, la] & fit.valid[:, lb]               # [T,J]
+    n_frames = valid.sum(0)
+    starved = [f"{names[j]} ({n_frames[j]} frames)" for j in np.flatnonzero(n_frames < 3)]
+    if starved:
+        raise CalibrationError(
+            f"{source}: joints whose two limbs are never tracked together: {', '.join(starved)}")
+    a_mat = np.concatenate([rot[:, la], -rot[:, lb]], axis=-1)  # [T,J,3,6]
+    a_mat = np.where(valid[..., None, None], a_mat, 0.0)
+    # Offsets are solved relative to the midpoint of the two centroids so that the prior
+    # (joint near the midpoint) is x = 0 in the weak directions: o_a = x_a + (mid - c0_a).
+    mid = 0.5 * (c0[la] + c0[lb])
+    shift = np.concatenate([mid - c0[la], mid - c0[lb]], axis=-1)  # [J,6]
+    bvec = cen[:, lb] - cen[:, la] - (a_mat @ shift[None, :, :, None])[..., 0]
+    bvec = np.where(valid[..., None], bvec, 0.0)
+
+    # Range of motion between each joint's two limbs.
+    rom = np.zeros(J)
+    for j in range(J):
+        fr = np.flatnonzero(valid[:, j])
+        q_rel = Rotation.from_matrix(
+            np.swapaxes(rot[fr, la[j]], -1, -2) @ rot[fr, lb[j]]).as_quat(scalar_first=True)
+        rom[j] = _range_of_motion(q_rel)
+    low = rom < np.radians(min_rom_deg)
+    if low.all():
+        raise CalibrationError(
+            f"{source}: gym capture has almost no motion (every joint below {min_rom_deg:g} deg): "
+            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in range(J)))
+
+    w = valid.astype(float)
+    x = np.zeros((J, 6))
+    axes = np.full((J, 3), np.nan)
+    methods = [""] * J
+    for _ in range(max(1, irls_iterations)):
+        nmat = np.einsum("tjki,tj,tjkl->jil", a_mat, w, a_mat)
+        g = np.einsum("tjki,tj,tjk->ji", a_mat, w, bvec)
+        x_new = np.empty_like(x)
+        for j in range(J):
+            x_new[j], ax, methods[j] = _solve_offsets(nmat[j], g[j], bool(hinge[j]), bool(low[j]))
+            if ax is not None:
+                axes[j] = ax
+        err = np.linalg.norm((a_mat @ x_new[None, :, :, None])[..., 0] - bvec, axis=-1)  # [T,J]
+        med = np.array([np.median(err[valid[:, j], j]) for j in range(J)])
+        c = np.maximum(huber_k * 1.4826 * med, 1e-4)
+        w_new = np.where(valid, np.minimum(1.0, c / np.maximum(err, 1e-300)), 0.0)
+        converged = np.abs(x_new - x).max() < 1e-9
+        x, w = x_new, w_new
+        if converged:
+            break
+    offsets = (x + shift).reshape(J, 2, 3)
+    joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
+    inlier = valid & (err <= c)
+    resid = np.array([np.sqrt(np.mean(err[inlier[:, j], j] ** 2)) if inlier[:, j].any() else np.nan
+                      for j in range(J)])
+    outl = 1.0 - inlier.sum(0) / np.maximum(n_frames, 1)
+    if hinge.any():
+        # Sign convention: axes point the way of the base-pose cross product of the bones, so
+        # left and right come out consistent; only the line matters to the solver.
+        axes[~hinge] = np.nan
+
+    limb_rms = np.nanmedian(np.where(fit.valid, fit.rms, np.nan), axis=0) if fit.valid.any(0).all() \
+        else np.array([np.nanmedian(fit.rms[fit.valid[:, l], l]) if fit.valid[:, l].any() else np.nan
+                       for l in range(len(definition.limb_names))])
+    warns: list[str] = []
+    if low.any():
+        warns.append(
+            f"{source}: too little motion for a reliable centre (< {min_rom_deg:g} deg), centre "
+            "from the prior: " + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in np.flatnonzero(low)))
+    model = SkeletonModel(
+        layout=str(definition.name),
+        marker_labels=labels,
+        limb_names=tuple(definition.limb_names),
+        limb_parent=np.asarray(definition.limb_parent, dtype=np.int64),
+        limb_markers=idx.astype(np.int64),
+        joint_names=names,
+        joint_limbs=jl.astype(np.int64),
+        joint_parent=np.asarray(definition.joint_parent, dtype=np.int64),
+        joint_hinge=hinge,
+        base_markers=base.copy(),
+        limb_centroid=c0,
+        offsets=offsets,
+        joint_base=joint_base,
+        bone_length=np.full(J, np.nan),
+        hinge_axis=axes,
+        limb_rms=limb_rms,
+        quality=JointQuality(
+            residual_rms=resid,
+            range_of_motion=rom,
+            n_frames=n_frames.astype(np.int64),
+            outlier_fraction=outl,
+            reliable=~low,
+            method=tuple(methods),
+        ),
+        n_gym_frames=int(markers.shape[0]),
+        rate_hz=rate_hz,
+    )
+    model.bone_length = _bone_lengths(model, markers)
+    model.warnings = tuple(warns)
+    for msg in warns:
+        warnings.warn(msg, CalibrationWarning, stacklevel=2)
+    return model
+
+
+def _bone_lengths(model: SkeletonModel, markers: np.ndarray) -> np.ndarray:
+    """Median distance from each joint to its parent joint over the gym frames (Kiip 3.3.3)."""
+    from mocapgraph.kinematics.solver import FrameSolver  # solver imports model only; no cycle at load
+
+    res = FrameSolver(model, max_gap_s=0.0, enforce_lengths=False).solve_geometry(markers)
+    parent = model.joint_parent
+    out = np.full(len(parent), np.nan)
+    for j, p in enumerate(parent):
+        if p < 0:
+            continue
+        both = (res.joint_quality[:, j] == 2) & (res.joint_quality[:, p] == 2)
+        if both.sum() >= 3:
+            out[j] = float(np.median(np.linalg.norm(res.joints[both, j] - res.joints[both, p], axis=-1)))
+        else:
+            out[j] = float(np.linalg.norm(model.joint_base[j] - model.joint_base[p]))
+    return out

@@ -1,0 +1,204 @@
+"""Frame solver: joint positions from labelled markers and a calibrated SkeletonModel (Kiip 3.4).
+
+Per frame: each limb's rotation from its visible markers (weighted Kabsch against the base
+pose), each joint from every attached limb that is visible (``R @ base_point + t``), an
+inverse-variance weighted average, then bone lengths enforced outward from the root. One code
+path for one frame or many: :meth:`FrameSolver.solve` batches the geometry over frames and runs
+the (optional) temporal stage frame by frame exactly as :meth:`FrameSolver.step` does live.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocapgraph.kinematics.filters import GapFiller, make_filter
+from mocapgraph.kinematics.model import Quality, SkeletonModel
+from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
+
+_GOOD, _EST, _MISS = np.int8(Quality.GOOD), np.int8(Quality.ESTIMATED), np.int8(Quality.MISSING)
+
+
+@dataclass
+class SolverResult:
+    """Solved frames; leading dims ``B`` are ``[T]`` from solve() and ``[]`` from step().
+
+    joints: float[B,J,3] m world (NaN where MISSING); joint_quality: int8[B,J] (Quality codes).
+    limb_matrix: float[B,L,3,3] limb rotation relative to the base pose (NaN if MISSING).
+    limb_quality: int8[B,L]; limb_visible: int64[B,L] markers used; limb_rms: float[B,L] m.
+    """
+
+    joints: np.ndarray
+    joint_quality: np.ndarray
+    limb_matrix: np.ndarray
+    limb_quality: np.ndarray
+    limb_visible: np.ndarray
+    limb_rms: np.ndarray
+
+    @property
+    def limb_rotation(self) -> np.ndarray:
+        """float[B,L,4] quaternions (w, x, y, z) relative to the base pose, NaN where missing."""
+        m = self.limb_matrix
+        flat = m.reshape(-1, 3, 3)
+        ok = np.isfinite(flat).all((1, 2))
+        q = np.full((flat.shape[0], 4), np.nan)
+        if ok.any():
+            q[ok] = Rotation.from_matrix(flat[ok]).as_quat(scalar_first=True)
+        return q.reshape(m.shape[:-2] + (4,))
+
+    def __getitem__(self, i: int | slice) -> "SolverResult":
+        return SolverResult(self.joints[i], self.joint_quality[i], self.limb_matrix[i],
+                            self.limb_quality[i], self.limb_visible[i], self.limb_rms[i])
+
+
+class FrameSolver:
+    """Solve frames of markers (in ``model.marker_labels`` order, metres, NaN = unseen).
+
+    rate_hz: capture rate used for time stamps when none are given (defaults to the model's).
+    max_gap_s: longest gap a joint is predicted over (constant velocity); 0 disables.
+    enforce_lengths: apply Kiip's bone-length correction outward from the root.
+    filter: None, "one_euro" or "constant_velocity"; filter_params go to its constructor.
+    limb_rms_tol: a limb fit worse than this (m) is ESTIMATED and its joint estimates weigh less;
+    None -> max(4 x calibrated fit RMS, 5 mm).
+    """
+
+    def __init__(
+        self,
+        model: SkeletonModel,
+        rate_hz: float | None = None,
+        max_gap_s: float = 0.1,
+        enforce_lengths: bool = True,
+        filter: str | None = None,
+        filter_params: dict[str, float] | None = None,
+        limb_rms_tol: float | None = None,
+    ) -> None:
+        self.model = model
+        self.rate_hz = rate_hz if rate_hz is not None else model.rate_hz
+        self.max_gap_s = float(max_gap_s)
+        self.enforce_lengths = enforce_lengths
+        idx = np.asarray(model.limb_markers)
+        self._idx = idx
+        self._ref = gather_limb_markers(model.base_markers, idx)           # [L,K,3]
+        self._w0 = (idx >= 0).astype(float)                                # [L,K]
+        jl = np.asarray(model.joint_limbs)
+        self._lab = np.concatenate([jl[:, 0], jl[:, 1]])                   # [2J]
+        has = self._lab >= 0
+        self._has = has
+        lab = np.where(has, self._lab, 0)
+        self._labs = lab
+        off = np.concatenate([model.offsets[:, 0], model.offsets[:, 1]])   # [2J,3]
+        self._pt = np.where(has[:, None], model.limb_centroid[lab] + off, 0.0)[:, :, None]
+        # Static part of each estimate's variance: lever arm of the offset relative to the
+        # cluster size (rotation error is amplified by |offset| / radius).
+        radius2 = np.nanmean(((self._ref - model.limb_centroid[:, None]) ** 2).sum(-1), axis=1)
+        lever = (off ** 2).sum(-1) / np.maximum(radius2[lab], 1e-8)
+        self._var_static = 1.0 + lever                                      # [2J]
+        sig = np.where(np.isfinite(model.limb_rms), model.limb_rms, 0.0)
+        self._sig2 = np.maximum(sig, 2e-4) ** 2                           # [L]
+        tol = np.maximum(4.0 * sig, 0.005) if limb_rms_tol is None else np.full_like(sig, limb_rms_tol)
+        self._rms_tol = tol
+        self._J = len(model.joint_names)
+        # Bone-length correction order: joints grouped by depth so each level is one vector op.
+        parent = np.asarray(model.joint_parent)
+        depth = np.zeros(self._J, dtype=int)
+        for j in range(self._J):
+            d, p = 0, parent[j]
+            while p >= 0 and d <= self._J:
+                d, p = d + 1, parent[p]
+            depth[j] = d
+        blen = np.asarray(model.bone_length)
+        self._levels = [
+            (c, parent[c], blen[c])
+            for lvl in range(1, depth.max(initial=0) + 1)
+            if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
+        ]
+        self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
+        self._filter_spec = (filter, dict(filter_params or {}))
+        self._filter = make_filter(filter, self._J, **self._filter_spec[1])
+        self._frame = 0
+
+    # ---- geometry (batched over frames) ---------------------------------------------------
+    def solve_geometry(self, markers: np.ndarray) -> SolverResult:
+        """float[T,M,3] -> SolverResult over [T]; no temporal state is touched."""
+        markers = np.asarray(markers, dtype=float)
+        T, J = markers.shape[0], self._J
+        fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
+        lab = self._labs
+        rot = fit.rotation[:, lab]                                          # [T,2J,3,3]
+        est = (rot @ self._pt)[..., 0] + fit.translation[:, lab]            # [T,2J,3]
+        n = fit.n_visible[:, lab]
+        rms = fit.rms[:, lab]
+        ok = fit.valid[:, lab] & self._has
+        var = (self._sig2[lab] + rms * rms) / np.maximum(n, 1) * self._var_static
+        w = np.where(ok, 1.0 / np.where(ok, var, 1.0), 0.0)
+        w = np.where(ok & (rms > self._rms_tol[lab]), w * 1e-3, w)
+        est = np.where(ok[..., None], est, 0.0)
+        wsum = w[:, :J] + w[:, J:]
+        joints = (w[:, :J, None] * est[:, :J] + w[:, J:, None] * est[:, J:]) / np.where(
+            wsum > 0, wsum, 1.0)[..., None]
+        n_ok = ok[:, :J].astype(np.int8) + ok[:, J:]
+        n_need = self._has[:J].astype(np.int8) + self._has[J:]
+        jq = np.where(n_ok == 0, _MISS, np.where(n_ok >= n_need, _GOOD, _EST)).astype(np.int8)
+        joints[jq == _MISS] = np.nan
+        if self.enforce_lengths:
+            for c, p, length in self._levels:
+                v = joints[:, c] - joints[:, p]
+                d = np.sqrt((v * v).sum(-1))
+                good = d > 1e-9
+                scale = np.where(good, length / np.where(good, d, 1.0), 1.0)
+                # NaN parents leave the child as measured.
+                moved = joints[:, p] + v * scale[..., None]
+                joints[:, c] = np.where(np.isfinite(moved), moved, joints[:, c])
+        lq = np.where(~fit.valid, _MISS, np.where(fit.rms > self._rms_tol, _EST, _GOOD)).astype(np.int8)
+        return SolverResult(joints, jq, fit.rotation, lq, fit.n_visible, fit.rms)
+
+    # ---- temporal stage (frame by frame, shared by live and batch) -------------------------
+    def _temporal(self, joints: np.ndarray, jq: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        if self._gap is not None:
+            joints, jq = self._gap.step(joints, jq, t)
+        if self._filter is not None:
+            joints = self._filter.step(joints, t)
+        return joints, jq
+
+    def _time(self, t_s: float | None) -> float:
+        if t_s is not None:
+            return float(t_s)
+        if not self.rate_hz:
+            # Untimed and no rate: time counts frames, so a gap of one frame already exceeds
+            # any sub-second max_gap_s and nothing is predicted.
+            return float(self._frame)
+        return self._frame / self.rate_hz
+
+    def step(self, markers: np.ndarray, t_s: float | None = None) -> SolverResult:
+        """Solve one live frame float[M,3] (t_s: capture time in s) -> SolverResult with no T dim."""
+        res = self.solve_geometry(np.asarray(markers, dtype=float)[None])[0]
+        if self._gap is not None or self._filter is not None:
+            res.joints, res.joint_quality = self._temporal(res.joints, res.joint_quality, self._time(t_s))
+        self._frame += 1
+        return res
+
+    def solve(self, markers: np.ndarray, times_s: np.ndarray | None = None) -> SolverResult:
+        """Solve float[T,M,3] (continuing any live state) -> SolverResult over [T]."""
+        res = self.solve_geometry(markers)
+        if self._gap is not None or self._filter is not None:
+            T = res.joints.shape[0]
+            for i in range(T):
+                t = float(times_s[i]) if times_s is not None else self._time(None)
+                res.joints[i], res.joint_quality[i] = self._temporal(res.joints[i], res.joint_quality[i], t)
+                self._frame += 1
+        else:
+            self._frame += res.joints.shape[0]
+        return res
+
+    def reset(self) -> None:
+        """Forget temporal state (prediction, filter) and the frame counter."""
+        self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
+        self._filter = make_filter(self._filter_spec[0], self._J, **self._filter_spec[1])
+        self._frame = 0
+
+
+def solve_markers(model: SkeletonModel, markers: np.ndarray, rate_hz: float | None = None,
+                  max_gap_s: float = 0.1, **kw: object) -> SolverResult:
+    """Batch convenience: a fresh FrameSolver over a whole trial float[T,M,3]."""
+    return FrameSolver(model, rate_hz=rate_hz, max_gap_s=max_gap_s, **kw).solve(markers)  # type: ignore[arg-type]
