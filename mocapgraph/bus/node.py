@@ -165,6 +165,10 @@ class Node:
     def on_stop(self) -> None:
         """Called once on shutdown, before sockets close (flush files here)."""
 
+    def input_handler(self, port_name: str) -> Callable[[Message], Any] | None:
+        """The callable that receives messages of an input: ``on_<port name>`` by default."""
+        return getattr(self, f"on_{port_name}", None)
+
     def add_timer(self, period_s: float, callback: Callable[[], Any], first_delay_s: float | None = None) -> list:
         """Call ``callback`` every ``period_s`` seconds of monotonic time (no drift)."""
         t = [time.monotonic() + (period_s if first_delay_s is None else first_delay_s), period_s, callback]
@@ -206,7 +210,8 @@ class Node:
         for name, decl in self._iface.inputs.items():
             spec = w.inputs.get(name, {})
             port = InputPort(self, decl, spec.get("topic", decl.topic))
-            port.handler = getattr(self, f"on_{name}", None)
+            self._ports[name] = port
+            port.handler = self.input_handler(name)
             sock = self._ctx.socket(zmq.SUB)
             sock.setsockopt(zmq.RCVHWM, 0 if decl.queue <= 0 else decl.queue)
             sock.setsockopt(zmq.RECONNECT_IVL, 20)
@@ -217,7 +222,6 @@ class Node:
                 sock.connect(ep)
             port.socket = sock
             self._poller.register(sock, zmq.POLLIN)
-            self._ports[name] = port
         if w.control:
             self._control = self._ctx.socket(zmq.DEALER)
             self._control.setsockopt(zmq.IDENTITY, self.name.encode())

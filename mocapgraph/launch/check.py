@@ -1,0 +1,171 @@
+"""Checking a whole graph before any process starts (node types, params, topics, types).
+
+The data-flow graph is a networkx DiGraph whose vertices are nodes and topics
+(``("node", name)``, ``("topic", name)``); the same graph orders shutdown and draws
+``mocapgraph graph show``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import networkx as nx
+
+from ..bus.node import DIAGNOSTICS_TOPIC, Node, NodeConfigError
+from ..bus.ports import Interface
+from ..messages.registry import UnknownTypeError, all_types, lookup
+from ..nodes.registry import NODE_TYPES, resolve
+from .graph import GraphSpec, NodeSpec, did_you_mean
+from .yaml_source import GraphError
+
+
+@dataclass
+class ResolvedNode:
+    """A node with its class, checked params and concrete topics."""
+
+    spec: NodeSpec
+    class_path: str
+    cls: type[Node]
+    params: dict[str, Any]
+    iface: Interface
+    inputs: dict[str, str] = field(default_factory=dict)  # port -> topic
+    outputs: dict[str, str] = field(default_factory=dict)  # port -> topic
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+
+@dataclass
+class CheckedGraph:
+    """A graph that passed every check, ready to launch."""
+
+    spec: GraphSpec
+    nodes: list[ResolvedNode]
+    flow: nx.DiGraph
+
+    def topic_types(self) -> dict[str, str]:
+        out: dict[str, str] = {}
+        for n in self.nodes:
+            for port, topic in n.outputs.items():
+                out[topic] = n.iface.outputs[port].type_name
+        for ext in self.spec.external:
+            out[ext.topic] = ext.type
+        out[DIAGNOSTICS_TOPIC] = "Diagnostics"
+        return out
+
+    def node(self, name: str) -> ResolvedNode:
+        return next(n for n in self.nodes if n.name == name)
+
+
+def load_node_class(type_name: str, spec: NodeSpec | None = None) -> tuple[str, type[Node]]:
+    """Import a node class by registry name or module:Class."""
+    from ..bus.runtime import load_class
+
+    try:
+        path = resolve(type_name)
+    except KeyError:
+        msg = f"unknown node type {type_name!r}{did_you_mean(type_name, list(NODE_TYPES))}"
+        if spec is None:
+            raise KeyError(msg) from None
+        raise spec.error("type", msg) from None
+    try:
+        return path, load_class(path)
+    except (ImportError, AttributeError, TypeError, ValueError) as exc:
+        msg = f"cannot load node type {type_name!r}: {exc}"
+        if spec is None:
+            raise KeyError(msg) from None
+        raise spec.error("type", msg) from None
+
+
+def _remapped(spec: NodeSpec, port: str, default_topic: str) -> str:
+    return spec.remap.get(port, spec.remap.get(default_topic, default_topic))
+
+
+def check_graph(spec: GraphSpec) -> CheckedGraph:
+    """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault."""
+    seen: dict[str, NodeSpec] = {}
+    resolved: list[ResolvedNode] = []
+    for ns in spec.nodes:
+        if ns.name in seen:
+            first = seen[ns.name]
+            raise ns.error("name", f"duplicate node name (first at {first.file}:{first.line})")
+        seen[ns.name] = ns
+        path, cls = load_node_class(ns.type, ns)
+        iface = cls.interface(ns.params)
+        for key in ns.params:
+            if key not in iface.params:
+                raise ns.error(f"params.{key}", f"unknown parameter of {ns.type}{did_you_mean(key, list(iface.params))}")
+        try:
+            params = cls.check_params(ns.params, iface)
+        except NodeConfigError as exc:
+            key = str(exc).split("'")[1] if "'" in str(exc) else ""
+            raise ns.error(f"params.{key}" if key else "params", str(exc)) from None
+        known = set(iface.inputs) | set(iface.outputs) | {p.topic for p in iface.inputs.values()} | {
+            p.topic for p in iface.outputs.values()}
+        for key in ns.remap:
+            if key not in known:
+                raise ns.error("remap", f"{ns.type} has no port or topic {key!r}{did_you_mean(key, sorted(known))}")
+        rn = ResolvedNode(ns, path, cls, params, iface)
+        rn.inputs = {p: _remapped(ns, p, d.topic) for p, d in iface.inputs.items()}
+        rn.outputs = {p: _remapped(ns, p, d.topic) for p, d in iface.outputs.items()}
+        resolved.append(rn)
+
+    types = all_types()
+    publishers: dict[str, list[tuple[str, str]]] = {}  # topic -> [(publisher, type)]
+    for ext in spec.external:
+        if ext.type not in types:
+            raise GraphError(ext.file, ext.line, f"external[{ext.topic}].type",
+                             f"unknown message type{did_you_mean(ext.type, list(types))}")
+        publishers.setdefault(ext.topic, []).append((f"external:{ext.endpoint}", ext.type))
+    flow = nx.DiGraph()
+    for rn in resolved:
+        flow.add_node(("node", rn.name))
+        for port, topic in rn.outputs.items():
+            t = rn.iface.outputs[port].type_name
+            for other, other_t in publishers.get(topic, []):
+                if other_t != t:
+                    raise rn.spec.error("remap" if port in rn.spec.remap else "type",
+                                        f"publishes {topic!r} as {t} but {other} publishes it as {other_t}")
+            publishers.setdefault(topic, []).append((rn.name, t))
+            flow.add_edge(("node", rn.name), ("topic", topic), type=t)
+    for rn in resolved:
+        for port, topic in rn.inputs.items():
+            decl = rn.iface.inputs[port]
+            pubs = publishers.get(topic, [])
+            if not pubs and topic != DIAGNOSTICS_TOPIC:
+                if decl.required:
+                    key = "remap" if (port in rn.spec.remap or decl.topic in rn.spec.remap) else "type"
+                    raise rn.spec.error(key, f"input {port!r} subscribes to topic {topic!r} that no node publishes"
+                                        f"{did_you_mean(topic, list(publishers))}")
+                continue
+            for pub, t in pubs:
+                if decl.msg_type is not None and t != decl.type_name:
+                    raise rn.spec.error("remap" if port in rn.spec.remap else "type",
+                                        f"input {port!r} wants {decl.type_name} on {topic!r}, but {pub} publishes {t}")
+            flow.add_edge(("topic", topic), ("node", rn.name), type=decl.type_name)
+    return CheckedGraph(spec, resolved, flow)
+
+
+def shutdown_order(graph: CheckedGraph) -> list[str]:
+    """Nodes upstream first, so that downstream nodes (recorders last) see every message."""
+    nodes_only = nx.DiGraph()
+    nodes_only.add_nodes_from(n.name for n in graph.nodes)
+    for rn in graph.nodes:
+        for topic in rn.outputs.values():
+            for _, sub in graph.flow.out_edges(("topic", topic)):
+                if sub[1] != rn.name:
+                    nodes_only.add_edge(rn.name, sub[1])
+    cond = nx.condensation(nodes_only)  # cycles (command/status loops) collapse to one step
+    order: list[str] = []
+    for c in nx.topological_sort(cond):
+        order.extend(sorted(cond.nodes[c]["members"]))
+    return order
+
+
+def message_type_exists(name: str) -> bool:
+    try:
+        lookup(name)
+        return True
+    except UnknownTypeError:
+        return False

@@ -1,0 +1,236 @@
+"""Launch graphs: YAML files of nodes, args and includes, resolved into one checked graph.
+
+A graph file::
+
+    args:                       # overridable on the command line as name:=value
+      rate: {default: 240, doc: capture rate, Hz}
+    include:                    # another graph, its args overridden; paths relative to this file
+      - file: pipeline.yaml
+        args: {rate: "${rate}"}
+    external:                   # topics published by processes outside this graph
+      - {topic: markers, type: MarkerFrame, endpoint: "tcp://10.0.0.5:7000"}
+    nodes:
+      - name: actor
+        type: synthetic_actor   # registry name (mocapgraph node list) or package.module:Class
+        params: {rate_hz: "${rate}"}
+        remap: {markers: raw_markers}   # port name or topic -> topic
+        respawn: true           # restart with back-off when it dies
+        required: false         # when it dies and does not respawn, stop the graph (exit 1)
+        host: 127.0.0.1         # address its publisher binds (default loopback, ipc)
+
+``${name}`` is replaced by the arg's value; a string that is only ``${name}`` takes the arg's
+type (so numbers stay numbers).
+"""
+from __future__ import annotations
+
+import difflib
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
+
+NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "doc")
+TOP_KEYS = ("args", "include", "nodes", "external", "description")
+INCLUDE_KEYS = ("file", "args")
+EXTERNAL_KEYS = ("topic", "type", "endpoint")
+_SUBST = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
+
+
+@dataclass
+class NodeSpec:
+    """One node as written in a graph file, with where it was written."""
+
+    name: str
+    type: str
+    params: dict[str, Any]
+    remap: dict[str, str]
+    respawn: bool = False
+    respawn_delay: float = 0.5
+    required: bool = False
+    host: str = ""
+    file: str = ""
+    line: int = 0
+    key_lines: dict[str, int] = field(default_factory=dict)
+    param_lines: dict[str, int] = field(default_factory=dict)
+
+    def where(self, key: str = "") -> tuple[str, int]:
+        if key.startswith("params."):
+            return self.file, self.param_lines.get(key[7:], self.key_lines.get("params", self.line))
+        return self.file, self.key_lines.get(key, self.line)
+
+    def error(self, key: str, message: str) -> GraphError:
+        file, line = self.where(key)
+        return GraphError(file, line, f"nodes[{self.name}].{key}" if key else f"nodes[{self.name}]", message)
+
+
+@dataclass
+class ExternalTopic:
+    """A topic published outside the graph, at a known endpoint."""
+
+    topic: str
+    type: str
+    endpoint: str
+    file: str = ""
+    line: int = 0
+
+
+@dataclass
+class GraphSpec:
+    """A whole resolved graph: nodes from the file and everything it includes."""
+
+    file: str
+    nodes: list[NodeSpec] = field(default_factory=list)
+    external: list[ExternalTopic] = field(default_factory=list)
+    args: dict[str, Any] = field(default_factory=dict)
+    description: str = ""
+
+
+def did_you_mean(word: str, choices: list[str] | tuple[str, ...]) -> str:
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _check_keys(d: LinedDict, allowed: tuple[str, ...], prefix: str) -> None:
+    for key in d:
+        if key not in allowed:
+            raise GraphError(d.file, d.line_of(key), f"{prefix}{key}", f"unknown key{did_you_mean(str(key), allowed)}")
+
+
+def _substitute(value: Any, args: dict[str, Any], file: str, line: int, key: str) -> Any:
+    if isinstance(value, str):
+        whole = _SUBST.fullmatch(value)
+        if whole:
+            name = whole.group(1)
+            if name not in args:
+                raise GraphError(file, line, key, f"unknown arg ${{{name}}}{did_you_mean(name, list(args))}")
+            return args[name]
+
+        def repl(m: re.Match) -> str:
+            if m.group(1) not in args:
+                raise GraphError(file, line, key, f"unknown arg ${{{m.group(1)}}}{did_you_mean(m.group(1), list(args))}")
+            return str(args[m.group(1)])
+
+        return _SUBST.sub(repl, value)
+    if isinstance(value, dict):
+        lines = getattr(value, "key_lines", {})
+        return {k: _substitute(v, args, file, lines.get(k, line), f"{key}.{k}") for k, v in value.items()}
+    if isinstance(value, list):
+        return [_substitute(v, args, file, line, key) for v in value]
+    return value
+
+
+def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> GraphSpec:
+    """Read a graph file with its includes and args; GraphError names file, line and key."""
+    path = Path(path).resolve()
+    spec = GraphSpec(file=str(path))
+    _load_into(spec, path, overrides or {}, stack=[], top=True)
+    return spec
+
+
+def _resolve_args(doc: LinedDict, file: Path, overrides: dict[str, Any], top: bool) -> dict[str, Any]:
+    declared = doc.get("args") or LinedDict()
+    if not isinstance(declared, dict):
+        raise GraphError(file, doc.line_of("args"), "args", "must be a mapping of name: {default: ...}")
+    args: dict[str, Any] = {}
+    for name, decl in declared.items():
+        if isinstance(decl, dict):
+            unknown = [k for k in decl if k not in ("default", "doc")]
+            if unknown:
+                raise GraphError(file, decl.line_of(unknown[0]), f"args.{name}.{unknown[0]}",
+                                 "unknown key (an arg has 'default' and 'doc')")
+            args[name] = decl.get("default")
+        else:
+            args[name] = decl
+    for name, value in overrides.items():
+        if name not in args:
+            where = "command line" if top else "include"
+            raise GraphError(file, doc.line_of("args"), f"args.{name}",
+                             f"no such arg (set on the {where}){did_you_mean(name, list(args))}")
+        args[name] = value
+    for name, value in args.items():
+        if value is None:
+            raise GraphError(file, declared.line_of(name), f"args.{name}", "has no default and was not given")
+    return args
+
+
+def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: list[Path], top: bool) -> None:
+    if path in stack:
+        chain = " -> ".join(p.name for p in stack + [path])
+        raise GraphError(stack[-1], None, "include", f"include cycle: {chain}")
+    doc = load_yaml_file(path)
+    if doc is None:
+        doc = LinedDict()
+        doc.file, doc.line, doc.key_lines = str(path), 1, {}
+    if not isinstance(doc, dict):
+        raise GraphError(path, getattr(doc, "line", 1), "", "a graph file is a mapping with nodes:, args:, include:")
+    _check_keys(doc, TOP_KEYS, "")
+    args = _resolve_args(doc, path, overrides, top)
+    if top:
+        spec.args = dict(args)
+        spec.description = str(doc.get("description", ""))
+    includes = doc.get("include") or []
+    if not isinstance(includes, list):
+        raise GraphError(path, doc.line_of("include"), "include", "must be a list of {file:, args:}")
+    for i, inc in enumerate(includes):
+        line = includes.item_lines[i] if isinstance(includes, LinedList) else doc.line_of("include")
+        if isinstance(inc, str):
+            inc_file, inc_args = inc, {}
+        elif isinstance(inc, dict):
+            _check_keys(inc, INCLUDE_KEYS, f"include[{i}].")
+            if "file" not in inc:
+                raise GraphError(path, line, f"include[{i}]", "needs a 'file'")
+            inc_file = inc["file"]
+            inc_args = inc.get("args") or {}
+        else:
+            raise GraphError(path, line, f"include[{i}]", "must be a file name or {file:, args:}")
+        inc_file = _substitute(inc_file, args, str(path), line, f"include[{i}].file")
+        inc_args = _substitute(inc_args, args, str(path), line, f"include[{i}].args")
+        target = (path.parent / str(inc_file)).resolve()
+        if not target.exists():
+            raise GraphError(path, line, f"include[{i}].file", f"{inc_file} does not exist")
+        _load_into(spec, target, dict(inc_args), stack + [path], top=False)
+    for i, ext in enumerate(doc.get("external") or []):
+        line = doc["external"].item_lines[i]
+        if not isinstance(ext, dict) or any(k not in ext for k in EXTERNAL_KEYS):
+            raise GraphError(path, line, f"external[{i}]", "needs topic, type and endpoint")
+        _check_keys(ext, EXTERNAL_KEYS, f"external[{i}].")
+        ext = _substitute(ext, args, str(path), line, f"external[{i}]")
+        spec.external.append(ExternalTopic(str(ext["topic"]), str(ext["type"]), str(ext["endpoint"]), str(path), line))
+    nodes = doc.get("nodes") or []
+    if not isinstance(nodes, list):
+        raise GraphError(path, doc.line_of("nodes"), "nodes", "must be a list of nodes")
+    for i, raw in enumerate(nodes):
+        line = nodes.item_lines[i]
+        if not isinstance(raw, dict):
+            raise GraphError(path, line, f"nodes[{i}]", "a node is a mapping with name: and type:")
+        _check_keys(raw, NODE_KEYS, f"nodes[{raw.get('name', i)}].")
+        for key in ("name", "type"):
+            if key not in raw:
+                raise GraphError(path, line, f"nodes[{raw.get('name', i)}]", f"needs a '{key}'")
+        name = str(_substitute(raw["name"], args, str(path), raw.line_of("name"), "name"))
+        params = raw.get("params") or LinedDict()
+        if not isinstance(params, dict):
+            raise GraphError(path, raw.line_of("params"), f"nodes[{name}].params", "must be a mapping")
+        remap = raw.get("remap") or {}
+        if not isinstance(remap, dict):
+            raise GraphError(path, raw.line_of("remap"), f"nodes[{name}].remap", "must be a mapping port: topic")
+        node = NodeSpec(
+            name=name,
+            type=str(_substitute(raw["type"], args, str(path), raw.line_of("type"), f"nodes[{name}].type")),
+            params=_substitute(params, args, str(path), raw.line_of("params"), f"nodes[{name}].params"),
+            remap={str(k): str(v) for k, v in _substitute(remap, args, str(path), raw.line_of("remap"),
+                                                          f"nodes[{name}].remap").items()},
+            file=str(path),
+            line=line,
+            key_lines=dict(raw.key_lines),
+            param_lines=dict(getattr(params, "key_lines", {})),
+        )
+        for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str)):
+            if key in raw:
+                value = _substitute(raw[key], args, str(path), raw.line_of(key), key)
+                if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+                    raise node.error(key, f"wants {'a number' if key == 'respawn_delay' else kind.__name__}, got {value!r}")
+                setattr(node, key, float(value) if key == "respawn_delay" else value)
+        spec.nodes.append(node)

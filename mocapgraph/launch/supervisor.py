@@ -1,0 +1,373 @@
+"""Running a checked graph: one OS process per node, readiness handshake, logs, respawn, shutdown.
+
+- Every node is started as ``python -m mocapgraph.bus.runtime WIRING.json`` in its own session,
+  with the kernel told to SIGTERM it when the launcher dies (no orphans even after SIGKILL).
+- Nodes say ``ready`` on the control socket once every subscriber the graph expects has
+  subscribed to their outputs; only then does the launcher send ``start`` to all, so sources
+  never publish into the void (ZeroMQ's slow-joiner loss).
+- Each node's output lines are prefixed with ``[name]``.
+- A node that dies is respawned with doubling back-off when asked; a required node that dies
+  stops the graph (exit code 1).
+- Shutdown goes upstream first (sources, then processing, then recorders) so that downstream
+  nodes drain what was sent.
+- The launcher answers manifest requests (nodes, topics, types, endpoints) on the master
+  endpoint, for tools started later (``mocapgraph topic echo``, ``bag record``).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import zmq
+
+from ..bus.node import DIAGNOSTICS_TOPIC, Wiring
+from ..bus.runtime import die_with_parent
+from .check import CheckedGraph, ResolvedNode, shutdown_order
+
+READY_TIMEOUT_S = 30.0
+STOP_TIMEOUT_S = 2.0
+MAX_BACKOFF_S = 10.0
+
+
+def default_master() -> str:
+    """Where the manifest is served: $MOCAPGRAPH_MASTER or a per-user ipc socket."""
+    env = os.environ.get("MOCAPGRAPH_MASTER")
+    if env:
+        return env
+    return f"ipc://{Path(tempfile.gettempdir()) / f'mocapgraph-{os.getuid()}' / 'master'}"
+
+
+def _free_tcp_port(host: str) -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Child:
+    """One node's process and its supervision state."""
+
+    node: ResolvedNode
+    wiring: Wiring
+    wiring_file: Path
+    proc: subprocess.Popen | None = None
+    ready: bool = False
+    restarts: int = 0
+    backoff_s: float = 0.5
+    respawn_at: float | None = None
+    started_at: float = 0.0
+    finished: bool = False
+    threads: list[threading.Thread] = field(default_factory=list)
+
+
+class LaunchError(RuntimeError):
+    """The graph could not be brought up (a node failed to start or become ready)."""
+
+
+class Supervisor:
+    """Starts, watches and stops the processes of a checked graph."""
+
+    def __init__(self, graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None) -> None:
+        self.graph = graph
+        self.master = master or default_master()
+        self.out = out or sys.stdout
+        self._out_lock = threading.Lock()
+        self.run_dir = Path(tempfile.mkdtemp(prefix=f"mocapgraph-{os.getpid()}-"))
+        self.ctx = zmq.Context.instance()
+        self.control_ep = f"ipc://{self.run_dir / 'control'}"
+        self.children: dict[str, Child] = {}
+        self._stop_requested = False
+        self._exit_code = 0
+        self._plan()
+
+    # ----- planning -----------------------------------------------------------------------
+    def _endpoint(self, rn: ResolvedNode) -> str:
+        host = rn.spec.host
+        if host and host not in ("localhost",):
+            return f"tcp://{host}:{_free_tcp_port(host)}"
+        return f"ipc://{self.run_dir / (rn.name + '.pub')}"
+
+    def _plan(self) -> None:
+        g = self.graph
+        endpoints = {rn.name: self._endpoint(rn) for rn in g.nodes}
+        publishers: dict[str, list[str]] = {}
+        for rn in g.nodes:
+            for topic in rn.outputs.values():
+                publishers.setdefault(topic, []).append(endpoints[rn.name])
+        for ext in g.spec.external:
+            publishers.setdefault(ext.topic, []).append(ext.endpoint)
+        publishers[DIAGNOSTICS_TOPIC] = list(endpoints.values())
+        subscribers: dict[str, int] = {}
+        for rn in g.nodes:
+            for topic in set(rn.inputs.values()):
+                subscribers[topic] = subscribers.get(topic, 0) + sum(
+                    1 for t in rn.inputs.values() if t == topic)
+        self.endpoints = endpoints
+        self.publishers = publishers
+        for rn in g.nodes:
+            own = {t for t in rn.inputs.values()}
+            wiring = Wiring(
+                node=rn.name,
+                pub_endpoint=endpoints[rn.name],
+                inputs={p: {"topic": t, "endpoints": publishers.get(t, [])} for p, t in rn.inputs.items()},
+                outputs={p: {"topic": t, "subscribers": subscribers.get(t, 0) - (
+                    sum(1 for x in rn.inputs.values() if x == t) if t in own else 0)} for p, t in rn.outputs.items()},
+                control=self.control_ep,
+                diagnostics_subscribers=subscribers.get(DIAGNOSTICS_TOPIC, 0) - (
+                    1 if DIAGNOSTICS_TOPIC in own else 0),
+            )
+            wf = self.run_dir / f"{rn.name}.json"
+            wf.write_text(json.dumps({"class": rn.class_path, "params": rn.params, "wiring": wiring.__dict__}))
+            self.children[rn.name] = Child(rn, wiring, wf)
+
+    def manifest(self) -> dict[str, Any]:
+        """Nodes, topics, types and endpoints of the running graph (JSON-ready)."""
+        types = self.graph.topic_types()
+        topics: dict[str, Any] = {}
+        for rn in self.graph.nodes:
+            for port, t in rn.outputs.items():
+                entry = topics.setdefault(t, {"type": types[t], "publishers": [], "subscribers": []})
+                entry["publishers"].append({"node": rn.name, "endpoint": self.endpoints[rn.name],
+                                            "latched": rn.iface.outputs[port].is_latched})
+            for port, t in rn.inputs.items():
+                entry = topics.setdefault(t, {"type": types.get(t, "*"), "publishers": [], "subscribers": []})
+                entry["subscribers"].append({"node": rn.name, "port": port})
+        for ext in self.graph.spec.external:
+            topics.setdefault(ext.topic, {"type": ext.type, "publishers": [], "subscribers": []})[
+                "publishers"].append({"node": "external", "endpoint": ext.endpoint, "latched": False})
+        topics[DIAGNOSTICS_TOPIC] = {"type": "Diagnostics", "subscribers": topics.get(DIAGNOSTICS_TOPIC, {}).get(
+            "subscribers", []), "publishers": [{"node": n, "endpoint": e, "latched": False}
+                                               for n, e in self.endpoints.items()]}
+        return {
+            "graph": self.graph.spec.file,
+            "launcher_pid": os.getpid(),
+            "nodes": [{"name": c.node.name, "type": c.node.spec.type, "class": c.node.class_path,
+                       "pid": c.proc.pid if c.proc else None, "endpoint": self.endpoints[c.node.name],
+                       "params": c.node.params, "inputs": c.node.inputs, "outputs": c.node.outputs,
+                       "restarts": c.restarts, "running": bool(c.proc and c.proc.poll() is None)}
+                      for c in self.children.values()],
+            "topics": topics,
+        }
+
+    # ----- logging --------------------------------------------------------------------------
+    def say(self, text: str) -> None:
+        with self._out_lock:
+            self.out.write(text + "\n")
+            self.out.flush()
+
+    def _pump(self, name: str, stream: IO[bytes]) -> None:
+        for raw in iter(stream.readline, b""):
+            self.say(f"[{name}] {raw.decode(errors='replace').rstrip()}")
+        stream.close()
+
+    # ----- processes --------------------------------------------------------------------------
+    def _spawn(self, child: Child) -> None:
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        child.proc = subprocess.Popen(
+            [sys.executable, "-m", "mocapgraph.bus.runtime", str(child.wiring_file)],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            env=env, preexec_fn=die_with_parent, start_new_session=True,
+        )
+        child.ready = False
+        child.started_at = time.monotonic()
+        t = threading.Thread(target=self._pump, args=(child.node.name, child.proc.stdout), daemon=True)
+        t.start()
+        child.threads.append(t)
+
+    def _send(self, name: str, *frames: bytes) -> None:
+        try:
+            self.control.send_multipart([name.encode(), *frames], zmq.NOBLOCK)
+        except zmq.ZMQError:
+            pass
+
+    def _serve_control(self) -> list[str]:
+        readied = []
+        while True:
+            try:
+                ident, *frames = self.control.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return readied
+            name = ident.decode()
+            child = self.children.get(name)
+            if child is None or not frames:
+                continue
+            if frames[0] == b"ready":
+                child.ready = True
+                readied.append(name)
+
+    def _serve_master(self) -> None:
+        while True:
+            try:
+                self.master_sock.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            self.master_sock.send_string(json.dumps(self.manifest()))
+
+    def _bind_master(self) -> None:
+        self.master_sock = self.ctx.socket(zmq.REP)
+        self.master_sock.setsockopt(zmq.LINGER, 0)
+        if self.master.startswith("ipc://"):
+            path = Path(self.master[6:])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if path.exists() and _ipc_alive(self.ctx, self.master):
+                raise LaunchError(f"another graph is already running at {self.master}; "
+                                  "set MOCAPGRAPH_MASTER to run a second one")
+        try:
+            self.master_sock.bind(self.master)
+        except zmq.ZMQError as exc:
+            raise LaunchError(f"cannot serve the manifest at {self.master}: {exc}") from None
+
+    def start(self) -> None:
+        """Start every node and wait until the whole graph is ready, then let it run."""
+        self.control = self.ctx.socket(zmq.ROUTER)
+        self.control.setsockopt(zmq.LINGER, 0)
+        self.control.bind(self.control_ep)
+        self._bind_master()
+        t0 = time.monotonic()
+        for child in self.children.values():
+            self._spawn(child)
+        while not all(c.ready for c in self.children.values()):
+            self._serve_control()
+            self._serve_master()
+            for c in self.children.values():
+                if c.proc.poll() is not None:
+                    raise LaunchError(f"node {c.node.name} exited with code {c.proc.returncode} during start-up")
+            if time.monotonic() - t0 > READY_TIMEOUT_S:
+                late = [c.node.name for c in self.children.values() if not c.ready]
+                raise LaunchError(f"nodes not ready after {READY_TIMEOUT_S:.0f} s: {', '.join(late)}")
+            if self._stop_requested:
+                raise LaunchError("interrupted during start-up")
+            self.control.poll(10)
+        for name in self.children:
+            self._send(name, b"start")
+        self.ready_time_s = time.monotonic() - t0
+        self.say(f"[launch] {len(self.children)} nodes ready in {self.ready_time_s:.2f} s "
+                 f"(manifest at {self.master})")
+
+    def _watch(self) -> None:
+        now = time.monotonic()
+        for name in self._serve_control():
+            self._send(name, b"start")  # a respawned node joins the running graph
+        for c in self.children.values():
+            if c.finished or c.proc is None:
+                if c.respawn_at is not None and now >= c.respawn_at:
+                    c.respawn_at = None
+                    c.finished = False
+                    c.restarts += 1
+                    self.say(f"[launch] respawning {c.node.name} (restart {c.restarts})")
+                    self._spawn(c)
+                continue
+            code = c.proc.poll()
+            if code is None:
+                if now - c.started_at > MAX_BACKOFF_S:
+                    c.backoff_s = c.node.spec.respawn_delay  # healthy for a while: reset back-off
+                continue
+            c.finished = True
+            self.say(f"[launch] node {c.node.name} exited with code {code}")
+            if c.node.spec.respawn and not self._stop_requested:
+                c.respawn_at = now + c.backoff_s
+                c.backoff_s = min(MAX_BACKOFF_S, c.backoff_s * 2)
+            elif c.node.spec.required:
+                self.say(f"[launch] required node {c.node.name} died: stopping the graph")
+                self._exit_code = 1
+                self._stop_requested = True
+
+    def spin(self) -> int:
+        """Supervise until stop is requested or every node has finished; returns the exit code."""
+        while not self._stop_requested:
+            self._watch()
+            self._serve_master()
+            if all(c.finished and c.respawn_at is None for c in self.children.values()):
+                self.say("[launch] every node has finished")
+                break
+            zmq.select([self.control, self.master_sock], [], [], 0.05)
+        return self._exit_code
+
+    def request_stop(self) -> None:
+        self._stop_requested = True
+
+    def shutdown(self) -> None:
+        """Stop nodes upstream first; escalate to SIGTERM then SIGKILL for stragglers."""
+        t0 = time.monotonic()
+        for name in shutdown_order(self.graph):
+            c = self.children[name]
+            c.respawn_at = None
+            if c.proc is None or c.proc.poll() is not None:
+                continue
+            self._send(name, b"stop")
+            if not _wait(c.proc, STOP_TIMEOUT_S / 2):
+                c.proc.terminate()
+                if not _wait(c.proc, STOP_TIMEOUT_S / 2):
+                    c.proc.kill()
+                    c.proc.wait()
+        for c in self.children.values():
+            for t in c.threads:
+                t.join(timeout=1.0)
+        self.stop_time_s = time.monotonic() - t0
+        self.say(f"[launch] stopped in {self.stop_time_s:.2f} s")
+        for sock in ("control", "master_sock"):
+            if hasattr(self, sock):
+                getattr(self, sock).close(0)
+        shutil.rmtree(self.run_dir, ignore_errors=True)
+
+    def kill_all(self) -> None:
+        for c in self.children.values():
+            if c.proc is not None and c.proc.poll() is None:
+                c.proc.kill()
+
+
+def _wait(proc: subprocess.Popen, timeout: float) -> bool:
+    try:
+        proc.wait(timeout)
+        return True
+    except subprocess.TimeoutExpired:
+        return False
+
+
+def _ipc_alive(ctx: zmq.Context, endpoint: str) -> bool:
+    """True when a launcher answers at ``endpoint`` (a stale socket file does not count)."""
+    s = ctx.socket(zmq.REQ)
+    s.setsockopt(zmq.LINGER, 0)
+    try:
+        s.connect(endpoint)
+        s.send(b"manifest")
+        return bool(s.poll(300))
+    finally:
+        s.close(0)
+
+
+def run_graph(graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None) -> int:
+    """Launch, supervise and stop a graph; Ctrl-C / SIGTERM stop it in order. Exit code."""
+    sup = Supervisor(graph, master, out)
+    hits = {"n": 0}
+
+    def on_signal(signum: int, frame: Any) -> None:
+        hits["n"] += 1
+        sup.request_stop()
+        if hits["n"] >= 3:
+            sup.kill_all()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            sup.start()
+        except LaunchError as exc:
+            sup.say(f"[launch] error: {exc}")
+            sup._exit_code = 1
+            return 1
+        return sup.spin()
+    finally:
+        sup.shutdown()
+        for s, h in old.items():
+            signal.signal(s, h)

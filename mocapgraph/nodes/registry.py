@@ -1,0 +1,23 @@
+"""Node types by registry name. Graph files name a node type either here or as module:Class.
+
+Entries are import paths, so listing the registry imports nothing heavy; a node's module is
+imported only when a graph uses it or `mocapgraph node info` asks for it.
+"""
+from __future__ import annotations
+
+NODE_TYPES: dict[str, str] = {
+    "marker_test_pattern": "mocapgraph.nodes.test_pattern:MarkerTestPattern",
+    "topic_logger": "mocapgraph.nodes.topic_logger:TopicLogger",
+}
+
+
+def register_node_type(name: str, import_path: str) -> None:
+    """Add a node type (plugins call this before loading a graph)."""
+    NODE_TYPES[name] = import_path
+
+
+def resolve(type_name: str) -> str:
+    """``module:Class`` for a registry name or an import path; KeyError when unknown."""
+    if ":" in type_name:
+        return type_name
+    return NODE_TYPES[type_name]
