@@ -1,0 +1,345 @@
+"""BVH (Biovision hierarchy) motion files: :func:`read_bvh`, :func:`write_bvh`,
+:meth:`BvhMotion.forward_kinematics`, :func:`bvh_to_skeleton`.
+
+:class:`BvhMotion` keeps the file as it is (offsets in file units, raw channel values in
+degrees and file units, BVH axes) so :func:`write_bvh` round-trips exactly; conversion to the
+world frame happens in :meth:`BvhMotion.forward_kinematics`:
+
+* Axes: BVH is Y up; characters face +Z with their left along +X (CMU, Mixamo). World is
+  Z up, X forward, Y left, so world = A @ bvh with A mapping (x, y, z)_bvh -> (z, x, y).
+  Joint orientations are conjugated the same way (A R A^T), so in the rest pose (all
+  rotation channels 0) every joint frame has the identity orientation in the world.
+* Units: ``scale`` metres per file unit. When not given, it is guessed from the rest-pose
+  height of the skeleton (head-top end site to toe along the up axis): among metres, cm,
+  mm, inches and CMU units (0.056444 m, the CMU database's "(1/0.45) * 2.54 / 100"), the
+  one giving a height closest to 1.7 m wins. Pass ``scale`` for anything not a standing
+  human. The choice is written in ``motion.conversions``.
+* Rotations: a joint's rotation channels, in file order, are intrinsic rotations:
+  "Zrotation Xrotation Yrotation" is R = Rz @ Rx @ Ry, i.e. scipy's ``from_euler("ZXY")``.
+  Any order per joint is allowed (CMU mixes ZYX and ZXY). Position channels on a joint add
+  to its offset.
+* End sites are joints without channels, named ``<parent>_End`` (``is_end_site`` marks them).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .errors import FormatError
+from .skeleton_trial import TRACKED, SkeletonTrial
+
+# world = BVH_TO_WORLD @ bvh: (x, y, z)_bvh -> (z, x, y)
+BVH_TO_WORLD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+UNIT_CANDIDATES: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254,
+                                     "CMU units": (1.0 / 0.45) * 2.54 / 100.0}
+HUMAN_HEIGHT_M = 1.7
+_CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
+
+
+@dataclass
+class BvhMotion:
+    """A BVH file as read: hierarchy plus raw channel values.
+
+    names: [J] joint names in file order (parents first), end sites included.
+    parents: int [J], -1 for the root.
+    offsets: float64 [J, 3] file units, BVH axes (Y up).
+    channels: [J] list of channel names per joint (e.g. ["Zrotation", "Xrotation",
+        "Yrotation"]); empty for end sites.
+    is_end_site: bool [J].
+    frame_time_s: seconds per frame.
+    values: float64 [T, C] raw channel values (degrees, file units), joints' channels in file
+        order.
+    scale: metres per file unit (given or guessed; see module doc).
+    """
+
+    names: list[str]
+    parents: np.ndarray
+    offsets: np.ndarray
+    channels: list[list[str]]
+    is_end_site: np.ndarray
+    frame_time_s: float
+    values: np.ndarray
+    scale: float = 1.0
+    source: str = ""
+    conversions: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.parents = np.asarray(self.parents, dtype=np.int64)
+        self.offsets = np.asarray(self.offsets, dtype=np.float64).reshape(-1, 3)
+        self.is_end_site = np.asarray(self.is_end_site, dtype=bool)
+        self.values = np.asarray(self.values, dtype=np.float64).reshape(-1, self.n_channels)
+        starts = np.cumsum([0] + [len(c) for c in self.channels])
+        self.channel_start = starts[:-1]  # first column of each joint's channels in values
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.names)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.values.shape[0])
+
+    @property
+    def n_channels(self) -> int:
+        return sum(len(c) for c in self.channels)
+
+    @property
+    def rate_hz(self) -> float:
+        return 1.0 / self.frame_time_s
+
+    def index(self, name: str) -> int:
+        return self.names.index(name)
+
+    def rotation_orders(self) -> list[str]:
+        """Per joint the intrinsic Euler order of its rotation channels ("ZXY"...; "" if none)."""
+        return ["".join(c[0] for c in ch if c.endswith("rotation")) for ch in self.channels]
+
+    def forward_kinematics(self, frames: slice | np.ndarray | None = None
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """World joint positions [T, J, 3] (metres) and orientations [T, J, 4] (w, x, y, z).
+
+        World frame: Z up, X forward (the character's rest-pose facing), Y left. Vectorised
+        over frames; the Python loop runs over joints only.
+        """
+        vals = self.values if frames is None else self.values[frames]
+        T, J = vals.shape[0], self.n_joints
+        Rg = np.empty((T, J, 3, 3))
+        pg = np.empty((T, J, 3))
+        orders = self.rotation_orders()
+        for j in range(J):
+            ch = self.channels[j]
+            c0 = self.channel_start[j]
+            local_t = np.broadcast_to(self.offsets[j], (T, 3)).copy()
+            rot_cols = []
+            for k, name in enumerate(ch):
+                if name.endswith("position"):
+                    local_t[:, "XYZ".index(name[0])] += vals[:, c0 + k]
+                else:
+                    rot_cols.append(c0 + k)
+            if rot_cols:
+                R = Rotation.from_euler(orders[j], vals[:, rot_cols], degrees=True).as_matrix()
+            else:
+                R = np.broadcast_to(np.eye(3), (T, 3, 3))
+            p = self.parents[j]
+            if p < 0:
+                Rg[:, j] = R
+                pg[:, j] = local_t
+            else:
+                Rg[:, j] = Rg[:, p] @ R
+                pg[:, j] = pg[:, p] + np.einsum("tij,tj->ti", Rg[:, p], local_t)
+        A = BVH_TO_WORLD
+        pos = np.einsum("ij,tkj->tki", A * self.scale, pg)
+        Rw = A @ Rg @ A.T
+        quat = Rotation.from_matrix(Rw.reshape(-1, 3, 3)).as_quat(scalar_first=True)
+        return pos, quat.reshape(T, J, 4)
+
+    def rest_positions(self) -> np.ndarray:
+        """[J, 3] world positions (metres) with every channel at 0."""
+        zero = BvhMotion(self.names, self.parents, self.offsets, self.channels, self.is_end_site,
+                         self.frame_time_s, np.zeros((1, self.n_channels)), self.scale)
+        return zero.forward_kinematics()[0][0]
+
+
+def guess_scale(offsets: np.ndarray, parents: np.ndarray) -> tuple[float, str, float]:
+    """(metres per unit, unit name, rest height in file units) from the rest-pose height."""
+    J = len(parents)
+    pos = np.zeros((J, 3))
+    for j in range(J):
+        pos[j] = offsets[j] + (pos[parents[j]] if parents[j] >= 0 else 0.0)
+    height = float(np.ptp(pos[:, 1])) if J else 0.0
+    if height <= 0:
+        return 1.0, "m", height
+    best = min(UNIT_CANDIDATES.items(),
+               key=lambda kv: abs(math.log(height * kv[1] / HUMAN_HEIGHT_M)))
+    return best[1], best[0], height
+
+
+def read_bvh(path: str | Path, *, scale: float | None = None) -> BvhMotion:
+    """Parse a BVH file. ``scale``: metres per file unit (None = guess, see module doc).
+
+    Raises FormatError (one line naming the file) for a broken hierarchy or motion block.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as e:
+        raise FormatError(path, f"cannot read file ({e.strerror or e})") from None
+    head, sep, motion = text.partition("MOTION")
+    if not sep:
+        raise FormatError(path, "BVH has no MOTION section")
+    tok = head.split()
+    if not tok or tok[0] != "HIERARCHY":
+        raise FormatError(path, "not a BVH file (does not start with HIERARCHY)")
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[list[float]] = []
+    channels: list[list[str]] = []
+    end_site: list[bool] = []
+    stack: list[int] = []
+    pending: int | None = None  # joint whose "{" is expected
+    i = 1
+
+    def fail(msg: str) -> FormatError:
+        return FormatError(path, f"BVH hierarchy is broken ({msg})")
+
+    try:
+        while i < len(tok):
+            t = tok[i]
+            if t in ("ROOT", "JOINT") or (t == "End" and tok[i + 1] == "Site"):
+                if t == "End":
+                    if not stack:
+                        raise fail("End Site outside a joint")
+                    name = names[stack[-1]] + "_End"
+                    i += 2
+                else:
+                    name = tok[i + 1]
+                    i += 2
+                    if t == "JOINT" and not stack:
+                        raise fail(f"JOINT {name} outside the root")
+                names.append(name)
+                parents.append(stack[-1] if stack else -1)
+                offsets.append([0.0, 0.0, 0.0])
+                channels.append([])
+                end_site.append(t == "End")
+                pending = len(names) - 1
+            elif t == "{":
+                if pending is None:
+                    raise fail("'{' without a joint")
+                stack.append(pending)
+                pending = None
+                i += 1
+            elif t == "}":
+                if not stack:
+                    raise fail("unbalanced '}'")
+                stack.pop()
+                i += 1
+            elif t == "OFFSET":
+                offsets[stack[-1]] = [float(x) for x in tok[i + 1:i + 4]]
+                i += 4
+            elif t == "CHANNELS":
+                n = int(tok[i + 1])
+                ch = tok[i + 2:i + 2 + n]
+                bad = [c for c in ch if c not in _CHANNELS]
+                if bad or len(ch) != n:
+                    raise fail(f"joint {names[stack[-1]]} has bad channels {bad or ch}")
+                channels[stack[-1]] = ch
+                i += 2 + n
+            else:
+                raise fail(f"unexpected token {t!r}")
+    except (IndexError, ValueError) as e:
+        raise fail(f"near token {i}: {e}") from None
+    if stack or not names:
+        raise fail("unbalanced braces" if stack else "no joints")
+    if len([p for p in parents if p < 0]) != 1:
+        raise fail("more than one ROOT")
+
+    lines = motion.strip().splitlines()
+    try:
+        n_frames = int(lines[0].split(":")[1])
+        frame_time = float(lines[1].split(":")[1])
+    except (IndexError, ValueError):
+        raise FormatError(path, "BVH motion header is broken (expected 'Frames:' and "
+                                "'Frame Time:')") from None
+    if frame_time <= 0:
+        raise FormatError(path, f"BVH Frame Time {frame_time} is not positive")
+    C = sum(len(c) for c in channels)
+    try:
+        flat = np.array(" ".join(lines[2:]).split(), dtype=np.float64)
+    except ValueError as e:
+        raise FormatError(path, f"BVH motion data is not numeric ({e})") from None
+    if C == 0 or flat.size % C:
+        raise FormatError(path, f"BVH motion data holds {flat.size} values, not a multiple of "
+                                f"the {C} channels")
+    vals = flat.reshape(-1, C)
+    notes: list[str] = []
+    if vals.shape[0] < n_frames:
+        raise FormatError(path, f"BVH is truncated: declares {n_frames} frames, holds "
+                                f"{vals.shape[0]}")
+    if vals.shape[0] > n_frames:
+        notes.append(f"declares {n_frames} frames but holds {vals.shape[0]}; kept all")
+
+    off = np.array(offsets)
+    par = np.array(parents)
+    conversions: list[str] = []
+    if scale is None:
+        scale, unit, height = guess_scale(off, par)
+        conversions.append(f"units {unit} -> m (guessed from the rest-pose height "
+                           f"{height:.4g} units = {height * scale:.2f} m; pass scale= to override)")
+    else:
+        conversions.append(f"units -> m with scale {scale:g} m per unit (given)")
+    conversions.append("Y-up, +Z-facing BVH -> Z-up, X-forward world "
+                       "(x, y, z)_bvh -> (z, x, y); orientations conjugated likewise")
+    return BvhMotion(names, par, off, channels, np.array(end_site), frame_time, vals,
+                     float(scale), str(path), conversions, notes)
+
+
+def write_bvh(path: str | Path, motion: BvhMotion, *, decimals: int = 6) -> None:
+    """Write ``motion`` back as BVH (file units and axes as held; exact to ``decimals``)."""
+    path = Path(path)
+    out = ["HIERARCHY"]
+    J = motion.n_joints
+    children: list[list[int]] = [[] for _ in range(J)]
+    for j in range(J):
+        if motion.parents[j] >= 0:
+            children[motion.parents[j]].append(j)
+    fmt = f"{{:.{decimals}f}}"
+
+    walked: list[int] = []
+
+    def emit(j: int, depth: int) -> None:
+        walked.append(j)
+        ind = "\t" * depth
+        if motion.is_end_site[j]:
+            out.append(f"{ind}End Site")
+        elif motion.parents[j] < 0:
+            out.append(f"{ind}ROOT {motion.names[j]}")
+        else:
+            out.append(f"{ind}JOINT {motion.names[j]}")
+        out.append(f"{ind}{{")
+        out.append(f"{ind}\tOFFSET " + " ".join(fmt.format(v) for v in motion.offsets[j]))
+        if not motion.is_end_site[j]:
+            ch = motion.channels[j]
+            out.append(f"{ind}\tCHANNELS {len(ch)} " + " ".join(ch))
+        for c in children[j]:
+            emit(c, depth + 1)
+        out.append(f"{ind}}}")
+
+    root = int(np.flatnonzero(motion.parents < 0)[0])
+    emit(root, 0)
+    out += ["MOTION", f"Frames: {motion.n_frames}", f"Frame Time: {motion.frame_time_s:.7f}"]
+    # a BVH's columns follow the depth-first walk, which may differ from the joint order held
+    cols = np.concatenate([np.arange(motion.channel_start[j], motion.channel_start[j]
+                                     + len(motion.channels[j])) for j in walked]).astype(int)
+    out += [" ".join(fmt.format(v) for v in row) for row in motion.values[:, cols].tolist()]
+    try:
+        path.write_text("\n".join(out) + "\n", encoding="utf-8")
+    except OSError as e:
+        raise FormatError(path, f"cannot write file ({e.strerror or e})") from None
+
+
+def bvh_to_skeleton(motion: BvhMotion, *, include_end_sites: bool = True,
+                    start_ns: int = 0) -> SkeletonTrial:
+    """A :class:`SkeletonTrial` (world positions, orientations) from a BVH motion.
+
+    Time stamps are ``start_ns`` + frame index * frame time.
+    """
+    pos, quat = motion.forward_kinematics()
+    keep = np.arange(motion.n_joints) if include_end_sites else np.flatnonzero(~motion.is_end_site)
+    remap = -np.ones(motion.n_joints, dtype=np.int64)
+    remap[keep] = np.arange(len(keep))
+    parents = np.array([remap[motion.parents[j]] if motion.parents[j] >= 0 else -1 for j in keep])
+    T = motion.n_frames
+    ts = start_ns + np.round(np.arange(T) * motion.frame_time_s * 1e9).astype(np.int64)
+    return SkeletonTrial(
+        names=[motion.names[j] for j in keep], parents=parents,
+        positions=pos[:, keep], orientations=quat[:, keep],
+        tracking_state=np.full((T, len(keep)), TRACKED, dtype=np.int8),
+        timestamps_ns=ts, rate_hz=motion.rate_hz, source=motion.source,
+        conversions=list(motion.conversions), notes=list(motion.notes),
+        extra={"is_end_site": motion.is_end_site[keep]},
+    )
