@@ -15,3 +15,87 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is absent")
     return SHARED_DATA
+
+
+# ----- launching real graphs -------------------------------------------------------------------
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import uuid
+
+
+class LaunchedGraph:
+    """A `mocapgraph launch` subprocess with its own manifest endpoint and captured output."""
+
+    def __init__(self, graph_file: Path, args: list[str], tmp: Path) -> None:
+        self.master = f"ipc://{tmp / ('master-' + uuid.uuid4().hex[:8])}"
+        self.env = dict(os.environ, MOCAPGRAPH_MASTER=self.master, PYTHONUNBUFFERED="1")
+        self.lines: list[str] = []
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "mocapgraph", "launch", str(graph_file), *args],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=self.env,
+            cwd=tmp, start_new_session=True,
+        )
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for raw in iter(self.proc.stdout.readline, b""):
+            self.lines.append(raw.decode(errors="replace").rstrip())
+
+    @property
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+    def wait_for(self, text: str, timeout: float = 20.0) -> str:
+        """Block until a line containing ``text`` was printed; returns that line."""
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            for line in list(self.lines):
+                if text in line:
+                    return line
+            if self.proc.poll() is not None and not self._reader.is_alive():
+                break
+            time.sleep(0.02)
+        raise AssertionError(f"no line with {text!r} within {timeout} s; output:\n{self.output}")
+
+    def wait_ready(self, timeout: float = 20.0) -> None:
+        self.wait_for("nodes ready in", timeout)
+
+    def cli(self, *args: str, timeout: float = 20.0) -> subprocess.CompletedProcess:
+        """Run another `mocapgraph` command against this graph."""
+        return subprocess.run([sys.executable, "-m", "mocapgraph", *args], env=self.env, capture_output=True,
+                              text=True, timeout=timeout)
+
+    def stop(self, timeout: float = 10.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+        self._reader.join(timeout=2)
+        return self.proc.returncode
+
+
+@pytest.fixture
+def launch_graph(tmp_path: Path):
+    """Factory: ``launch_graph(path_or_yaml_text, "arg:=value", ...)`` -> LaunchedGraph (stopped at teardown)."""
+    started: list[LaunchedGraph] = []
+
+    def start(graph: str | Path, *args: str) -> LaunchedGraph:
+        if isinstance(graph, str) and "\n" in graph:
+            path = tmp_path / f"graph_{len(started)}.yaml"
+            path.write_text(graph)
+            graph = path
+        g = LaunchedGraph(Path(graph).resolve(), list(args), tmp_path)
+        started.append(g)
+        return g
+
+    yield start
+    for g in started:
+        g.stop()
