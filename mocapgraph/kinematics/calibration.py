@@ -36,6 +36,29 @@ class CalibrationWarning(UserWarning):
     """The model was built, but some joints are unreliable (message names them)."""
 
 
+def layout_markers(
+    definition: Any,
+    labels: Sequence[str],
+    positions: np.ndarray,
+    source: str = "capture",
+    allow_missing: bool = False,
+) -> np.ndarray:
+    """Reorder a capture's markers float[T,N,3] (labels[N]) into the layout's order -> [T,M,3].
+
+    Labels match case-insensitively (and without a Vicon ``Subject:`` prefix). Layout markers the
+    capture lacks raise CalibrationError naming them, or become NaN with ``allow_missing``.
+    """
+    positions = np.asarray(positions, dtype=float)
+    where, _ = definition.match_labels(list(labels))
+    missing = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+    if missing and not allow_missing:
+        raise CalibrationError(
+            f"{source}: layout '{definition.name}' names markers the capture lacks: {', '.join(missing)}")
+    out = positions[:, np.where(where >= 0, where, 0)]
+    out[:, where < 0] = np.nan
+    return out
+
+
 def find_base_pose(
     markers: np.ndarray,
     labels: Sequence[str],
@@ -74,12 +97,12 @@ def _check_definition(definition: Any, markers: np.ndarray, source: str) -> np.n
             f"{source}: markers have shape {markers.shape}, expected [T, {len(labels)}, 3] "
             f"in the order of layout '{definition.name}'")
     idx = np.asarray(definition.limb_marker_index())
-    counts = (idx >= 0).sum(1)
+    counts = (idx >= 0).sum(1) + (_joint_points(definition) >= 0).sum(1)
     few = [f"{definition.limb_names[l]} ({counts[l]})" for l in np.flatnonzero(counts < MIN_MARKERS)]
     if few:
         raise CalibrationError(
             f"{source}: layout '{definition.name}': limbs with fewer than {MIN_MARKERS} markers "
-            f"cannot be tracked: {', '.join(few)}")
+            f"(fit points) cannot be tracked: {', '.join(few)}")
     jl = np.asarray(definition.joint_limbs)
     lonely = [definition.joint_names[j] for j in range(len(jl)) if (jl[j] < 0).any()]
     if lonely:
@@ -167,13 +190,17 @@ def calibrate(
     c0 = np.nanmean(ref, axis=1)                              # [L,3]
     w0 = (idx >= 0).astype(float)
     fit = fit_rigid(ref, gather_limb_markers(markers, idx), w0)
-    rot = fit.rotation                                        # [T,L,3,3]
-    cen = (rot @ c0[:, :, None])[..., 0] + fit.translation    # base centroid carried along
     jl = np.asarray(definition.joint_limbs)
     la, lb = jl[:, 0], jl[:, 1]
     J = len(jl)
     names = tuple(definition.joint_names)
     hinge = np.asarray(definition.joint_hinge, dtype=bool)
+    jpts = _joint_points(definition)
+    point_centre: dict[int, tuple[np.ndarray, float]] = {}
+    if (jpts >= 0).any():
+        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source)
+    rot = fit.rotation                                        # [T,L,3,3]
+    cen = (rot @ c0[:, :, None])[..., 0] + fit.translation    # base centroid carried along
 
     valid = fit.valid[:, la] & fit.valid[:, lb]               # [T,J]
     n_frames = valid.sum(0)
@@ -224,10 +251,15 @@ def calibrate(
         if converged:
             break
     offsets = (x + shift).reshape(J, 2, 3)
+    for j, (centre, rms_j) in point_centre.items():
+        offsets[j, 0], offsets[j, 1] = centre - c0[la[j]], centre - c0[lb[j]]
+        methods[j] = "sphere"
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
     inlier = valid & (err <= c)
     resid = np.array([np.sqrt(np.mean(err[inlier[:, j], j] ** 2)) if inlier[:, j].any() else np.nan
                       for j in range(J)])
+    for j, (centre, rms_j) in point_centre.items():
+        resid[j] = rms_j
     outl = 1.0 - inlier.sum(0) / np.maximum(n_frames, 1)
     if hinge.any():
         # Sign convention: axes point the way of the base-pose cross product of the bones, so
@@ -269,12 +301,89 @@ def calibrate(
         ),
         n_gym_frames=int(markers.shape[0]),
         rate_hz=rate_hz,
+        limb_joint_points=jpts,
     )
     model.bone_length = _bone_lengths(model, markers)
     model.warnings = tuple(warns)
     for msg in warns:
         warnings.warn(msg, CalibrationWarning, stacklevel=2)
     return model
+
+
+def _joint_points(definition: Any) -> np.ndarray:
+    """int64[L,P] joints usable as extra fit points per limb (-1 padding)."""
+    rows = tuple(getattr(definition, "limb_joint_points", ()) or ())
+    L = len(definition.limb_names)
+    rows = rows + ((),) * (L - len(rows))
+    out = np.full((L, max([len(r) for r in rows] + [0])), -1, dtype=np.int64)
+    for l, r in enumerate(rows):
+        out[l, : len(r)] = r
+    return out
+
+
+def _sphere_centre(y: np.ndarray, prior: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (m) of the spheres that markers y [T,K,3] (NaN = unseen) move on, and the RMS of
+    the radius residual. Directions the motion leaves undetermined stay at ``prior``."""
+    yc = y - prior
+    ok = np.isfinite(yc).all(-1)
+    sq = (yc * yc).sum(-1)
+    # |y - c|^2 = r_k^2 is linear in c after removing each marker's mean.
+    cnt = np.maximum(ok.sum(0), 1)
+    ybar = np.where(ok[..., None], yc, 0.0).sum(0) / cnt[:, None]
+    sbar = np.where(ok, sq, 0.0).sum(0) / cnt
+    g = 2.0 * (yc - ybar)[ok]
+    h = (sq - sbar)[ok]
+    lam, vec = np.linalg.eigh(g.T @ g)
+    keep = lam > _LOW_MOTION_TOL * max(lam[-1], 1e-300)
+    vk = vec[:, keep]
+    c = vk @ ((vk.T @ (g.T @ h)) / lam[keep])
+    r = np.linalg.norm(yc - c, axis=-1)
+    rbar = np.where(ok, r, 0.0).sum(0) / cnt
+    res = (r - rbar)[ok]
+    return c + prior, float(np.sqrt(np.mean(res * res))) if res.size else float("nan")
+
+
+def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source):
+    """Joint centres used as fit points (sphere fit of the limb's markers in the other limb's
+    frame), then the limbs' rigid fits redone with those centres as extra points."""
+    jl = np.asarray(definition.joint_limbs)
+    names = definition.joint_names
+    pl = np.flatnonzero((jpts >= 0).any(1))
+    centre: dict[int, tuple[np.ndarray, float]] = {}
+    for l in pl:
+        for j in jpts[l][jpts[l] >= 0]:
+            m = jl[j, 0] if jl[j, 1] == l else jl[j, 1]
+            if m in pl:
+                raise CalibrationError(
+                    f"{source}: layout '{definition.name}': joint point {names[j]} joins two limbs "
+                    f"that both need joint points ({definition.limb_names[l]}, {definition.limb_names[m]})")
+            frames = np.flatnonzero(fit.valid[:, m])
+            if frames.size < 10:
+                raise CalibrationError(
+                    f"{source}: limb {definition.limb_names[m]} is tracked in only {frames.size} frames; "
+                    f"cannot locate joint {names[j]}")
+            x = gather_limb_markers(markers[frames], idx[l])  # [F,K,3]
+            rm = fit.rotation[frames, m]
+            y = np.einsum("fji,fkj->fki", rm, x - fit.translation[frames, m][:, None, :])
+            centre[int(j)] = _sphere_centre(y, 0.5 * (c0[l] + c0[m]))
+    vmask = jpts[pl] >= 0
+    js = np.where(vmask, jpts[pl], 0)
+    other = np.where(jl[js, 1] == pl[:, None], jl[js, 0], jl[js, 1])
+    cref = np.zeros(js.shape + (3,))
+    for (i, k), j in np.ndenumerate(js):
+        if vmask[i, k]:
+            cref[i, k] = centre[int(j)][0]
+    cref = np.where(vmask[..., None], cref, np.nan)
+    seen = np.einsum("tpkij,pkj->tpki", fit.rotation[:, other], cref) + fit.translation[:, other]
+    cur2 = np.concatenate([gather_limb_markers(markers, idx[pl]), seen], axis=2)
+    ref2 = np.concatenate([ref[pl], cref], axis=1)
+    w2 = np.concatenate([w0[pl], vmask.astype(float)], axis=1)
+    fit2 = fit_rigid(ref2, cur2, w2)
+    merged = {k: getattr(fit, k).copy() for k in fit.__dataclass_fields__}
+    for k in merged:
+        if k != "n_visible":
+            merged[k][:, pl] = getattr(fit2, k)
+    return type(fit)(**merged), centre
 
 
 def _bone_lengths(model: SkeletonModel, markers: np.ndarray) -> np.ndarray:

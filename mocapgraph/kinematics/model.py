@@ -74,10 +74,15 @@ class SkeletonModel:
     n_gym_frames: int = 0
     rate_hz: float | None = None
     marker_fingerprint: str = field(default="")
+    # int64[L,P]: joints whose centre (seen from the joint's other limb) is an extra fit point
+    # of each limb (-1 padding); for limbs with only two markers (Plug-in Gait thigh).
+    limb_joint_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
 
     def __post_init__(self) -> None:
         if not self.marker_fingerprint:
             self.marker_fingerprint = marker_fingerprint(self.marker_labels)
+        if self.limb_joint_points.shape[0] != len(self.limb_names):
+            self.limb_joint_points = np.full((len(self.limb_names), 0), -1, dtype=np.int64)
 
     @property
     def n_joints(self) -> int:
@@ -128,6 +133,7 @@ class SkeletonModel:
                     "name": n,
                     "parent": int(self.limb_parent[i]),
                     "markers": [int(m) for m in self.limb_markers[i] if m >= 0],
+                    "joint_points": [int(j) for j in self.limb_joint_points[i] if j >= 0],
                     "centroid": arr(self.limb_centroid[i], 7),
                     "fit_rms": arr(self.limb_rms[i : i + 1], 7)[0],
                 }
@@ -179,6 +185,10 @@ class SkeletonModel:
             limb_markers = np.full((L, kmax), -1, dtype=np.int64)
             for i, li in enumerate(limbs):
                 limb_markers[i, : len(li["markers"])] = li["markers"]
+            pmax = max([len(li.get("joint_points", [])) for li in limbs] + [0])
+            jpts = np.full((L, pmax), -1, dtype=np.int64)
+            for i, li in enumerate(limbs):
+                jpts[i, : len(li.get("joint_points", []))] = li.get("joint_points", [])
             qs = [j["quality"] for j in joints]
             model = cls(
                 layout=str(d["layout"]),
@@ -208,6 +218,7 @@ class SkeletonModel:
                 warnings=tuple(d.get("warnings", ())),
                 n_gym_frames=int(d.get("n_gym_frames", 0)),
                 rate_hz=d.get("rate_hz"),
+                limb_joint_points=jpts,
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ModelFileError(f"{source}: malformed skeleton model ({exc.__class__.__name__}: {exc})") from None

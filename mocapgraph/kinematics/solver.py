@@ -113,23 +113,59 @@ class FrameSolver:
             for lvl in range(1, depth.max(initial=0) + 1)
             if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
         ]
+        self._setup_joint_points(model)
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter_spec = (filter, dict(filter_params or {}))
         self._filter = make_filter(filter, self._J, **self._filter_spec[1])
         self._frame = 0
 
+    def _setup_joint_points(self, model: SkeletonModel) -> None:
+        jp = np.asarray(model.limb_joint_points)
+        self._pl = np.flatnonzero((jp >= 0).any(1)) if jp.size else np.zeros(0, dtype=np.int64)
+        if not self._pl.size:
+            return
+        jp = jp[self._pl]
+        jl = np.asarray(model.joint_limbs)
+        J = self._J
+        self._vmask = jp >= 0
+        js = np.where(self._vmask, jp, 0)
+        # The point's position comes from the joint's *other* limb: column j holds the estimate
+        # from the proximal limb, column J + j the one from the distal limb.
+        mine_is_distal = jl[js, 1] == self._pl[:, None]
+        self._vcol = np.where(mine_is_distal, js, J + js)
+        vref = np.where(self._vmask[..., None], model.joint_base[js], np.nan)
+        self._ref2 = np.concatenate([self._ref[self._pl], vref], axis=1)
+        self._w2 = np.concatenate([self._w0[self._pl], self._vmask.astype(float)], axis=1)
+
     # ---- geometry (batched over frames) ---------------------------------------------------
+    def _limb_estimates(self, rot, trans, valid):
+        """Each joint as seen from each attached limb: float[T,2J,3] and ok bool[T,2J]."""
+        lab = self._labs
+        est = (rot[:, lab] @ self._pt)[..., 0] + trans[:, lab]
+        return est, valid[:, lab] & self._has
+
     def solve_geometry(self, markers: np.ndarray) -> SolverResult:
         """float[T,M,3] -> SolverResult over [T]; no temporal state is touched."""
         markers = np.asarray(markers, dtype=float)
-        T, J = markers.shape[0], self._J
+        J = self._J
         fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
+        rot, trans, valid, rms_l, nfit = fit.rotation, fit.translation, fit.valid, fit.rms, fit.n_visible
+        n_seen = fit.n_visible
+        if self._pl.size:
+            # Limbs with joint points: refit with the joint centres seen from the other limbs.
+            est, ok = self._limb_estimates(rot, trans, valid)
+            virt = np.where((ok[:, self._vcol] & self._vmask)[..., None], est[:, self._vcol], np.nan)
+            cur2 = np.concatenate([gather_limb_markers(markers, self._idx[self._pl]), virt], axis=2)
+            fit2 = fit_rigid(self._ref2, cur2, self._w2)
+            rot, trans, valid = rot.copy(), trans.copy(), valid.copy()
+            rms_l, nfit = rms_l.copy(), nfit.copy()
+            pl = self._pl
+            rot[:, pl], trans[:, pl], valid[:, pl] = fit2.rotation, fit2.translation, fit2.valid
+            rms_l[:, pl], nfit[:, pl] = fit2.rms, fit2.n_visible
+        est, ok = self._limb_estimates(rot, trans, valid)
         lab = self._labs
-        rot = fit.rotation[:, lab]                                          # [T,2J,3,3]
-        est = (rot @ self._pt)[..., 0] + fit.translation[:, lab]            # [T,2J,3]
-        n = fit.n_visible[:, lab]
-        rms = fit.rms[:, lab]
-        ok = fit.valid[:, lab] & self._has
+        n = nfit[:, lab]
+        rms = rms_l[:, lab]
         var = (self._sig2[lab] + rms * rms) / np.maximum(n, 1) * self._var_static
         w = np.where(ok, 1.0 / np.where(ok, var, 1.0), 0.0)
         w = np.where(ok & (rms > self._rms_tol[lab]), w * 1e-3, w)
@@ -150,8 +186,8 @@ class FrameSolver:
                 # NaN parents leave the child as measured.
                 moved = joints[:, p] + v * scale[..., None]
                 joints[:, c] = np.where(np.isfinite(moved), moved, joints[:, c])
-        lq = np.where(~fit.valid, _MISS, np.where(fit.rms > self._rms_tol, _EST, _GOOD)).astype(np.int8)
-        return SolverResult(joints, jq, fit.rotation, lq, fit.n_visible, fit.rms)
+        lq = np.where(~valid, _MISS, np.where(rms_l > self._rms_tol, _EST, _GOOD)).astype(np.int8)
+        return SolverResult(joints, jq, rot, lq, n_seen, rms_l)
 
     # ---- temporal stage (frame by frame, shared by live and batch) -------------------------
     def _temporal(self, joints: np.ndarray, jq: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
