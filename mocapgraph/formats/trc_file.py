@@ -62,10 +62,14 @@ def read_trc(path: str | Path, *, up_axis: str = "+Y") -> MarkerTrial:
         raise FormatError(path, f"cannot read file ({e.strerror or e})") from None
     lines = text.splitlines()
     notes: list[str] = []
-    if len(lines) < 5 or not lines[0].strip().lower().startswith("pathfiletype"):
+    if not lines or not lines[0].strip().lower().startswith("pathfiletype"):
         raise FormatError(path, "not a TRC file (first line does not start with PathFileType)")
+    if len(lines) < 5:
+        raise FormatError(path, f"TRC header is broken (file ends after line {len(lines)})")
 
-    keys = [k.strip().lower() for k in _split(lines[1]) if k.strip()]
+    raw_keys = [k.strip() for k in _split(lines[1]) if k.strip()]
+    keys = [k.lower() for k in raw_keys]
+    spelled = dict(zip(keys, raw_keys))
     vals = [v for v in _split(lines[2]) if v.strip()]
     if not keys or "datarate" not in keys and "camerarate" not in keys:
         raise FormatError(path, "TRC header is broken (line 2 has neither DataRate nor CameraRate)")
@@ -80,7 +84,7 @@ def read_trc(path: str | Path, *, up_axis: str = "+Y") -> MarkerTrial:
         try:
             return float(head[key])
         except ValueError:
-            raise FormatError(path, f"TRC header is broken ({key} = {head[key]!r} is not a "
+            raise FormatError(path, f"TRC header is broken ({spelled[key]} = {head[key]!r} is not a "
                                     f"number)") from None
 
     rate = num("datarate")
