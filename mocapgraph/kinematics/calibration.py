@@ -255,6 +255,7 @@ def calibrate(
         offsets[j, 0], offsets[j, 1] = centre - c0[la[j]], centre - c0[lb[j]]
         methods[j] = "sphere"
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
+    _place_hinge_centres(definition, joint_base, offsets, axes, hinge & ~low, methods)
     inlier = valid & (err <= c)
     resid = np.array([np.sqrt(np.mean(err[inlier[:, j], j] ** 2)) if inlier[:, j].any() else np.nan
                       for j in range(J)])
@@ -308,6 +309,38 @@ def calibrate(
     for msg in warns:
         warnings.warn(msg, CalibrationWarning, stacklevel=2)
     return model
+
+
+def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.ndarray,
+                         axes: np.ndarray, hinge: np.ndarray, methods: list[str]) -> None:
+    """Slide each hinge centre along its axis to where the axis meets the line from the parent
+    joint to the child joint (in place).
+
+    Motion about one axis leaves the centre's position along it unobservable. An anatomical
+    hinge's axis is normal to the plane of the neighbouring joint centres (shoulder, elbow,
+    wrist), so the closest point of the axis to the parent-child line is the centre in any pose.
+    Without both neighbours the midpoint prior stays.
+    """
+    jl = np.asarray(definition.joint_limbs)
+    parent = np.asarray(definition.joint_parent)
+    for j in np.flatnonzero(hinge):
+        kids = [k for k in np.flatnonzero(jl[:, 0] == jl[j, 1]) if not hinge[k]]
+        p = parent[j]
+        n = axes[j]
+        if p < 0 or not kids or not np.isfinite(n).all():
+            continue
+        a, b = joint_base[p], joint_base[kids[0]]
+        d = b - a
+        dn = float(d @ n)
+        dd = float(d @ d)
+        den = dd - dn * dn  # |d|^2 sin^2(angle between line and axis)
+        if dd <= 0 or den < 0.25 * dd:  # line within 30 deg of the axis: no reliable crossing
+            continue
+        w = joint_base[j] - a
+        s = (dn * float(w @ d) - dd * float(w @ n)) / den
+        joint_base[j] += s * n
+        offsets[j] += s * n
+        methods[j] = "hinge+plane"
 
 
 def _joint_points(definition: Any) -> np.ndarray:

@@ -8,6 +8,7 @@ import warnings
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from mocapgraph.kinematics import arm_jig
 from mocapgraph.kinematics.calibration import (
@@ -44,8 +45,22 @@ def test_hinge_axis_and_centre_on_axis():
     assert abs(axis @ true_axis) > 1 - 1e-9
     d = model.joint_base[1] - joints[0, 1]
     assert np.linalg.norm(d - (d @ axis) * axis) < 1e-6  # centre lies on the true axis
-    assert model.quality.method[1] == "hinge"
+    assert model.quality.method[1] == "hinge+plane"
     assert np.isnan(model.hinge_axis[0]).all()
+
+
+def test_hinge_centre_from_the_plane_of_its_neighbours_is_exact():
+    # Elbow flexing about the normal of the shoulder-elbow-wrist plane (an anatomical hinge):
+    # the centre along the axis comes from that plane and is exact.
+    layout = copy.deepcopy(arm_jig.ARM_LAYOUT)
+    layout["limbs"][2]["joint"]["type"] = "hinge"
+    base = arm_jig.BASE_A.copy()
+    base[2] = base[1] @ Rotation.from_euler("z", -35, degrees=True).as_matrix()
+    axes = np.ones((4, 3))
+    axes[2] = [0, 0, 1]
+    markers, joints = _gym(axes=axes, base=base)
+    model = calibrate(_definition(layout), markers)
+    np.testing.assert_allclose(model.joint_base, joints[0], atol=1e-6)
 
 
 def test_joint_point_limb_with_two_markers_is_exact():
