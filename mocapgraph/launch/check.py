@@ -82,6 +82,11 @@ def _remapped(spec: NodeSpec, port: str, default_topic: str) -> str:
     return spec.remap.get(port, spec.remap.get(default_topic, default_topic))
 
 
+def _blame_key(spec: NodeSpec, port: str, default_topic: str) -> str:
+    """The key to name in an error about a port: its remap when it has one, else the node type."""
+    return "remap" if port in spec.remap or default_topic in spec.remap else "type"
+
+
 def check_graph(spec: GraphSpec) -> CheckedGraph:
     """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault."""
     seen: dict[str, NodeSpec] = {}
@@ -125,7 +130,7 @@ def check_graph(spec: GraphSpec) -> CheckedGraph:
             t = rn.iface.outputs[port].type_name
             for other, other_t in publishers.get(topic, []):
                 if other_t != t:
-                    raise rn.spec.error("remap" if port in rn.spec.remap else "type",
+                    raise rn.spec.error(_blame_key(rn.spec, port, rn.iface.outputs[port].topic),
                                         f"publishes {topic!r} as {t} but {other} publishes it as {other_t}")
             publishers.setdefault(topic, []).append((rn.name, t))
             flow.add_edge(("node", rn.name), ("topic", topic), type=t)
@@ -135,13 +140,13 @@ def check_graph(spec: GraphSpec) -> CheckedGraph:
             pubs = publishers.get(topic, [])
             if not pubs and topic != DIAGNOSTICS_TOPIC:
                 if decl.required:
-                    key = "remap" if (port in rn.spec.remap or decl.topic in rn.spec.remap) else "type"
-                    raise rn.spec.error(key, f"input {port!r} subscribes to topic {topic!r} that no node publishes"
+                    raise rn.spec.error(_blame_key(rn.spec, port, decl.topic),
+                                        f"input {port!r} subscribes to topic {topic!r} that no node publishes"
                                         f"{did_you_mean(topic, list(publishers))}")
                 continue
             for pub, t in pubs:
                 if decl.msg_type is not None and t != decl.type_name:
-                    raise rn.spec.error("remap" if port in rn.spec.remap else "type",
+                    raise rn.spec.error(_blame_key(rn.spec, port, decl.topic),
                                         f"input {port!r} wants {decl.type_name} on {topic!r}, but {pub} publishes {t}")
             flow.add_edge(("topic", topic), ("node", rn.name), type=decl.type_name)
     return CheckedGraph(spec, resolved, flow)
