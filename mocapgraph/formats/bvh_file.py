@@ -90,7 +90,10 @@ class BvhMotion:
 
     @property
     def rate_hz(self) -> float:
-        return 1.0 / self.frame_time_s
+        """Frames per second; snapped to a whole number when Frame Time is a rounded
+        1/integer (".0083333" -> 120)."""
+        r = 1.0 / self.frame_time_s
+        return float(round(r)) if abs(r - round(r)) < 1e-4 * r else r
 
     def index(self, name: str) -> int:
         return self.names.index(name)
@@ -326,7 +329,7 @@ def bvh_to_skeleton(motion: BvhMotion, *, include_end_sites: bool = True,
                     start_ns: int = 0) -> SkeletonTrial:
     """A :class:`SkeletonTrial` (world positions, orientations) from a BVH motion.
 
-    Time stamps are ``start_ns`` + frame index * frame time.
+    Time stamps are ``start_ns`` + frame index / ``motion.rate_hz``.
     """
     pos, quat = motion.forward_kinematics()
     keep = np.arange(motion.n_joints) if include_end_sites else np.flatnonzero(~motion.is_end_site)
@@ -334,7 +337,7 @@ def bvh_to_skeleton(motion: BvhMotion, *, include_end_sites: bool = True,
     remap[keep] = np.arange(len(keep))
     parents = np.array([remap[motion.parents[j]] if motion.parents[j] >= 0 else -1 for j in keep])
     T = motion.n_frames
-    ts = start_ns + np.round(np.arange(T) * motion.frame_time_s * 1e9).astype(np.int64)
+    ts = start_ns + np.round(np.arange(T) * (1e9 / motion.rate_hz)).astype(np.int64)
     return SkeletonTrial(
         names=[motion.names[j] for j in keep], parents=parents,
         positions=pos[:, keep], orientations=quat[:, keep],
