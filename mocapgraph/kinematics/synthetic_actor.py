@@ -62,7 +62,7 @@ class CaptureOptions:
 
     noise_mm: float = 0.0          # Gaussian marker noise, std per axis, millimetres
     wobble_mm: float = 0.0         # soft-tissue wobble, RMS per axis in the limb frame, millimetres
-    wobble_hz: tuple[float, float] = (0.3, 3.0)   # frequency band of the wobble
+    wobble_hz: tuple[float, float] = (0.2, 2.0)   # frequency band of the wobble
     dropout_rate_hz: float = 0.0   # random single-marker dropouts per marker per second
     dropout_mean_s: float = 0.08   # mean dropout length (exponential)
     shadow_rate_hz: float = 0.0    # limb-shadowing events per second (whole limb or some markers)
