@@ -422,6 +422,8 @@ def write_c3d(path: str | Path, trial: MarkerTrial, *, units: str = "mm") -> Non
     c["parameters"]["POINT"]["RATE"]["value"] = [float(trial.rate_hz)]
     c["parameters"]["POINT"]["LABELS"]["value"] = tuple(trial.labels)
     c["data"]["points"] = pts
+    if trial.first_frame >= 1:  # C3D header frame numbers are 1-based, ezc3d's 0-based
+        c["header"]["points"]["first_frame"] = int(trial.first_frame) - 1
     c["data"]["meta_points"] = {"residuals": res,
                                 "camera_masks": np.zeros((7, trial.n_markers, trial.n_frames),
                                                          dtype=bool)}
