@@ -114,20 +114,24 @@ class BvhMotion:
         Rg = np.empty((T, J, 3, 3))
         pg = np.empty((T, J, 3))
         orders = self.rotation_orders()
+        rot_cols = [[self.channel_start[j] + k for k, c in enumerate(self.channels[j])
+                     if c.endswith("rotation")] for j in range(J)]
+        # one scipy call per distinct rotation order, batched over joints and frames
+        local_R = np.broadcast_to(np.eye(3), (J, T, 3, 3)).copy()
+        for order in set(orders) - {""}:
+            js = [j for j in range(J) if orders[j] == order]
+            ang = vals[:, [c for j in js for c in rot_cols[j]]].reshape(T, len(js), len(order))
+            mats = Rotation.from_euler(order, ang.transpose(1, 0, 2).reshape(-1, len(order)),
+                                       degrees=True).as_matrix()
+            local_R[js] = mats.reshape(len(js), T, 3, 3)
         for j in range(J):
             ch = self.channels[j]
             c0 = self.channel_start[j]
             local_t = np.broadcast_to(self.offsets[j], (T, 3)).copy()
-            rot_cols = []
             for k, name in enumerate(ch):
                 if name.endswith("position"):
                     local_t[:, "XYZ".index(name[0])] += vals[:, c0 + k]
-                else:
-                    rot_cols.append(c0 + k)
-            if rot_cols:
-                R = Rotation.from_euler(orders[j], vals[:, rot_cols], degrees=True).as_matrix()
-            else:
-                R = np.broadcast_to(np.eye(3), (T, 3, 3))
+            R = local_R[j]
             p = self.parents[j]
             if p < 0:
                 Rg[:, j] = R
