@@ -235,10 +235,13 @@ class SyntheticActor:
             e1 = np.cross(u, ref)
             e1 /= np.linalg.norm(e1)
             e2 = np.cross(u, e1)
+            e2 *= np.sign(e2[2]) or 1.0
             k = len(own)
             along = rng.permutation(np.linspace(0.2, 0.85, k)) if k > 1 else np.array([0.5])
             az = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(k) / k + rng.uniform(-0.35, 0.35, k)
             rad = rng.uniform(*geo.radius[s], size=k)
+            if SEGMENT_NAMES[s].startswith("foot"):
+                az = np.arctan2(np.abs(np.sin(az)), np.cos(az))   # on the dorsum, never under the sole
             pos = P + along[:, None] * (D - P) + rad[:, None] * (np.cos(az)[:, None] * e1 + np.sin(az)[:, None] * e2)
             base[own] = pos
         self.base_markers = base
@@ -325,6 +328,8 @@ class SyntheticActor:
         geo = self.geometry
         R = np.empty((n, S, 3, 3))
         T = np.empty((n, S, 3))
+        if n == 0:
+            return R, T
         z, x, y = np.eye(3)[2], np.eye(3)[0], np.eye(3)[1]
         root = (Rotation.from_rotvec((ms.root_yaw + ms.root_local[:, 2])[:, None] * z)
                 * Rotation.from_rotvec(ms.root_local[:, 1][:, None] * x)
@@ -335,10 +340,10 @@ class SyntheticActor:
         for s in range(1, S):
             p = SEGMENT_PARENT[s]
             dofs = joint_dofs(CANON_JOINTS[s - 1])
-            q = Rotation.identity(n) if n else None
+            q = Rotation.identity(n)
             for d in range(len(dofs)):
                 q = Rotation.from_rotvec(ang[:, s - 1, d][:, None] * dofs[d].axis) * q
-            R[:, s] = R[:, p] @ q.as_matrix() if n else R[:, s]
+            R[:, s] = R[:, p] @ q.as_matrix()
             c = geo.proximal[s]
             J = R[:, p] @ c + T[:, p]
             T[:, s] = J - R[:, s] @ c
@@ -361,15 +366,9 @@ class SyntheticActor:
         cents = np.einsum("tlab,lb->tla", Rl, self.base_centroids) + Tl
         Rm = R[:, self._marker_seg]
         clean = np.einsum("tmab,mb->tma", Rm, self.base_markers) + T[:, self._marker_seg]
-        limb_quat = Rotation.from_matrix(Rl.reshape(-1, 3, 3)).as_quat(scalar_first=True).reshape(n, -1, 4)
-        if sk.n_joints:
-            Rp, Rc = Rl[:, sk.joint_limbs[:, 0]], Rl[:, sk.joint_limbs[:, 1]]
-            local = np.einsum("tjba,tjbc->tjac", Rp, Rc)
-            joint_quat = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_quat(scalar_first=True).reshape(n, -1, 4)
-        else:
-            joint_quat = np.zeros((n, 0, 4))
-        limb_quat = _positive_w(limb_quat)
-        joint_quat = _positive_w(joint_quat)
+        limb_quat = _quat(Rl)
+        local = np.einsum("tjba,tjbc->tjac", Rl[:, sk.joint_limbs[:, 0]], Rl[:, sk.joint_limbs[:, 1]])
+        joint_quat = _quat(local)
 
         meas, valid, swaps = self._measure(frames, clean, Rm)
         return SyntheticCapture(
@@ -431,7 +430,12 @@ class SyntheticActor:
         return np.concatenate(out, axis=0)
 
 
-def _positive_w(q: np.ndarray) -> np.ndarray:
+def _quat(mats: np.ndarray) -> np.ndarray:
+    """wxyz quaternions (w >= 0) of rotation matrices [..., 3, 3]."""
+    lead = mats.shape[:-2]
+    if mats.size == 0:
+        return np.zeros(lead + (4,))
+    q = Rotation.from_matrix(mats.reshape(-1, 3, 3)).as_quat(scalar_first=True).reshape(lead + (4,))
     return np.where(q[..., :1] < 0, -q, q)
 
 

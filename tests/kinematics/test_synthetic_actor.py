@@ -152,6 +152,8 @@ def test_longer_sessions_repeat_the_performance_and_chunks_match_whole():
     mid = act.capture(1000, 1200)
     np.testing.assert_array_equal(mid.markers, whole.markers[1000:1200])
     assert mid.phase_slice("base") == slice(0, 0)
+    empty = act.capture(20, 20)
+    assert empty.markers.shape == (0, act.skeleton.n_markers, 3) and empty.limb_quat.shape[0] == 0
     with pytest.raises(ValueError):
         act.capture(10, 5000)
 
