@@ -25,10 +25,20 @@ class GapFiller:
         self.vel = np.zeros((n, 3))
         self.t_last = np.full(n, -np.inf)
         self.fresh = np.zeros(n, dtype=bool)  # last step was measured (velocity can update)
+        self._steady = False  # every point measured at the same last time
 
     def step(self, x: np.ndarray, quality: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """x: float[N,3] measured (NaN = missing), quality int8[N]; returns filled copies."""
         meas = quality != Quality.MISSING
+        if self._steady and meas.all():
+            # Common case: everything measured now and last frame; only the velocity moves.
+            dt = t - self.t_last[0]
+            if dt > 0:
+                self.vel *= 1.0 - self.alpha
+                self.vel += (self.alpha / dt) * (x - self.last)
+            self.last[:] = x
+            self.t_last[:] = t
+            return x, quality
         dt = t - self.t_last
         upd = meas & self.fresh & (dt > 0)
         if upd.any():
@@ -44,6 +54,7 @@ class GapFiller:
         self.last[meas] = x[meas]
         self.t_last[meas] = t
         self.fresh = meas
+        self._steady = bool(meas.all()) and bool((self.t_last == t).all())
         return x, q
 
 
