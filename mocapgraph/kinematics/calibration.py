@@ -124,12 +124,12 @@ def _range_of_motion(q_rel: np.ndarray, max_samples: int = 240) -> float:
 def _solve_offsets(
     nmat: np.ndarray, g: np.ndarray, hinge: bool, low_motion: bool
 ) -> tuple[np.ndarray, np.ndarray | None, str]:
-    """Minimise the SCoRE system (normal matrix nmat [6,6], g [6]) with prior on weak directions.
+    """Minimise the SCoRE system (normal matrix nmat [6,6], g [6]) with a prior on weak directions.
 
-    The prior pulls the joint's base-pose position (mean of both limbs' estimates) to the midpoint
-    of the two centroids, i.e. it minimises |o_a + o_b| (offsets are from each centroid and the
-    midpoint term cancels when written with the centroid difference folded into g).
-    Returns x = [o_a, o_b] relative to the midpoint-based parametrisation, the hinge axis, method.
+    x = [x_a, x_b] are the offsets measured from the midpoint of the two limbs' base centroids,
+    so the base-pose joint is ``mid + (x_a + x_b) / 2``; directions of x the motion leaves
+    undetermined (eigenvalues below the tolerance, and the hinge axis) are chosen to put that
+    point nearest to the midpoint. Returns x, the hinge axis (unit, or None) and the method name.
     """
     lam, vec = np.linalg.eigh(nmat)
     lmax = max(lam[-1], 1e-300)
@@ -262,10 +262,7 @@ def calibrate(
     for j, (centre, rms_j) in point_centre.items():
         resid[j] = rms_j
     outl = 1.0 - inlier.sum(0) / np.maximum(n_frames, 1)
-    if hinge.any():
-        # Sign convention: axes point the way of the base-pose cross product of the bones, so
-        # left and right come out consistent; only the line matters to the solver.
-        axes[~hinge] = np.nan
+    axes[~hinge] = np.nan  # the axis sign is arbitrary; only the line matters to the solver
 
     limb_rms = np.nanmedian(np.where(fit.valid, fit.rms, np.nan), axis=0) if fit.valid.any(0).all() \
         else np.array([np.nanmedian(fit.rms[fit.valid[:, l], l]) if fit.valid[:, l].any() else np.nan
