@@ -31,6 +31,11 @@ from .ports import Input, Interface, Output, Param, ParamError
 from .stats import InputStats
 
 DIAGNOSTICS_TOPIC = "diagnostics"
+# Plain ints: pyzmq's enum flags cost an enum operation per frame on the hot path.
+_SNDMORE = int(zmq.SNDMORE)
+_NOBLOCK = int(zmq.NOBLOCK)
+_POLLIN = int(zmq.POLLIN)
+_EVENTS = int(zmq.EVENTS)
 DIAGNOSTICS_PERIOD_S = 1.0
 LOG_FORMAT = "%(levelname)s %(message)s"
 
@@ -79,13 +84,16 @@ class OutputPort:
         if not isinstance(msg, self.decl.msg_type):
             raise TypeError(f"{self.decl.name} publishes {self.decl.type_name}, not {type(msg).__name__}")
         self.seq += 1
-        now = time.time_ns()
-        frames = encode(self.topic, msg, self.seq, now if capture_ns is None else capture_ns,
-                        self.node.name, now, self.latched)
+        frames = encode(self.topic, msg, self.seq, time.time_ns() if capture_ns is None else capture_ns,
+                        self.node.name, None, self.latched)
         if self.latched:
             frames = [bytes(f) for f in frames]  # keep a copy we own for resends
             self.last_frames = frames
-        self.node._pub.send_multipart(frames, copy=len(frames[-1]) < 65536)
+        send = self.node._pub.send
+        copy = len(frames[-1]) < 65536  # zero-copy pays off only for large payloads
+        for f in frames[:-1]:
+            send(f, _SNDMORE, copy=copy)
+        send(frames[-1], 0, copy=copy)
 
 
 class InputPort:
@@ -290,10 +298,10 @@ class Node:
         sock = port.socket
         newest: tuple[Envelope, list[bytes]] | None = None
         for _ in range(256):  # bounded so one busy input cannot starve the others
-            try:
-                frames = sock.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
+            # Ask before receiving: a raised zmq.Again costs more than the message itself.
+            if not sock.getsockopt(_EVENTS) & _POLLIN:
                 break
+            frames = sock.recv_multipart(_NOBLOCK)
             now = time.time_ns()
             try:
                 env = decode_envelope(frames)

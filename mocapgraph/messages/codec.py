@@ -70,8 +70,12 @@ def encode(
     info = msg._info
     tname = info.name.encode()
     sname = sender.encode()
-    if publish_ns is None:
-        publish_ns = time.time_ns()
+    d = msg.__dict__
+    fields = {s.name: d[s.name] for s in info.scalars}
+    for s in info.strings:
+        fields[s.name] = d[s.name]
+    arrays = [d[a.name] for a in info.arrays]
+    meta = json.dumps({"f": fields, "s": [a.shape for a in arrays]}, separators=(",", ":"))
     header = HEADER.pack(
         MAGIC,
         CODEC_VERSION,
@@ -81,14 +85,8 @@ def encode(
         len(sname),
         seq,
         capture_ns,
-        publish_ns,
+        time.time_ns() if publish_ns is None else publish_ns,  # stamped last: encoding is not latency
     )
-    d = msg.__dict__
-    fields = {s.name: d[s.name] for s in info.scalars}
-    for s in info.strings:
-        fields[s.name] = d[s.name]
-    arrays = [d[a.name] for a in info.arrays]
-    meta = json.dumps({"f": fields, "s": [a.shape for a in arrays]}, separators=(",", ":"))
     frames: list[bytes | memoryview] = [topic_frame(topic), header + tname + sname, meta.encode()]
     for arr in arrays:
         # The field setters keep arrays contiguous with the declared dtype; native order on

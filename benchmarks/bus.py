@@ -1,0 +1,237 @@
+"""Bus benchmark: mocapgraph nodes against raw pyzmq, measured in the same run.
+
+Prints:
+- one-way latency p50/p99 of a 64-marker MarkerFrame between two processes, ping-pong
+  ("back-to-back": the next frame leaves when the previous came back) and paced at 240 Hz,
+  for mocapgraph nodes and for raw pyzmq multipart sending the same bytes, and the ratios
+  (targets: p50 <= 1.3x, p99 <= 1.5x);
+- 1 kHz from one publisher to 4 subscribers for --fanout-s seconds: sequence gaps (target 0);
+- a 100k-message burst into a 1000-deep queue: reported gaps against actual loss (must be equal);
+- time for a 7-node graph to be ready and to shut down (targets < 2 s each).
+
+Usage: python benchmarks/bus.py [--count 3000] [--fanout-s 60] [--burst 100000]
+"""
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import os
+import re
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+from bus_nodes import frame  # noqa: E402
+
+from mocapgraph.messages import encode  # noqa: E402
+from mocapgraph.messages.codec import HEADER  # noqa: E402
+
+PUB_OFFSET = HEADER.size - 8  # publish stamp is the header's last field
+
+
+def run_graph(yaml_text: str, tmp: Path, wait_for: str | None = None, run_s: float | None = None,
+              timeout: float = 600) -> str:
+    """Launch a graph, wait for a line or a duration, stop it with SIGINT; returns its output."""
+    path = tmp / f"g{time.monotonic_ns()}.yaml"
+    path.write_text(yaml_text)
+    env = dict(os.environ, PYTHONPATH=f"{HERE}:{os.environ.get('PYTHONPATH', '')}",
+               MOCAPGRAPH_MASTER=f"ipc://{tmp / ('m' + str(time.monotonic_ns()))}")
+    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(path)], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, env=env)
+    lines: list[str] = []
+    t_end = time.monotonic() + (run_s if run_s is not None else timeout)
+    os.set_blocking(proc.stdout.fileno(), False)
+    while time.monotonic() < t_end:
+        chunk = proc.stdout.read()
+        if chunk:
+            lines.extend(chunk.decode(errors="replace").splitlines())
+        if wait_for and any(wait_for in line for line in lines):
+            break
+        if proc.poll() is not None:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(30)
+    os.set_blocking(proc.stdout.fileno(), True)
+    lines.extend(proc.stdout.read().decode(errors="replace").splitlines())
+    return "\n".join(lines)
+
+
+def mocapgraph_latency(tmp: Path, rate_hz: float, count: int) -> np.ndarray:
+    out = tmp / f"lat{rate_hz}.npy"
+    run_graph(f"""
+nodes:
+  - name: sender
+    type: bus_nodes:BenchSender
+    params: {{rate_hz: {rate_hz}, count: {count}}}
+  - name: receiver
+    type: bus_nodes:BenchReceiver
+    params: {{echo: {str(rate_hz == 0).lower()}, out_file: "{out}"}}
+""", tmp, run_s=0.6 + count / (rate_hz or 4000) + 1.5)
+    return np.load(out)[20:]  # drop warm-up
+
+
+def _raw_receiver(ep_in: str, ep_out: str, echo: bool, count: int, q) -> None:
+    ctx = zmq.Context()
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(ep_in)
+    pub = ctx.socket(zmq.PUB)
+    pub.bind(ep_out)
+    lat = []
+    q.put("ready")
+    while len(lat) < count:
+        if not sub.poll(5000):
+            break
+        frames = sub.recv_multipart()
+        lat.append(time.time_ns() - struct.unpack_from("<q", frames[1], PUB_OFFSET)[0])
+        if echo:
+            pub.send_multipart(frames)
+    q.put(np.array(lat, np.int64))
+
+
+def raw_latency(tmp: Path, rate_hz: float, count: int) -> np.ndarray:
+    """Raw pyzmq: the same frames (stamp patched in place), PUB/SUB over ipc, no codec, no runtime."""
+    ep_a, ep_b = f"ipc://{tmp / 'a'}", f"ipc://{tmp / 'b'}"
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.bind(ep_a)
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(ep_b)
+    q = mp.get_context("fork").Queue()
+    proc = mp.get_context("fork").Process(target=_raw_receiver, args=(ep_a, ep_b, rate_hz == 0, count, q))
+    proc.start()
+    q.get(timeout=10)
+    time.sleep(0.5)  # slow joiner: raw pyzmq has no handshake
+    frames = [bytes(f) for f in encode("ping", frame(64, 0), 1, 0, "sender")]
+    header = bytearray(frames[1])
+    period = 1.0 / rate_hz if rate_hz else 0.0
+    next_t = time.monotonic()
+    for i in range(count):
+        if rate_hz:
+            next_t += period
+            while True:
+                wait = next_t - time.monotonic()
+                if wait <= 0:
+                    break
+                time.sleep(wait if wait > 0.002 else wait * 0.9)
+        struct.pack_into("<q", header, PUB_OFFSET, time.time_ns())
+        frames[1] = bytes(header)
+        pub.send_multipart(frames)
+        if not rate_hz:
+            if not sub.poll(5000):
+                break
+            sub.recv_multipart()
+            time.sleep(0.0002)
+    lat = q.get(timeout=30)
+    proc.join()
+    ctx.destroy(0)
+    return lat[20:]
+
+
+ROUNDS = 3
+
+
+def pct(a: np.ndarray, p: float) -> float:
+    return float(np.percentile(a, p)) / 1e3
+
+
+def latency_section(tmp: Path, count: int) -> None:
+    print("one-way latency, 64-marker MarkerFrame, two processes (us)")
+    print(f"{'mode':<14}{'raw p50':>9}{'raw p99':>9}{'mg p50':>9}{'mg p99':>9}{'p50 x':>8}{'p99 x':>8}")
+    for label, rate in (("back-to-back", 0.0), ("240 Hz", 240.0)):
+        n = count if rate == 0 else min(count, 2400)
+        # Alternate rounds so that load from elsewhere on the machine hits both alike.
+        raws, mgs = [], []
+        for _ in range(ROUNDS):
+            raws.append(raw_latency(tmp, rate, n // ROUNDS))
+            mgs.append(mocapgraph_latency(tmp, rate, n // ROUNDS))
+        raw, mg = np.concatenate(raws), np.concatenate(mgs)
+        r50, r99, m50, m99 = pct(raw, 50), pct(raw, 99), pct(mg, 50), pct(mg, 99)
+        print(f"{label:<14}{r50:9.1f}{r99:9.1f}{m50:9.1f}{m99:9.1f}{m50 / r50:8.2f}{m99 / r99:8.2f}"
+              f"   (n raw {len(raw)}, mg {len(mg)}; targets 1.3x / 1.5x)")
+
+
+def fanout_section(tmp: Path, seconds: float) -> None:
+    count = int(seconds * 1000)
+    files = [tmp / f"fan{i}.npy" for i in range(4)]
+    receivers = "".join(f"""
+  - name: r{i}
+    type: bus_nodes:BenchReceiver
+    params: {{out_file: "{f}"}}""" for i, f in enumerate(files))
+    run_graph(f"""
+nodes:
+  - name: sender
+    type: bus_nodes:BenchSender
+    params: {{rate_hz: 1000.0, count: {count}}}{receivers}
+""", tmp, run_s=seconds + 3.0)
+    results = [open(str(f) + ".counts").read().split() for f in files]
+    got = [int(r[0]) for r in results]
+    gaps = [int(r[1]) for r in results]
+    print(f"1 kHz to 4 subscribers for {seconds:.0f} s: sent {count}, received {got}, gaps {gaps} "
+          f"({'OK' if sum(gaps) == 0 and min(got) == count else 'LOSS'})")
+
+
+def burst_section(tmp: Path, n: int) -> None:
+    out = tmp / "burst.npy"
+    run_graph(f"""
+nodes:
+  - name: sender
+    type: bus_nodes:BenchSender
+    params: {{burst: true, count: {n}}}
+  - name: receiver
+    type: bus_nodes:BenchReceiver
+    params: {{out_file: "{out}", queue: 1000}}
+""", tmp, run_s=4.0 + n / 50000)
+    got, gaps, last = (int(x) for x in open(str(out) + ".counts").read().split())
+    lost = n - got
+    print(f"burst of {n} into a 1000-deep queue: received {got}, actual loss {lost}, "
+          f"reported gaps {gaps} + {n - last} after the last received "
+          f"({'counted exactly' if gaps + (n - last) == lost else 'MISMATCH'})")
+
+
+def startup_section(tmp: Path) -> None:
+    nodes = "".join(f"""
+  - name: n{i}
+    type: bus_nodes:BenchReceiver""" for i in range(6))
+    t0 = time.monotonic()
+    text = run_graph(f"""
+nodes:
+  - name: sender
+    type: bus_nodes:BenchSender
+    params: {{rate_hz: 100.0, count: 1000000}}{nodes}
+""", tmp, wait_for="nodes ready in")
+    wall = time.monotonic() - t0
+    ready = float(re.search(r"ready in ([\d.]+) s", text).group(1))
+    stop = float(re.search(r"stopped in ([\d.]+) s", text).group(1))
+    print(f"7-node graph: ready in {ready:.2f} s after spawn ({wall:.2f} s wall incl. launcher start and stop), "
+          f"stopped in {stop:.2f} s (targets < 2 s)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--count", type=int, default=3000, help="latency samples per mode")
+    ap.add_argument("--fanout-s", type=float, default=60.0)
+    ap.add_argument("--burst", type=int, default=100_000)
+    a = ap.parse_args()
+    print(f"machine: {os.cpu_count()} cores, pyzmq {zmq.pyzmq_version()}, libzmq {zmq.zmq_version()}")
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        latency_section(tmp, a.count)
+        startup_section(tmp)
+        burst_section(tmp, a.burst)
+        fanout_section(tmp, a.fanout_s)
+
+
+if __name__ == "__main__":
+    main()
