@@ -26,6 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from .registry import UnknownTypeError, lookup
+from .schema import SCALAR_TYPES as SCALAR_PY
 from .schema import Message, MessageError
 
 MAGIC = b"MG"
@@ -137,8 +138,9 @@ def decode_payload(cls: type[Message], env: Envelope, frames: Sequence[bytes | m
         )
     if len(frames) != 3 + len(info.arrays):
         raise DecodeError(f"{info.name} wants {3 + len(info.arrays)} frames, got {len(frames)}")
+    block = frames[2]
     try:
-        meta = json.loads(bytes(frames[2]))
+        meta = json.loads(block if isinstance(block, bytes) else bytes(block))
         values = meta["f"]
         shapes = meta["s"]
     except (ValueError, KeyError, TypeError) as exc:
@@ -148,37 +150,51 @@ def decode_payload(cls: type[Message], env: Envelope, frames: Sequence[bytes | m
     msg = cls.__new__(cls)
     d = msg.__dict__
     try:
-        for s in info.scalars:
-            d[s.name] = s.coerce(values[s.name]) if s.name in values else s.default
+        for s, py in _scalar_plan(info):
+            v = values.get(s.name, s.default)
+            d[s.name] = v if type(v) is py else s.coerce(v)
         for s in info.strings:
             d[s.name] = s.coerce(values.get(s.name, []))
     except MessageError as exc:
         raise DecodeError(f"{info.name}: {exc}") from None
     symbols: dict[str, int] = {}
-    for spec, shape, buf in zip(info.arrays, shapes, frames[3:]):
-        d[spec.name] = _decode_array(info.name, spec, shape, buf, symbols)
+    for (spec, dtype), shape, buf in zip(_array_plan(info), shapes, frames[3:]):
+        d[spec.name] = _decode_array(info.name, spec, dtype, shape, buf, symbols)
     return msg
 
 
-_DTYPES: dict[str, np.dtype] = {}
+_PLANS: dict[str, tuple[list, list]] = {}
 
 
-def _decode_array(tname: str, spec, shape, buf, symbols: dict[str, int]) -> np.ndarray:
-    if not isinstance(shape, list) or len(shape) != len(spec.shape):
+def _scalar_plan(info) -> list:
+    plan = _PLANS.get(info.name)
+    if plan is None:
+        plan = _PLANS[info.name] = (
+            [(s, SCALAR_PY[s.kind]) for s in info.scalars],
+            [(a, np.dtype(a.dtype)) for a in info.arrays],
+        )
+    return plan[0]
+
+
+def _array_plan(info) -> list:
+    return _PLANS[info.name][1] if info.name in _PLANS else (_scalar_plan(info), _PLANS[info.name][1])[1]
+
+
+def _decode_array(tname: str, spec, dtype: np.dtype, shape, buf, symbols: dict[str, int]) -> np.ndarray:
+    if type(shape) is not list or len(shape) != len(spec.shape):
         raise DecodeError(f"{tname}.{spec.name}: shape {shape} does not match {spec.shape_text()}")
     for size, want in zip(shape, spec.shape):
-        if not isinstance(size, int) or size < 0:
+        if type(size) is not int or size < 0:
             raise DecodeError(f"{tname}.{spec.name}: bad shape {shape}")
-        if isinstance(want, int):
+        if type(want) is int:
             if size != want:
                 raise DecodeError(f"{tname}.{spec.name}: shape {shape} is not {spec.shape_text()}")
         elif symbols.setdefault(want, size) != size:
             raise DecodeError(
                 f"{tname}.{spec.name}: {want}={size} disagrees with {want}={symbols[want]} elsewhere"
             )
-    dtype = _DTYPES.get(spec.dtype) or _DTYPES.setdefault(spec.dtype, np.dtype(spec.dtype))
     count = math.prod(shape)
-    nbytes = len(buf) if isinstance(buf, (bytes, bytearray)) else memoryview(buf).nbytes
+    nbytes = len(buf) if isinstance(buf, bytes) else memoryview(buf).nbytes
     if nbytes != count * dtype.itemsize:
         raise DecodeError(
             f"{tname}.{spec.name}: {nbytes} bytes for shape {shape} of {dtype} "
