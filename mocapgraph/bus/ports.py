@@ -76,8 +76,22 @@ class Param:
         object.__setattr__(self, "name", name)
 
 
+class _PortDeclaration:
+    """Class-level access gives the declaration; instance access the node's bound port."""
+
+    name: str
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        object.__setattr__(self, "name", name)
+
+    def __get__(self, obj: Any, owner: type) -> Any:
+        if obj is None:
+            return self
+        return obj._ports[self.name]
+
+
 @dataclass(frozen=True)
-class Input:
+class Input(_PortDeclaration):
     """A subscription. ``msg_type`` None takes any type (recorders, viewers).
 
     queue: messages buffered by the socket before new ones are dropped (and counted as gaps).
@@ -94,21 +108,13 @@ class Input:
     required: bool = True
     name: str = ""
 
-    def __set_name__(self, owner: type, name: str) -> None:
-        object.__setattr__(self, "name", name)
-
-    def __get__(self, obj: Any, owner: type) -> Any:
-        if obj is None:
-            return self
-        return obj._ports[self.name]
-
     @property
     def type_name(self) -> str:
         return self.msg_type.type_name if self.msg_type else "*"
 
 
 @dataclass(frozen=True)
-class Output:
+class Output(_PortDeclaration):
     """A publication. Latched outputs resend their last value to every late subscriber."""
 
     topic: str
@@ -116,14 +122,6 @@ class Output:
     doc: str = ""
     latched: bool | None = None
     name: str = ""
-
-    def __set_name__(self, owner: type, name: str) -> None:
-        object.__setattr__(self, "name", name)
-
-    def __get__(self, obj: Any, owner: type) -> Any:
-        if obj is None:
-            return self
-        return obj._ports[self.name]
 
     @property
     def is_latched(self) -> bool:

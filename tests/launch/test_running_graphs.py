@@ -131,7 +131,7 @@ nodes:
     assert g.stop() == 0
 
 
-def test_ctrl_c_leaves_no_process_behind(launch_graph, tmp_path) -> None:
+def running_pattern_and_logger(launch_graph, tmp_path) -> tuple:
     g = launch_graph(PIPELINE + f"""\
   - name: logger
     type: topic_logger
@@ -139,20 +139,19 @@ def test_ctrl_c_leaves_no_process_behind(launch_graph, tmp_path) -> None:
 """)
     g.wait_ready()
     pids = list(node_pids(g).values())
-    assert all(pid_alive(p) for p in pids)
+    assert len(pids) == 2 and all(pid_alive(p) for p in pids)
+    return g, pids
+
+
+def test_ctrl_c_leaves_no_process_behind(launch_graph, tmp_path) -> None:
+    g, pids = running_pattern_and_logger(launch_graph, tmp_path)
     assert g.stop() == 0  # SIGINT, as Ctrl-C sends
     assert "stopped in" in g.output
     wait_until(lambda: not any(pid_alive(p) for p in pids), timeout=5, what="nodes to exit")
 
 
 def test_launcher_killed_with_sigkill_leaves_no_orphan(launch_graph, tmp_path) -> None:
-    g = launch_graph(PIPELINE + f"""\
-  - name: logger
-    type: topic_logger
-    params: {{path: {tmp_path / 'l.jsonl'}, topics: [raw_markers]}}
-""")
-    g.wait_ready()
-    pids = list(node_pids(g).values())
+    g, pids = running_pattern_and_logger(launch_graph, tmp_path)
     g.proc.kill()
     g.proc.wait()
     wait_until(lambda: not any(pid_alive(p) for p in pids), timeout=5, what="orphans to die")
