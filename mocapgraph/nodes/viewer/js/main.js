@@ -1,0 +1,117 @@
+// Entry of the viewer page: connects, draws the stage every animation frame, refreshes the panel.
+// window.mocapgraphStats exposes what was drawn (for tests and benchmarks).
+
+import { Renderer } from "./gl.js";
+import { OrbitCamera } from "./camera.js";
+import { Link, Store } from "./net.js";
+import { SceneBuilder } from "./scene.js";
+import { Panel } from "./panel.js";
+import { VideoPanel } from "./video.js";
+import { project } from "./math.js";
+
+const $ = (id) => document.getElementById(id);
+
+const stats = {
+  ready: false, connected: false, connects: 0, session: null, bundles: 0, records: 0, bytes: 0,
+  framesDrawn: 0, fps: 0, markersDrawn: 0, markersTotal: 0, jointsDrawn: 0, bonesDrawn: 0, skeletonJointsDrawn: 0,
+  characterJointsDrawn: 0, bodiesDrawn: 0, actorsDrawn: 0, streams: {}, topics: {}, errors: [], webgl: "",
+  video: {}, calibration: null, player: null,
+};
+window.mocapgraphStats = stats;
+window.addEventListener("error", (e) => stats.errors.push(String(e.message)));
+window.addEventListener("unhandledrejection", (e) => stats.errors.push(String(e.reason)));
+
+const canvas = $("canvas");
+const renderer = new Renderer(canvas);
+stats.webgl = renderer.rendererName;
+const camera = new OrbitCamera(canvas);
+const store = new Store();
+const scene = new SceneBuilder();
+const wsUrl = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`;
+let panel = null;
+const link = new Link(wsUrl, store, {
+  onStatus: () => panel && panel.connection(),
+  onCommandResult: (msg, label) => panel && panel.commandResult(msg, label),
+});
+const video = new VideoPanel(renderer, {
+  file: $("video-file"), play: $("video-play"), pause: $("video-pause"), stop: $("video-stop"), seek: $("video-seek"),
+  loop: $("video-loop"), volume: $("video-volume"), mute: $("video-mute"), status: $("video-status"),
+});
+panel = new Panel(link, store, scene, video);
+window.mocapgraphViewer = { camera, store, scene, link, video, panel };
+
+let lastBounds = null;
+for (const b of document.querySelectorAll("[data-view]")) {
+  b.addEventListener("click", () => view(b.dataset.view));
+}
+function view(name) {
+  if (name === "fit") { if (lastBounds) camera.fit(lastBounds); return; }
+  camera.preset(name, null);
+}
+window.addEventListener("keydown", (e) => {
+  if (e.target instanceof HTMLInputElement) return;
+  const keys = { "1": "front", "2": "side", "3": "top", "0": "perspective", f: "fit" };
+  if (keys[e.key]) view(keys[e.key]);
+});
+
+// Actor name labels over the stage (HTML, so that they stay crisp).
+const labelPool = [];
+function drawLabels(labels, viewProj) {
+  const box = $("labels");
+  const w = canvas.clientWidth, h = canvas.clientHeight;
+  let used = 0;
+  if (scene.show.labels) {
+    for (const l of labels) {
+      const p = project(viewProj, l.pos, w, h);
+      if (!p) continue;
+      let div = labelPool[used];
+      if (!div) { div = document.createElement("div"); div.className = "label"; box.append(div); labelPool.push(div); }
+      div.textContent = l.text;
+      div.style.transform = `translate(${p[0].toFixed(1)}px, ${p[1].toFixed(1)}px) translate(-50%, -100%)`;
+      div.hidden = false;
+      used++;
+    }
+  }
+  for (let i = used; i < labelPool.length; i++) labelPool[i].hidden = true;
+}
+
+let last = performance.now();
+let lastPanel = 0;
+let fpsCount = 0, fpsStart = last;
+function frame(now) {
+  const dt = Math.min(0.1, (now - last) / 1000);
+  last = now;
+  const wallMs = Date.now();
+  const panelGeom = video.frame();
+  const built = scene.build(store, wallMs, { panel: panelGeom });
+  if (built.bounds) lastBounds = built.bounds;
+  const aspect = canvas.clientWidth / Math.max(1, canvas.clientHeight);
+  const { viewProj, eye } = camera.update(dt, aspect);
+  renderer.draw(viewProj, eye, scene.batches, panelGeom);
+  drawLabels(built.labels, viewProj);
+  link.ack();
+
+  stats.framesDrawn++;
+  Object.assign(stats, built.totals);
+  stats.streams = built.streams;
+  fpsCount++;
+  if (now - fpsStart >= 1000) { stats.fps = fpsCount * 1000 / (now - fpsStart); fpsCount = 0; fpsStart = now; }
+  if (now - lastPanel > 250) {
+    lastPanel = now;
+    panel.update(built, stats.fps, wallMs);
+    stats.connected = link.connected;
+    stats.connects = link.connects;
+    stats.session = link.session;
+    stats.bundles = link.bundles;
+    stats.records = link.records;
+    stats.bytes = link.bytes;
+    stats.topics = Object.fromEntries([...store.topics].map(([t, v]) => [t, { type: v.type, records: v.records }]));
+    stats.video = video.stats();
+    const st = (el) => (el.hidden ? null : el.querySelector(".badge").textContent);
+    stats.calibration = st($("sec-calibration"));
+    stats.player = st($("sec-player"));
+  }
+  stats.ready = true;
+  requestAnimationFrame(frame);
+}
+requestAnimationFrame(frame);

@@ -1,0 +1,115 @@
+// The video panel at the back of the stage: a local file chosen by the user plays on a plane,
+// uploaded as a WebGL texture whenever the video has a new frame.
+
+const PANEL_X = -3.6;   // m: the plane stands behind the performers as seen from the front
+const PANEL_WIDTH = 4.8; // m
+const PANEL_BOTTOM = 0.45; // m
+
+export class VideoPanel {
+  constructor(renderer, els) {
+    this.renderer = renderer;
+    this.els = els;
+    this.video = document.createElement("video");
+    this.video.playsInline = true;
+    this.video.preload = "auto";
+    this.video.crossOrigin = "anonymous";
+    this.url = null;
+    this.fresh = false;
+    this.framesUploaded = 0;
+    this.aspect = 16 / 9;
+    this.enabled = true;
+    this.name = "";
+    this._placeholder("no video: choose a file in the panel");
+    const v = this.video;
+    v.addEventListener("loadedmetadata", () => {
+      this.aspect = v.videoWidth && v.videoHeight ? v.videoWidth / v.videoHeight : 16 / 9;
+      els.seek.max = String(v.duration || 0);
+      this.fresh = true;
+      this.sync();
+    });
+    for (const ev of ["play", "pause", "ended", "volumechange", "seeked", "timeupdate"]) {
+      v.addEventListener(ev, () => { this.fresh = true; this.sync(); });
+    }
+    els.file.addEventListener("change", () => els.file.files[0] && this.load(els.file.files[0]));
+    els.play.addEventListener("click", () => this.play());
+    els.pause.addEventListener("click", () => v.pause());
+    els.stop.addEventListener("click", () => this.stop());
+    els.seek.addEventListener("input", () => { v.currentTime = Number(els.seek.value); });
+    els.loop.addEventListener("change", () => { v.loop = els.loop.checked; });
+    els.volume.addEventListener("input", () => { v.volume = Number(els.volume.value); if (v.volume > 0) v.muted = false; });
+    els.mute.addEventListener("click", () => { v.muted = !v.muted; });
+    this.sync();
+  }
+
+  load(file) {
+    if (this.url) URL.revokeObjectURL(this.url);
+    this.url = URL.createObjectURL(file);
+    this.name = file.name;
+    this.video.src = this.url;
+    this.video.loop = this.els.loop.checked;
+    this.video.load();
+    this.sync();
+  }
+
+  play() {
+    if (!this.video.src) return;
+    const p = this.video.play();
+    if (p && p.catch) p.catch((e) => { this.els.status.textContent = "cannot play: " + e.message; });
+  }
+
+  stop() {
+    this.video.pause();
+    if (this.video.src) this.video.currentTime = 0;
+  }
+
+  _placeholder(text) {
+    const c = document.createElement("canvas");
+    c.width = 768; c.height = 432;
+    const g = c.getContext("2d");
+    const grad = g.createLinearGradient(0, 0, 0, c.height);
+    grad.addColorStop(0, "#1c2230"); grad.addColorStop(1, "#12161f");
+    g.fillStyle = grad; g.fillRect(0, 0, c.width, c.height);
+    g.strokeStyle = "#3a4458"; g.lineWidth = 6; g.strokeRect(12, 12, c.width - 24, c.height - 24);
+    g.fillStyle = "#7d8aa3"; g.font = "600 34px system-ui, sans-serif"; g.textAlign = "center";
+    g.fillText("VIDEO PANEL", c.width / 2, c.height / 2 - 12);
+    g.font = "24px system-ui, sans-serif"; g.fillStyle = "#5d6980";
+    g.fillText(text, c.width / 2, c.height / 2 + 30);
+    this.renderer.uploadTexture(c);
+  }
+
+  // Called once per drawn frame: upload a new video frame, return the panel geometry.
+  frame() {
+    const v = this.video;
+    if (v.src && v.readyState >= 2 && (this.fresh || !v.paused)) {
+      this.renderer.uploadTexture(v);
+      this.framesUploaded++;
+      this.fresh = false;
+    }
+    if (!this.enabled) return null;
+    const w = PANEL_WIDTH, h = w / this.aspect, y = w / 2;
+    return {
+      // Seen from the front (+X) the screen's right is the world's +Y.
+      corners: [[PANEL_X, -y, PANEL_BOTTOM], [PANEL_X, y, PANEL_BOTTOM], [PANEL_X, y, PANEL_BOTTOM + h], [PANEL_X, -y, PANEL_BOTTOM + h]],
+      dim: v.src ? 1 : 0.9,
+    };
+  }
+
+  sync() {
+    const v = this.video, els = this.els;
+    const has = !!v.src;
+    for (const b of [els.play, els.pause, els.stop, els.seek, els.mute]) b.disabled = !has;
+    if (document.activeElement !== els.seek) els.seek.value = String(v.currentTime || 0);
+    els.mute.textContent = v.muted ? "Unmute" : "Mute";
+    els.mute.setAttribute("aria-pressed", String(v.muted));
+    els.volume.value = String(v.muted ? 0 : v.volume);
+    const t = (x) => Number.isFinite(x) ? x.toFixed(1) + " s" : "–";
+    els.status.textContent = has ? `${this.name} · ${v.paused ? (v.ended ? "ended" : "paused") : "playing"} · ${t(v.currentTime)} / ${t(v.duration)}` : "no file chosen";
+  }
+
+  stats() {
+    const v = this.video;
+    return { loaded: !!v.src, playing: !v.paused && !v.ended, currentTime: v.currentTime, duration: v.duration || 0,
+      loop: v.loop, muted: v.muted, volume: v.volume, framesUploaded: this.framesUploaded, width: v.videoWidth,
+      height: v.videoHeight };
+  }
+}
