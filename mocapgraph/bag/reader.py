@@ -85,7 +85,7 @@ class ScanReport:
     """Per topic and sender: sequence gaps found in the stored headers, and long time gaps."""
 
     seq_gaps: dict[str, int]
-    time_gaps: dict[str, list[tuple[float, float]]]  # topic -> [(at s from start, length s)]
+    time_gaps: dict[str, list[tuple[float, float]]]  # topic -> [(at s from its first message, length s)]
     periods_s: dict[str, float]  # median interval per topic
 
 
@@ -300,6 +300,16 @@ class BagReader:
                 raise self._damaged(exc) from None
             yield RawMessage(ch.topic, m.log_time, m.publish_time, m.data, ch)
 
+    def publish_span(self, topics: Iterable[str] | None = None) -> tuple[int, int]:
+        """First and last publish stamp (the sender's clock), reading only the first and last chunk."""
+        s = self.summary()
+        first = next(iter(self.messages(topics)), None)
+        if first is None:
+            return s.start_ns, s.end_ns
+        last = max((m.publish_ns or m.log_ns for m in self.messages(topics, start_ns=s.end_ns)),
+                   default=s.end_ns)
+        return first.publish_ns or first.log_ns, last
+
     def decoded(self, topic: str, start_ns: int | None = None, end_ns: int | None = None
                 ) -> Iterator[tuple[Envelope, Message]]:
         """Envelope and message of every message of ``topic``."""
@@ -315,7 +325,10 @@ class BagReader:
                 raise BagError(self.path, exc.fault) from None
 
     def scan(self, progress: Callable[[int], None] | None = None, gap_factor: float = 3.0) -> ScanReport:
-        """Read every header: sequence gaps per topic, long time gaps (> gap_factor x median)."""
+        """Read every header: sequence gaps per topic, long time gaps (> gap_factor x median).
+
+        Per-topic spans (and so rates) are updated from publish stamps, exact and free of the
+        recorder's receive delays."""
         last_seq: dict[tuple[str, str], int] = {}
         seq_gaps: dict[str, int] = {}
         times: dict[str, list[int]] = {}
@@ -336,9 +349,10 @@ class BagReader:
             if prev is not None and seq > prev + 1:
                 seq_gaps[raw.topic] = seq_gaps.get(raw.topic, 0) + seq - prev - 1
             last_seq[key] = seq
-            times.setdefault(raw.topic, []).append(raw.log_ns)
-            first.setdefault(raw.topic, raw.log_ns)
-            last[raw.topic] = raw.log_ns
+            t = raw.publish_ns or raw.log_ns  # the sender's clock: free of the recorder's own delays
+            times.setdefault(raw.topic, []).append(t)
+            first.setdefault(raw.topic, t)
+            last[raw.topic] = t
             if progress is not None and i % 4096 == 0:
                 progress(i)
         summary = self.summary()
@@ -356,7 +370,7 @@ class BagReader:
             if med <= 0:
                 continue
             big = np.flatnonzero(d > gap_factor * med)
-            tgaps[topic] = [((ts[k] - summary.start_ns) / 1e9, d[k] / 1e9) for k in big[:50]]
+            tgaps[topic] = [((ts[k] - ts[0]) / 1e9, d[k] / 1e9) for k in big[:50]]
         return ScanReport(seq_gaps, tgaps, periods)
 
     def close(self) -> None:

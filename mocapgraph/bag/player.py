@@ -1,0 +1,385 @@
+"""Playback schedule of a bag: which stored message goes out when. No sockets here: the bag
+player node (and through it ``mocapgraph bag play``) sends what `Playback.take_due` returns.
+
+Timing. One clock for all topics: a message is due at ``anchor_wall + (t - anchor_bag) / rate``
+where ``t`` is its original publish stamp (MCAP ``publish_time``), so the relative timing of the
+recorded graph is reproduced at any rate. Messages go out in recorded (file) order and never
+before they are due; ``t`` is clamped to be non-decreasing so a clock step in the recording
+cannot reorder them.
+
+What is sent. The stored frames, byte for byte, except:
+- the publish stamp is set to the moment of sending (it says when *this* publisher sent it);
+- the topic frame when remapped;
+- on a loop pass or after a seek, sequence numbers are shifted by a constant per (topic, sender)
+  so that they continue from the last one sent (receivers would otherwise drop them as
+  duplicates); in the first pass they are the recorded ones, recorded gaps included.
+Capture stamps are always the recorded ones, so they jump back on a loop or a backward seek.
+
+Latched topics: before the first message, the last value of every latched topic at or before
+the start position (or its first value if it comes later) is handed out first.
+"""
+from __future__ import annotations
+
+import re
+import struct
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from ..messages.codec import HEADER
+from .errors import BagError
+from .framing import header_of
+from .reader import BagReader, RawMessage, TopicInfo
+
+SEQ_AT = 10  # byte offset of the u64 sequence number in the codec header
+CAPTURE_AT = 18
+PUBLISH_AT = 26
+_Q = struct.Struct("<Q")
+_q = struct.Struct("<q")
+DEFAULT_EXCLUDE = ("diagnostics",)
+LAG_WINDOW = 8192
+
+
+def set_publish_stamp(header: bytearray, now_ns: int | None = None) -> None:
+    """Write the publish stamp (now) into a codec header frame in place."""
+    _q.pack_into(header, PUBLISH_AT, time.time_ns() if now_ns is None else now_ns)
+
+
+@dataclass
+class Outgoing:
+    """One message ready to send: its (remapped) topic and frames (frames[1] is a writable header)."""
+
+    topic: str
+    frames: list
+    latched: bool
+    bag_ns: int
+    due_s: float
+
+
+def parse_remaps(items: Iterable[str]) -> dict[str, str]:
+    """``a:=b`` strings -> {a: b}."""
+    out = {}
+    for item in items:
+        a, sep, b = item.partition(":=")
+        if not sep or not a or not b:
+            raise ValueError(f"remap {item!r} is not old:=new")
+        out[a] = b
+    return out
+
+
+def select_topics(infos: dict[str, TopicInfo], topics: Iterable[str] | None = None,
+                  exclude: str | None = None) -> tuple[dict[str, TopicInfo], dict[str, str]]:
+    """Topics to play (known types only) and skipped topics with the reason."""
+    chosen: dict[str, TopicInfo] = {}
+    skipped: dict[str, str] = {}
+    wanted = list(topics) if topics else None
+    if wanted:
+        missing = [t for t in wanted if t not in infos]
+        if missing:
+            raise BagError(None, f"no topic {missing[0]!r} in the bag (topics: {', '.join(sorted(infos))})")
+    rx = re.compile(exclude) if exclude else None
+    for name, info in infos.items():
+        if wanted is not None and name not in wanted:
+            continue
+        if wanted is None and name in DEFAULT_EXCLUDE:
+            skipped[name] = "recorded diagnostics are not replayed (name it to play it)"
+            continue
+        if rx is not None and rx.search(name):
+            skipped[name] = "excluded"
+            continue
+        if not info.known:
+            skipped[name] = info.problem
+            continue
+        chosen[name] = info
+    return chosen, skipped
+
+
+class Playback:
+    """The schedule of one bag. Call `begin`, then repeatedly `take_due(now)` / `next_due()`.
+
+    rate: playback speed (2.0 plays twice as fast). start_s / end_s: window in seconds from the
+    bag's start. loop: start over at the end. remap: bag topic -> sent topic.
+    """
+
+    def __init__(self, reader: BagReader, *, topics: Iterable[str] | None = None, exclude: str | None = None,
+                 rate: float = 1.0, start_s: float = 0.0, end_s: float | None = None, loop: bool = False,
+                 remap: dict[str, str] | None = None, clock=time.monotonic) -> None:
+        if not rate > 0:
+            raise BagError(reader.path, f"rate must be positive, got {rate}")
+        self.reader = reader
+        self.summary = reader.summary()
+        self.topics, self.skipped = select_topics(reader.topic_infos(), topics, exclude)
+        if not self.topics:
+            raise BagError(reader.path, "has no topic that can be played"
+                           + (f" ({'; '.join(f'{k}: {v}' for k, v in self.skipped.items())})" if self.skipped else ""))
+        self.remap = dict(remap or {})
+        self.rate = float(rate)
+        self.loop = loop
+        self.clock = clock
+        # Windows (start/end/seek) select on log time, the MCAP index; positions are reported on
+        # the publish-stamp axis that drives the schedule. The two differ by the recorder's delay.
+        log0 = self.summary.start_ns
+        self.start_s = max(0.0, start_s)
+        self.start_ns = log0 + int(max(0.0, start_s) * 1e9)
+        self.end_ns = None if end_s is None else log0 + int(end_s * 1e9)
+        if self.end_ns is not None and self.end_ns <= self.start_ns:
+            raise BagError(reader.path, f"--end {end_s} s is not after --start {start_s} s")
+        self.origin_ns, last_pub = reader.publish_span(sorted(self.topics))
+        self.duration_s = (end_s if end_s is not None else max(0.0, (last_pub - self.origin_ns) / 1e9))
+        self.state = "idle"
+        self._buf: deque[tuple[int, RawMessage]] = deque()
+        self._src: Iterator[RawMessage] | None = None
+        self._exhausted = False
+        self._pass = 0
+        self._shift_ns = 0  # added to bag times on loop passes (t keeps growing)
+        self._pass_first_ns: int | None = None
+        self._last_t = -(1 << 62)
+        self._anchor_wall = 0.0
+        self._anchor_bag: int | None = None
+        self._pause_bag_ns: int | None = None
+        self._last_sent_ns: int | None = None
+        self._seq_last: dict[tuple[str, bytes], int] = {}
+        self._seq_offset: dict[tuple[str, bytes], int] = {}
+        self._rebase = False
+        self.sent = 0
+        self.loops = 0
+        self._lags = np.zeros(LAG_WINDOW)
+        self._nlags = 0
+        self._rate_mark: tuple[float, int] | None = None
+        self.achieved_rate = float("nan")
+        self._loop_gap_ns = self._typical_period_ns()
+
+    # ----- reading -----------------------------------------------------------------------------
+    def _typical_period_ns(self) -> int:
+        busiest = max(self.topics, key=lambda t: self.topics[t].count)
+        rate = self.summary.topics[busiest].rate_hz
+        return int(1e9 / rate) if rate > 0 else 0
+
+    def _open_source(self, start_ns: int) -> None:
+        self._src = self.reader.messages(sorted(self.topics), start_ns, self.end_ns)
+        self._exhausted = False
+        self._pass_first_ns = None
+
+    def _read_one(self) -> bool:
+        """Move one message from the bag into the buffer; False at the end (after looping)."""
+        while True:
+            if self._src is None:
+                return False
+            try:
+                raw = next(self._src)
+            except StopIteration:
+                if self.loop and self._pass_first_ns is not None:
+                    self._shift_ns += self._last_t - self._shift_ns - self._pass_first_ns + self._loop_gap_ns
+                    self._pass += 1
+                    self.loops += 1
+                    self._rebase = True
+                    self._open_source(self.start_ns)
+                    continue
+                self._src = None
+                self._exhausted = True
+                return False
+            t = raw.publish_ns or raw.log_ns
+            if self._pass_first_ns is None:
+                self._pass_first_ns = t
+            t = max(t + self._shift_ns, self._last_t)
+            self._last_t = t
+            self._buf.append((t, raw))
+            return True
+
+    def fill(self, budget_s: float = 0.002, ahead: int = 2048) -> None:
+        """Read ahead for up to ``budget_s`` (call when idle, so that chunk decoding never delays a send)."""
+        t_end = time.perf_counter() + budget_s
+        while len(self._buf) < ahead and time.perf_counter() < t_end:
+            if not self._read_one():
+                break
+
+    def _peek(self) -> tuple[int, RawMessage] | None:
+        if not self._buf and not self._read_one():
+            return None
+        return self._buf[0]
+
+    # ----- control -----------------------------------------------------------------------------
+    def latched_first(self) -> list[Outgoing]:
+        """The value of each latched topic at the start position, to send before anything else."""
+        latched = [t for t, info in self.topics.items() if info.latched]
+        if not latched:
+            return []
+        best: dict[str, RawMessage] = {}
+        for raw in self.reader.messages(latched, None, None):
+            if raw.log_ns <= self.start_ns or raw.topic not in best:
+                best[raw.topic] = raw
+            if raw.log_ns > self.start_ns and len(best) == len(latched):
+                break
+        out = []
+        for raw in best.values():
+            if raw.log_ns < self.start_ns:  # otherwise it is also in the played window
+                out.append(self._outgoing(raw.publish_ns, raw, self.clock()))
+        return out
+
+    def begin(self, paused: bool = False) -> None:
+        self._open_source(self.start_ns)
+        self._anchor_bag = None
+        self.state = "paused" if paused else "playing"
+        if paused:
+            first = self._peek()
+            self._pause_bag_ns = first[0] if first else self.start_ns
+
+    def pause(self) -> None:
+        if self.state == "playing":
+            self._pause_bag_ns = self._bag_now()
+            self.state = "paused"
+
+    def resume(self) -> None:
+        if self.state == "paused":
+            self._anchor_bag = self._pause_bag_ns
+            self._anchor_wall = self.clock()
+            self.state = "playing"
+            self._rate_mark = None
+
+    def toggle(self) -> None:
+        self.resume() if self.state == "paused" else self.pause()
+
+    def set_rate(self, rate: float) -> None:
+        if not rate > 0:
+            raise ValueError(f"rate must be positive, got {rate}")
+        if self.state == "playing" and self._anchor_bag is not None:
+            self._anchor_bag = self._bag_now()
+            self._anchor_wall = self.clock()
+        self.rate = float(rate)
+        self._rate_mark = None
+
+    def seek(self, position_s: float) -> None:
+        """Jump to ``position_s`` from the bag's start; keeps playing or paused."""
+        target = self.summary.start_ns + int(max(0.0, position_s) * 1e9)
+        self._buf.clear()
+        self._shift_ns = 0
+        self._last_t = -(1 << 62)
+        self._rebase = True
+        self._open_source(max(target, self.start_ns))
+        first = self._peek()
+        t0 = first[0] if first else target
+        if self.state == "playing":
+            self._anchor_bag = t0
+            self._anchor_wall = self.clock()
+        else:
+            self._pause_bag_ns = t0
+        self._rate_mark = None
+        if first is None:
+            self.state = "finished" if not self.loop else self.state
+
+    def step(self) -> list[Outgoing]:
+        """While paused: the next message and every following one with the same capture stamp."""
+        if self.state != "paused":
+            return []
+        first = self._peek()
+        if first is None:
+            return []
+        now = self.clock()
+        out = [self._pop(now)]
+        cap = _q.unpack_from(out[0].frames[1], CAPTURE_AT)[0]
+        while True:
+            nxt = self._peek()
+            if nxt is None:
+                break
+            if _q.unpack_from(header_of(nxt[1].data), CAPTURE_AT)[0] != cap:
+                break
+            out.append(self._pop(now))
+        self._pause_bag_ns = out[-1].bag_ns
+        return out
+
+    # ----- timing -----------------------------------------------------------------------------
+    def _bag_now(self) -> int:
+        if self._anchor_bag is None:
+            return self._last_sent_ns or self.start_ns
+        return self._anchor_bag + int((self.clock() - self._anchor_wall) * self.rate * 1e9)
+
+    def _due(self, t: int) -> float:
+        return self._anchor_wall + (t - self._anchor_bag) / 1e9 / self.rate
+
+    def next_due(self) -> float | None:
+        """Monotonic time the next message is due, None when paused or finished."""
+        if self.state != "playing":
+            return None
+        nxt = self._peek()
+        if nxt is None:
+            self.state = "finished"
+            return None
+        if self._anchor_bag is None:
+            self._anchor_bag = nxt[0]
+            self._anchor_wall = self.clock()
+        return self._due(nxt[0])
+
+    def take_due(self, now: float | None = None) -> list[Outgoing]:
+        """Every message due at ``now`` (never one that is not yet due)."""
+        out: list[Outgoing] = []
+        while True:
+            due = self.next_due()
+            now = self.clock() if now is None else now
+            if due is None or due > now:
+                return out
+            out.append(self._pop(now, due))
+            now = None
+
+    def _pop(self, now: float, due: float | None = None) -> Outgoing:
+        t, raw = self._buf.popleft()
+        o = self._outgoing(t, raw, now if due is None else due)
+        self._last_sent_ns = t
+        return o
+
+    def _outgoing(self, t: int, raw: RawMessage, due: float) -> Outgoing:
+        topic = self.remap.get(raw.topic, raw.topic)
+        frames = raw.frames(topic)
+        header = bytearray(frames[1])
+        tlen, slen = struct.unpack_from("<HH", header, 6)
+        sender = bytes(header[HEADER.size + tlen:HEADER.size + tlen + slen])
+        key = (raw.topic, sender)
+        seq = _Q.unpack_from(header, SEQ_AT)[0]
+        if self._rebase:
+            # a new pass or a seek: continue every stream's numbering from the last sent
+            self._seq_offset = {k: None for k in self._seq_last}
+            self._rebase = False
+        off = self._seq_offset.get(key)
+        if off is None:
+            off = self._seq_offset[key] = (self._seq_last[key] + 1 - seq) if key in self._seq_last else 0
+        if off:
+            _Q.pack_into(header, SEQ_AT, seq + off)
+        self._seq_last[key] = seq + off
+        frames[1] = header
+        return Outgoing(topic, frames, bool(header[3] & 1), t, due)
+
+    def record_sent(self, items: list[Outgoing], sent_at: float) -> None:
+        """Account messages the caller has just sent (lag statistics, achieved rate)."""
+        for o in items:
+            self._lags[self._nlags % LAG_WINDOW] = sent_at - o.due_s
+            self._nlags += 1
+            self.sent += 1
+        if items and self.state == "playing":
+            t = items[-1].bag_ns
+            if self._rate_mark is None:
+                self._rate_mark = (sent_at, t)
+            elif sent_at - self._rate_mark[0] > 0.5:
+                self.achieved_rate = (t - self._rate_mark[1]) / 1e9 / (sent_at - self._rate_mark[0])
+                self._rate_mark = (sent_at, t)
+
+    # ----- reporting -----------------------------------------------------------------------------
+    @property
+    def position_s(self) -> float:
+        t = self._last_sent_ns if self.state != "paused" else self._pause_bag_ns
+        if t is None:
+            return self.start_s
+        return max(0.0, (t - self._shift_ns - self.origin_ns) / 1e9)
+
+    def lag_ms(self) -> tuple[float, float, float]:
+        """Send lag behind schedule over the recent window: p50, p99, max, ms (NaN before any)."""
+        n = min(self._nlags, LAG_WINDOW)
+        if n == 0:
+            return float("nan"), float("nan"), float("nan")
+        lags = self._lags[:n] * 1e3
+        return float(np.percentile(lags, 50)), float(np.percentile(lags, 99)), float(lags.max())
+
+    def lags_s(self) -> np.ndarray:
+        n = min(self._nlags, LAG_WINDOW)
+        return self._lags[:n].copy()

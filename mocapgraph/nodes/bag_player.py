@@ -1,0 +1,201 @@
+"""Replays a bag into the graph with the recorded timing (see mocapgraph.bag.player)."""
+from __future__ import annotations
+
+import json
+import math
+import time
+from typing import Any
+
+from ..bag.errors import BagError
+from ..bag.player import Outgoing, Playback, select_topics, set_publish_stamp
+from ..bag.reader import BagReader
+from ..bus import Input, Interface, Node, Output, Param
+from ..bus.node import NodeConfigError
+from ..messages import NodeCommand, NodeStatus
+from ..messages.registry import lookup
+
+STATUS_PERIOD_S = 0.5
+
+
+class BagPlayer(Node):
+    """Publishes a bag's topics with their original types, sequence numbers and capture stamps.
+
+    One clock drives all topics (relative timing kept at any rate, nothing early or out of
+    order). Latched topics go out first. Commands on ``player_command`` (NodeCommand: play,
+    pause, toggle, step, seek {"position_s"}, rate {"rate"}, stop); state on ``player_status``.
+    Its outputs are the bag's topics, named after them, so a graph remaps them like any port.
+    """
+
+    summary = "replay an MCAP bag with its recorded timing (pause, step, seek, rate, loop)"
+    file = Param("", "the .mcap bag to play")
+    rate = Param(1.0, "playback speed factor", minimum=1e-3)
+    loop = Param(False, "start over at the end")
+    start = Param(0.0, "start this many seconds into the bag", minimum=0.0)
+    end = Param(0.0, "stop this many seconds into the bag (0: at its end)", minimum=0.0)
+    topics = Param([], "bag topics to play (empty: all but diagnostics)")
+    exclude = Param("", "regular expression of topics not to play")
+    paused = Param(False, "start paused (send 'play' or 'step')")
+    stop_at_end = Param(True, "leave the graph when the bag has been played (no loop)")
+    status = Output("player_status", NodeStatus, "state, position, rate and lag, on change and twice a second")
+    command = Input("player_command", NodeCommand, "play/pause/toggle/step/seek/rate/stop", required=False)
+
+    @classmethod
+    def interface(cls, params: dict[str, Any]) -> Interface:
+        iface = super().interface(params)
+        path = params.get("file", "")
+        if not path:
+            return iface
+        try:
+            with BagReader(path) as r:
+                chosen, _ = select_topics(r.topic_infos(), params.get("topics") or None,
+                                          params.get("exclude") or None)
+        except BagError as exc:
+            iface.bag_error = str(exc)  # reported by check_params with the graph's file and line
+            return iface
+        for topic, info in chosen.items():
+            iface.outputs[topic] = Output(topic, lookup(info.type_name), f"from the bag ({info.count} messages)",
+                                          latched=info.latched, name=topic)
+        return iface
+
+    @classmethod
+    def check_params(cls, given: dict[str, Any], iface: Interface | None = None) -> dict[str, Any]:
+        iface = iface or cls.interface(given)
+        error = getattr(iface, "bag_error", "")
+        if error:
+            raise NodeConfigError(f"parameter 'file': {error}")
+        return super().check_params(given, iface)
+
+    def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
+        super().__init__(name, params, wiring)
+        if not self.file:
+            raise NodeConfigError("parameter 'file' is empty: name the bag to play")
+        self.reader = BagReader(self.file)
+        try:
+            self.playback = Playback(self.reader, topics=self.topics or None, exclude=self.exclude or None,
+                                     rate=self.rate, start_s=self.start, end_s=self.end or None, loop=self.loop)
+        except BagError as exc:
+            raise NodeConfigError(str(exc)) from None
+        self._timer: list | None = None
+        self._last_state = ""
+        self.finished_at: float | None = None
+
+    # ----- sending ---------------------------------------------------------------------------------
+    def _send(self, items: list[Outgoing]) -> None:
+        pub = self._pub
+        for o in items:
+            port = self._by_topic.get(o.topic)
+            if port is None:
+                continue
+            frames = o.frames
+            frames[0] = port._topic_frame
+            set_publish_stamp(frames[1])
+            if port.latched or o.latched:
+                frames = [bytes(f) for f in frames]
+                port.last_frames = frames
+            pub.send_multipart(frames, copy=False)
+            port.seq += 1
+        self.playback.record_sent(items, time.monotonic())
+
+    def on_start(self) -> None:
+        # bag topic -> bound output port (its topic may be remapped by the graph)
+        self._by_topic = {}
+        for name, decl in self._iface.outputs.items():
+            if name in self.playback.topics:
+                self.playback.remap[name] = self._ports[name].topic
+                self._by_topic[self._ports[name].topic] = self._ports[name]
+        self._send(self.playback.latched_first())
+        self.playback.begin(paused=self.paused)
+        self._timer = self.add_timer(0.001, self._pump, first_delay_s=0.0)
+        self.add_timer(STATUS_PERIOD_S, self._publish_status)
+        self._publish_status()
+
+    def _pump(self) -> None:
+        pb = self.playback
+        items = pb.take_due()
+        if items:
+            self._send(items)
+        due = pb.next_due()
+        now = time.monotonic()
+        if due is None:
+            self._timer[0] = now + 0.02
+            if pb.state == "finished":
+                self._finished(now)
+        else:
+            if due - now > 0.003:
+                pb.fill(min(0.002, (due - now) / 3))
+            self._timer[0] = due
+        if pb.state != self._last_state:
+            self._publish_status()
+
+    def _finished(self, now: float) -> None:
+        if self.finished_at is None:
+            self.finished_at = now
+            p50, p99, pmax = self.playback.lag_ms()
+            self.log.info("played %d messages; lag p50 %.3f ms, p99 %.3f ms, max %.3f ms",
+                          self.playback.sent, p50, p99, pmax)
+            self._publish_status()
+        if self.stop_at_end and now - self.finished_at > 0.2:  # let the last frames leave
+            self.request_stop()
+
+    # ----- commands and status ---------------------------------------------------------------------
+    def on_command(self, cmd: NodeCommand) -> None:
+        if cmd.target not in ("", self.name):
+            return
+        try:
+            args = json.loads(cmd.args_json or "{}")
+        except ValueError:
+            args = {}
+        try:
+            self.handle(cmd.command, args)
+        except (ValueError, TypeError, BagError) as exc:
+            self.log.warning("command %s: %s", cmd.command, exc)
+        self._publish_status()
+
+    def handle(self, command: str, args: dict[str, Any] | None = None) -> None:
+        """Apply a command: play, pause, toggle, step, seek {position_s}, rate {rate}, stop."""
+        args = args or {}
+        pb = self.playback
+        if command == "play":
+            pb.resume()
+        elif command == "pause":
+            pb.pause()
+        elif command == "toggle":
+            pb.toggle()
+        elif command == "step":
+            if pb.state == "playing":
+                pb.pause()
+            self._send(pb.step())
+        elif command == "seek":
+            pb.seek(float(args["position_s"]))
+            self.finished_at = None
+        elif command == "rate":
+            pb.set_rate(float(args["rate"]))
+        elif command == "stop":
+            self.request_stop()
+        else:
+            raise ValueError(f"unknown command {command!r} (play, pause, toggle, step, seek, rate, stop)")
+        if self._timer is not None:
+            self._timer[0] = time.monotonic()
+
+    def status_data(self) -> dict[str, Any]:
+        pb = self.playback
+        p50, p99, pmax = pb.lag_ms()
+
+        def num(x: float) -> float | None:
+            return None if math.isnan(x) else round(x, 4)
+
+        return {"position_s": round(pb.position_s, 4), "duration_s": round(pb.duration_s, 4), "rate": pb.rate,
+                "achieved_rate": num(pb.achieved_rate), "lag_p50_ms": num(p50), "lag_p99_ms": num(p99),
+                "lag_max_ms": num(pmax), "sent": pb.sent, "loops": pb.loops, "file": str(self.reader.path)}
+
+    def _publish_status(self) -> None:
+        pb = self.playback
+        self._last_state = pb.state
+        d = self.status_data()
+        detail = f"{d['position_s']:.2f}/{d['duration_s']:.2f} s at {pb.rate:g}x"
+        progress = d["position_s"] / d["duration_s"] if d["duration_s"] > 0 else float("nan")
+        self.status.publish(NodeStatus(node=self.name, state=pb.state, detail=detail, progress=progress,
+                                       data_json=json.dumps(d)))
+
+    def on_stop(self) -> None:
+        self.reader.close()
