@@ -8,6 +8,9 @@ from __future__ import annotations
 NODE_TYPES: dict[str, str] = {
     "marker_test_pattern": "mocapgraph.nodes.test_pattern:MarkerTestPattern",
     "topic_logger": "mocapgraph.nodes.topic_logger:TopicLogger",
+    # actor: calibration (latched SkeletonModel) and the per-frame solver (ActorPose)
+    "calibration": "mocapgraph.nodes.calibration:CalibrationNode",
+    "frame_solver": "mocapgraph.nodes.frame_solver:FrameSolverNode",
     "bag_recorder": "mocapgraph.nodes.bag_recorder:BagRecorder",
     "bag_player": "mocapgraph.nodes.bag_player:BagPlayer",
     "visualizer": "mocapgraph.nodes.visualizer:Visualizer",

@@ -1,0 +1,372 @@
+"""Actor calibration as a node, following Kiip's task states, driven by commands on the bus.
+
+States (``calibration_status``, a NodeStatus on every change and at ``status_rate_hz``)::
+
+    idle -> finding_base_pose -> base_pose_found -> capturing_gym (progress 0..1)
+         -> gym_captured -> processing -> calibrated          (any step may end in: error)
+
+Commands (``calibration_command``, NodeCommand with target "" or this node's name):
+``find_base_pose``, ``capture_gym {"seconds": T, "rate_hz": F}``, ``process``, ``reset``,
+``save {"path": P}``, ``load {"path": P}`` (paths default to the ``model_file`` param).
+
+Time is capture time (the capture stamps of the MarkerFrames, which readers space as the file
+is, whatever the replay speed), so a replay faster or slower than real time captures the same
+frames. The base pose is the first frame in which every
+layout marker is visible; ``base_pose_timeout_s`` of capture without one is an error naming the
+markers never seen (or those missing from the most complete frame). The gym is the ``T`` s after
+the base pose, sampled at ``F`` frames/s (0: every frame). Processing runs
+:func:`mocapgraph.kinematics.calibration.calibrate` on base pose + gym; the result is published
+latched on ``skeleton_model`` in its file form (what ``model_file`` holds), so a session
+calibrated now and one loaded from the file later solve identically.
+"""
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..bus import Input, Node, Output, Param
+from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate
+from ..kinematics.layout import LayoutError, layout_path
+from ..kinematics.model import ModelFileError, SkeletonModel, load_model, save_model
+from ..kinematics.skeleton import SkeletonDefinition
+from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
+from ..messages import SkeletonModel as ModelMsg
+from .model_messages import jsonable, model_to_message, quality_report
+
+IDLE = "idle"
+FINDING = "finding_base_pose"
+BASE_FOUND = "base_pose_found"
+CAPTURING = "capturing_gym"
+CAPTURED = "gym_captured"
+PROCESSING = "processing"
+CALIBRATED = "calibrated"
+ERROR = "error"
+COMMANDS = ("find_base_pose", "capture_gym", "process", "reset", "save", "load")
+
+
+class CalibrationNode(Node):
+    """Base pose, gym capture and calibration of one actor; publishes a latched SkeletonModel."""
+
+    summary = "actor calibration (base pose, gym, per-joint quality) -> latched SkeletonModel"
+    markers = Input("markers", MarkerFrame, "labelled markers, m, world, in marker_layout order")
+    marker_layout = Input("marker_layout", MarkerLayout, "latched labels of the marker stream", latched=True)
+    calibration_command = Input("calibration_command", NodeCommand, "commands (see module doc)",
+                                required=False)
+    skeleton_model = Output("skeleton_model", ModelMsg, "latched calibrated model")
+    calibration_status = Output("calibration_status", NodeStatus,
+                                "state, progress, per-joint quality (data_json)", latched=True)
+
+    layout = Param("", "marker layout name or YAML path; empty: the layout the marker stream names")
+    gym_seconds = Param(16.0, "gym capture length, s of capture time", minimum=0.1)
+    gym_rate_hz = Param(60.0, "frames/s kept from the gym capture; 0 keeps every frame", minimum=0.0)
+    base_pose_timeout_s = Param(10.0, "capture time to search for a base pose before giving up, s",
+                                minimum=0.1)
+    model_file = Param("", "model JSON: loaded at start if it exists, written after processing")
+    auto = Param(False, "on start (without a model file to load): find base pose, capture gym, process")
+    min_rom_deg = Param(25.0, "joints moving less than this are reported unreliable, deg", minimum=0.0)
+    status_rate_hz = Param(2.0, "periodic status rate, Hz", minimum=0.1)
+
+    # ----- life cycle ---------------------------------------------------------------------------
+    def on_start(self) -> None:
+        self.state, self.detail, self.progress, self.data = IDLE, "", float("nan"), {}
+        self.definition: SkeletonDefinition | None = None
+        self.where: np.ndarray | None = None      # layout marker -> stream index
+        self.stream: MarkerLayout | None = None
+        self.model: SkeletonModel | None = None
+        self._auto_running = False
+        self._reset_capture()
+        if self.layout:
+            try:
+                self.definition = SkeletonDefinition.from_layout_file(self.layout)
+            except LayoutError as exc:
+                self._error(str(exc))
+        loaded = False
+        if self.model_file and Path(self.model_file).exists():
+            loaded = self._load(self.model_file, at_start=True)
+        if not loaded and self.auto and self.state != ERROR:
+            self._auto_running = True
+            self._begin_find()
+        self._publish_status()
+        self.add_timer(1.0 / self.status_rate_hz, self._publish_status)
+
+    def _reset_capture(self) -> None:
+        self.base: np.ndarray | None = None
+        self.base_frame = -1
+        self.gym: list[np.ndarray] = []
+        self._t_first: float | None = None
+        self._wall0 = time.monotonic()
+        self._frames_used = 0
+        self._seen: np.ndarray | None = None
+        self._best: tuple[int, np.ndarray] | None = None
+        self._next_k = 0
+        self._gym_spec = (self.gym_seconds, self.gym_rate_hz)
+
+    # ----- status -------------------------------------------------------------------------------
+    def _publish_status(self) -> None:
+        if self.state == FINDING and self._frames_used == 0 \
+                and time.monotonic() - self._wall0 > self.base_pose_timeout_s:
+            why = ("no marker_layout received" if self.stream is None else
+                   "no marker frames received")
+            self._error(f"no base pose: {why} within {self.base_pose_timeout_s:g} s")
+            return
+        self.calibration_status.publish(NodeStatus(
+            node=self.name, state=self.state, detail=self.detail, progress=self.progress,
+            data_json=json.dumps(jsonable(self.data))))
+
+    def _set(self, state: str, detail: str = "", progress: float = float("nan"),
+             data: dict[str, Any] | None = None) -> None:
+        self.state, self.detail, self.progress = state, detail, progress
+        self.data = data if data is not None else {}
+        self._publish_status()
+
+    def _error(self, detail: str, data: dict[str, Any] | None = None) -> None:
+        self.log.error("%s", detail)
+        self._auto_running = False
+        self._set(ERROR, detail, data=data)
+
+    def _note(self, detail: str, problem: bool = True) -> None:
+        """Report something about a command without changing state."""
+        (self.log.warning if problem else self.log.info)("%s", detail)
+        self.detail = detail
+        self._publish_status()
+
+    # ----- layout -------------------------------------------------------------------------------
+    def on_marker_layout(self, msg: MarkerLayout) -> None:
+        self.stream = msg
+        self._bind()
+        if self.model is not None and self.definition is not None and self.where is not None:
+            try:
+                self.model.check_layout(self.definition.name, self.definition.marker_labels,
+                                        source=self.model_file or "model")
+            except ModelFileError as exc:
+                self._error(str(exc))
+
+    def _bind(self) -> bool:
+        """Place the layout's markers in the stream; False (with an error state) if impossible."""
+        if self.stream is None:
+            return False
+        if self.definition is None:
+            if not self.stream.name:
+                self._error("no `layout` param and the marker stream names no layout")
+                return False
+            try:
+                self.definition = SkeletonDefinition.from_layout_file(layout_path(self.stream.name))
+            except LayoutError as exc:
+                self._error(f"layout '{self.stream.name}' of the marker stream: {exc}")
+                return False
+        where, _ = self.definition.match_labels(list(self.stream.labels))
+        missing = [self.definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+        if missing:
+            self.where = None
+            self._error(f"layout '{self.definition.name}' names markers the marker stream "
+                        f"('{self.stream.name or self.stream.source}') lacks: {', '.join(missing)}",
+                        {"missing_markers": missing})
+            return False
+        self.where = where
+        return True
+
+    # ----- frames -------------------------------------------------------------------------------
+    def on_markers(self, frame: MarkerFrame) -> None:
+        if self.state not in (FINDING, CAPTURING) or self.where is None:
+            return
+        pos = frame.positions
+        if pos.shape[0] != len(self.stream.labels):
+            return  # a frame that does not fit the layout is never a base pose or a gym sample
+        x = pos[self.where]
+        ok = np.isfinite(x).all(1)
+        if frame.valid.shape == (pos.shape[0],):
+            ok &= frame.valid[self.where]
+        x[~ok] = np.nan
+        ns = self.markers.envelope.capture_ns
+        if self._t_first is None:
+            self._t_first, self._ns0 = 0.0, ns
+        t = (ns - self._ns0) * 1e-9
+        self._frames_used += 1
+        if self.state == FINDING:
+            self._find_step(x, ok, t, frame.frame_number)
+        else:
+            self._gym_step(x, t, frame.rate_hz)
+
+    def _find_step(self, x: np.ndarray, ok: np.ndarray, t: float, frame_number: int) -> None:
+        self._seen = ok.copy() if self._seen is None else (self._seen | ok)
+        n = int(ok.sum())
+        if self._best is None or n > self._best[0]:
+            self._best = (n, ~ok)
+        if ok.all():
+            self.base, self.base_frame = x, frame_number
+            self._set(BASE_FOUND, f"base pose at frame {frame_number}",
+                      data={"base_frame": frame_number, "markers": len(ok)})
+            if self._auto_running:
+                self._begin_capture(self.gym_seconds, self.gym_rate_hz)
+            return
+        if t - self._t_first >= self.base_pose_timeout_s:
+            labels = self.definition.marker_labels
+            never = [labels[m] for m in np.flatnonzero(~self._seen)]
+            worst = [labels[m] for m in np.flatnonzero(self._best[1])]
+            span = f"{self.base_pose_timeout_s:g} s of capture"
+            if never:
+                self._error(f"no base pose in {span}: markers never visible: {', '.join(never)}",
+                            {"never_visible": never})
+            else:
+                self._error(f"no base pose in {span}: no frame shows all markers at once "
+                            f"(the best lacks {', '.join(worst)})", {"best_frame_missing": worst})
+        else:
+            self.progress = (t - self._t_first) / self.base_pose_timeout_s
+
+    def _gym_step(self, x: np.ndarray, t: float, stream_rate: float) -> None:
+        seconds, rate = self._gym_spec
+        dt = t - self._t_first
+        if dt >= seconds:
+            self._finish_capture()
+            return
+        k = int(np.floor(dt * rate + 1e-6)) if rate > 0 else self._next_k
+        if k >= self._next_k:
+            self.gym.append(x)
+            self._next_k = k + 1
+        self.progress = dt / seconds
+        self.data = {"frames": len(self.gym), "seconds": seconds, "rate_hz": rate or stream_rate}
+
+    # ----- steps --------------------------------------------------------------------------------
+    def _begin_find(self) -> None:
+        self._reset_capture()
+        if self.stream is not None and self.where is None and not self._bind():
+            return
+        self._set(FINDING, "waiting for a frame with every marker visible", 0.0)
+
+    def _begin_capture(self, seconds: float, rate_hz: float) -> None:
+        self.gym = []
+        self._t_first = None
+        self._next_k = 0
+        self._gym_spec = (float(seconds), float(rate_hz))
+        self._set(CAPTURING, f"capturing {seconds:g} s of gym at "
+                             f"{rate_hz:g} frames/s" if rate_hz else f"capturing {seconds:g} s of gym", 0.0,
+                  {"frames": 0, "seconds": seconds, "rate_hz": rate_hz})
+
+    def _finish_capture(self) -> None:
+        seconds, rate = self._gym_spec
+        self._set(CAPTURED, f"{len(self.gym)} gym frames over {seconds:g} s", 1.0,
+                  {"frames": len(self.gym), "seconds": seconds, "rate_hz": rate})
+        if self._auto_running:
+            self._begin_process()
+
+    def _begin_process(self) -> None:
+        self._set(PROCESSING, f"calibrating from base pose + {len(self.gym)} gym frames")
+        # Run on the next loop turn: the "processing" status leaves before the work blocks.
+        timer: list = []
+        timer.append(self.add_timer(3600.0, lambda: (self.cancel_timer(timer[0]), self._process()),
+                                    first_delay_s=0.0))
+
+    def _process(self) -> None:
+        self._auto_running = False
+        frames = np.concatenate([self.base[None], np.asarray(self.gym)]) if self.gym else self.base[None]
+        rate = self._gym_spec[1] or None
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CalibrationWarning)
+            try:
+                model = calibrate(self.definition, frames, base_frame=0, rate_hz=rate,
+                                  min_rom_deg=self.min_rom_deg, source="gym capture")
+            except CalibrationError as exc:
+                self._error(str(exc))
+                return
+        # The published model is the file form (rounded as saved), so a later run that loads the
+        # file interprets the session exactly as this one does.
+        model = SkeletonModel.from_dict(json.loads(json.dumps(model.to_dict())), source="calibration")
+        saved = ""
+        if self.model_file:
+            try:
+                save_model(model, self.model_file)
+                saved = self.model_file
+            except OSError as exc:
+                self.log.error("cannot save the model to %s: %s", self.model_file, exc)
+        self._publish_model(model, "calibration", saved,
+                            [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)])
+
+    def _publish_model(self, model: SkeletonModel, origin: str, path: str, warns: list[str]) -> None:
+        self.model = model
+        ml = self.definition.marker_limb if (self.definition is not None
+                                             and self.definition.name == model.layout) else None
+        self.skeleton_model.publish(model_to_message(model, ml))
+        report = quality_report(model, self.min_rom_deg)
+        report.update(origin=origin, model_file=path, base_frame=self.base_frame)
+        weak = [j["joint"] for j in report["joints"] if not j["reliable"]]
+        detail = f"{origin}: {len(model.joint_names)} joints" + (f", saved to {path}" if path and
+                                                                  origin == "calibration" else "")
+        if weak:
+            detail += f"; unreliable (too little motion): {', '.join(weak)}"
+        for w in warns:
+            self.log.warning("%s", w)
+        self._set(CALIBRATED, detail, 1.0, report)
+
+    def _load(self, path: str, at_start: bool = False) -> bool:
+        try:
+            if self.definition is not None:
+                model = load_model(path, self.definition)
+            else:
+                model = load_model(path)
+        except ModelFileError as exc:
+            self._error(str(exc))
+            return False
+        self._publish_model(model, "loaded " + path, path, [])
+        return True
+
+    # ----- commands -----------------------------------------------------------------------------
+    def on_calibration_command(self, cmd: NodeCommand) -> None:
+        if cmd.target not in ("", self.name):
+            return
+        try:
+            args = json.loads(cmd.args_json or "{}")
+            if not isinstance(args, dict):
+                raise ValueError("not a JSON object")
+        except ValueError as exc:
+            self._note(f"command {cmd.command!r}: bad args_json ({exc})")
+            return
+        name = cmd.command
+        self._auto_running = False
+        if name == "find_base_pose":
+            self._begin_find()
+        elif name == "capture_gym":
+            if self.base is None:
+                self._note("capture_gym: no base pose yet (send find_base_pose first)")
+                return
+            try:
+                seconds = float(args.get("seconds", self.gym_seconds))
+                rate = float(args.get("rate_hz", self.gym_rate_hz))
+                if not (seconds > 0 and rate >= 0):
+                    raise ValueError
+            except (TypeError, ValueError):
+                self._note(f"capture_gym: seconds must be > 0 and rate_hz >= 0, got {args}")
+                return
+            self._begin_capture(seconds, rate)
+        elif name == "process":
+            if self.base is None or self.state in (FINDING, CAPTURING, PROCESSING):
+                self._note(f"process: nothing captured to process (state {self.state})")
+                return
+            self._begin_process()
+        elif name == "reset":
+            self._reset_capture()
+            self._set(IDLE, "reset")
+        elif name == "save":
+            path = str(args.get("path") or self.model_file)
+            if self.model is None or not path:
+                self._note("save: " + ("no model yet" if self.model is None else "no path given"))
+                return
+            try:
+                save_model(self.model, path)
+            except OSError as exc:
+                self._note(f"save: cannot write {path}: {exc.strerror or exc}")
+                return
+            self.data["model_file"] = path
+            self._note(f"saved to {path}", problem=False)
+        elif name == "load":
+            path = str(args.get("path") or self.model_file)
+            if not path:
+                self._note("load: no path given")
+                return
+            self._load(path)
+        else:
+            self._note(f"unknown command {name!r} (expected one of {', '.join(COMMANDS)})")

@@ -1,0 +1,147 @@
+"""Frame solver as a node: one ActorPose per MarkerFrame from a calibrated SkeletonModel.
+
+The model comes from the latched ``skeleton_model`` topic (a calibration node), or from
+``model_file`` at start; a model arriving on the topic later replaces it. Markers are placed on
+the model's markers by label through the latched ``marker_layout`` (case-insensitive, Vicon
+prefix ignored) once, then per frame by one fancy index and one :meth:`FrameSolver.step`.
+
+A model whose markers the stream lacks (another layout) is refused with one logged error and
+nothing is published until a matching model arrives. Frames with NaN or invalid markers give
+joints marked missing (or estimated over gaps up to ``max_gap_s``), never garbage; a frame of the
+wrong size gives an all-missing pose. Time is the capture stamp of each frame (readers keep the
+file's spacing whatever the replay speed); when it goes backwards the temporal state starts afresh.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..bus import Input, Node, Output, Param
+from ..kinematics.model import ModelFileError, SkeletonModel, load_model
+from ..kinematics.solver import FrameSolver
+from ..messages import ActorPose, MarkerFrame, MarkerLayout
+from ..messages import SkeletonModel as ModelMsg
+from .model_messages import marker_index, missing_pose, model_from_message, pose_message
+
+FILTERS = ("", "one_euro", "constant_velocity")
+
+
+class FrameSolverNode(Node):
+    """Joint centres, limb orientations and per-joint/limb quality every frame."""
+
+    summary = "joint centres every frame from labelled markers and a calibrated model -> ActorPose"
+    markers = Input("markers", MarkerFrame, "labelled markers, m, world, in marker_layout order")
+    marker_layout = Input("marker_layout", MarkerLayout, "latched labels of the marker stream", latched=True)
+    skeleton_model = Input("skeleton_model", ModelMsg, "latched calibrated model", latched=True,
+                           required=False)
+    actor_pose = Output("actor_pose", ActorPose, "solved joints in the order of skeleton_model")
+
+    max_gap_s = Param(0.1, "longest gap a joint is predicted over (constant velocity), s; 0: none",
+                      minimum=0.0)
+    filter = Param("", "temporal filter on joints: '', one_euro, constant_velocity", choices=FILTERS)
+    enforce_lengths = Param(True, "keep calibrated bone lengths (Kiip), outward from the root")
+    actor = Param("actor", "actor name carried in every ActorPose")
+    model_file = Param("", "model JSON loaded at start instead of waiting for skeleton_model")
+
+    def on_start(self) -> None:
+        self.model: SkeletonModel | None = None
+        self.model_source = ""
+        self.solver: FrameSolver | None = None
+        self.where: np.ndarray | None = None
+        self.identity = False
+        self._last_t = -np.inf
+        self._t0_ns: int | None = None  # capture-time origin, so float seconds stay precise
+        self._skipped = 0
+        self._bad_frames = 0
+        self._failures = 0
+        self._refused: tuple[str, str] | None = None
+        if self.model_file:
+            if not Path(self.model_file).exists():
+                self.log.error("model_file %s does not exist; waiting for skeleton_model", self.model_file)
+            else:
+                try:
+                    self._use_model(load_model(self.model_file), self.model_file)
+                except ModelFileError as exc:
+                    self.log.error("%s; waiting for skeleton_model", exc)
+
+    # ----- model and layout ---------------------------------------------------------------------
+    def on_skeleton_model(self, msg: ModelMsg) -> None:
+        try:
+            model = model_from_message(msg, source=f"skeleton_model from {self.skeleton_model.envelope.sender}")
+        except ModelFileError as exc:
+            self.log.error("%s; keeping the previous model", exc)
+            return
+        self._use_model(model, f"skeleton_model from {self.skeleton_model.envelope.sender}")
+
+    def on_marker_layout(self, msg: MarkerLayout) -> None:
+        self._bind()
+
+    def _use_model(self, model: SkeletonModel, source: str) -> None:
+        self.model, self.model_source = model, source
+        self._bind()
+
+    def _bind(self) -> None:
+        """Match the model to the stream's labels and (re)build the solver; refuse a mismatch."""
+        layout = self.marker_layout.latest
+        self.solver = None
+        if self.model is None or layout is None:
+            return
+        try:
+            where = marker_index(self.model, layout.name, layout.labels, source=self.model_source)
+        except ModelFileError as exc:
+            key = (self.model.marker_fingerprint, layout.name + "\n" + "\n".join(layout.labels))
+            if self._refused != key:  # once per model/layout pair, not per frame
+                self.log.error("%s; publishing nothing until a matching model arrives", exc)
+                self._refused = key
+            return
+        self._refused = None
+        if layout.name and layout.name != self.model.layout:
+            self.log.warning("model layout '%s' used on marker layout '%s' (every marker found by label)",
+                             self.model.layout, layout.name)
+        self.where = where
+        self.n_stream = len(layout.labels)
+        self.identity = bool(len(where) == self.n_stream and (where == np.arange(len(where))).all())
+        self.solver = FrameSolver(self.model, max_gap_s=self.max_gap_s, enforce_lengths=self.enforce_lengths,
+                                  filter=self.filter or None)
+        self._last_t = -np.inf
+        self.log.info("solving %d joints of layout '%s' (%s) from %d markers", len(self.model.joint_names),
+                      self.model.layout, self.model_source, len(where))
+
+    # ----- frames -------------------------------------------------------------------------------
+    def on_markers(self, frame: MarkerFrame) -> None:
+        solver = self.solver
+        if solver is None:
+            self._skipped += 1
+            return
+        env = self.markers.envelope
+        pos = frame.positions
+        if pos.shape[0] != self.n_stream:
+            self._bad_frames += 1
+            if self._bad_frames <= 5 or self._bad_frames % 1000 == 0:
+                self.log.warning("frame %d has %d markers, the marker layout %d: joints marked missing "
+                                 "(%d such frames)", frame.frame_number, pos.shape[0], self.n_stream,
+                                 self._bad_frames)
+            self.actor_pose.publish(missing_pose(self.model, self.actor, frame.frame_number), env.capture_ns)
+            return
+        x = pos if self.identity else pos[self.where]
+        seen = np.isfinite(x).all(1)
+        if frame.valid.shape == (pos.shape[0],):
+            seen &= frame.valid if self.identity else frame.valid[self.where]
+        if not seen.all():
+            x = np.where(seen[:, None], x, np.nan)
+        if self._t0_ns is None:
+            self._t0_ns = env.capture_ns
+        t = (env.capture_ns - self._t0_ns) * 1e-9
+        if t < self._last_t:
+            solver.reset()  # a replay looped: old velocities and filter state do not apply
+        self._last_t = t
+        try:
+            res = solver.step(x, t)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            self._failures += 1
+            if self._failures <= 5 or self._failures % 1000 == 0:
+                self.log.error("frame %d could not be solved (%s): joints marked missing", frame.frame_number, exc)
+            self.actor_pose.publish(missing_pose(self.model, self.actor, frame.frame_number), env.capture_ns)
+            return
+        self.actor_pose.publish(pose_message(res, self.actor, frame.frame_number), env.capture_ns)
