@@ -1,0 +1,287 @@
+"""``mocapgraph calibrate`` and ``mocapgraph solve``: the actor pipeline on files, batch.
+
+The same code as the live nodes: label matching (:mod:`mocapgraph.nodes.model_messages`),
+:func:`~mocapgraph.kinematics.calibration.calibrate`, :class:`~mocapgraph.kinematics.solver.FrameSolver`
+(batch ``solve`` runs the very temporal stage ``step`` runs live) and the ActorPose conversion.
+
+Inputs: C3D, TRC, or a bag (.mcap, its MarkerFrame topic + latched MarkerLayout).
+Outputs of ``solve``: CSV (one row per frame: frame, time_s, then per joint x/y/z in metres, world
+frame Z up, empty where missing, and quality 0 missing / 1 estimated / 2 good), TRC of the joint centres, or
+a bag with the latched ``skeleton_model`` and one ``actor_pose`` per frame.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import UserError
+
+OUTPUT_KINDS = (".csv", ".trc", ".mcap")
+
+
+@dataclass
+class MarkerInput:
+    """Markers of one input file: labels, float[T,N,3] m world, rate, frame numbers, layout name."""
+
+    path: Path
+    labels: list[str]
+    positions: np.ndarray
+    rate_hz: float
+    frame_numbers: np.ndarray
+    layout_name: str = ""
+
+
+def read_marker_input(path: str, topic: str | None = None) -> MarkerInput:
+    """A C3D, TRC or bag file as markers; UserError (one line) when it cannot be read."""
+    from ..bag.errors import BagError
+    from ..formats import FormatError, read_markers
+
+    p = Path(path)
+    if not p.exists():
+        raise UserError(f"{path}: no such file")
+    try:
+        if p.suffix.lower() == ".mcap":
+            from ..bag.convert import bag_to_marker_trial
+            from ..bag.reader import BagReader
+
+            with BagReader(p) as reader:
+                trial = bag_to_marker_trial(reader, topic)
+                lay = [t for t, i in reader.topic_infos().items() if i.type_name == "MarkerLayout" and i.known]
+                name = ""
+                if lay:
+                    for _env, m in reader.decoded(lay[0]):
+                        name = m.name
+        else:
+            trial = read_markers(p)
+            name = ""
+    except (FormatError, BagError) as exc:
+        raise UserError(str(exc)) from None
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    T = trial.positions.shape[0]
+    return MarkerInput(p, list(trial.labels), trial.positions, float(trial.rate_hz),
+                       trial.first_frame + np.arange(T), name)
+
+
+def parse_frames(spec: str, n: int, source: str) -> slice:
+    """``a:b`` (0-based, end exclusive, either side may be empty, negatives from the end)."""
+    a, sep, b = spec.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        start = int(a) if a.strip() else None
+        stop = int(b) if b.strip() else None
+    except ValueError:
+        raise UserError(f"--frames {spec!r}: expected a:b (0-based frame indices, end excluded)") from None
+    sl = slice(start, stop)
+    if len(range(*sl.indices(n))) == 0:
+        raise UserError(f"{source}: --frames {spec} selects no frames of its {n}")
+    return sl
+
+
+def _definition(layout: str):
+    from ..kinematics.layout import LayoutError, available_layouts, layout_path
+    from ..kinematics.skeleton import SkeletonDefinition
+
+    p = layout_path(layout)
+    if not p.exists():
+        raise UserError(f"unknown layout {layout!r}: no file {p} (shipped layouts: {', '.join(available_layouts())})")
+    try:
+        return SkeletonDefinition.from_layout_file(p)
+    except LayoutError as exc:
+        raise UserError(str(exc)) from None
+
+
+# ----- calibrate ---------------------------------------------------------------------------------
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate, layout_markers
+    from ..kinematics.model import save_model
+    from ..nodes.model_messages import quality_table
+
+    definition = _definition(args.layout)
+    frames = args.frames or []
+    if len(frames) not in (0, 1, len(args.files)):
+        raise UserError(f"--frames given {len(frames)} times for {len(args.files)} files "
+                        "(give it once for all files, or once per file)")
+    parts, rate = [], None
+    for i, f in enumerate(args.files):
+        inp = read_marker_input(f, args.topic)
+        try:
+            x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name)
+        except CalibrationError as exc:
+            raise UserError(str(exc)) from None
+        if frames:
+            x = x[parse_frames(frames[i] if len(frames) > 1 else frames[0], len(x), inp.path.name)]
+        seen = np.isfinite(x).all(-1)
+        if not seen.any():
+            raise UserError(f"{inp.path.name}: no layout marker is visible in any selected frame")
+        print(f"{inp.path.name}: {len(x)} frames at {inp.rate_hz:g} Hz, {definition.n_markers} layout markers "
+              f"({100 * (1 - seen.mean()):.1f} % missing samples)")
+        parts.append(x)
+        rate = rate or inp.rate_hz
+    markers = np.concatenate(parts)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationWarning)
+        try:
+            model = calibrate(definition, markers, base_frame=args.base_frame, rate_hz=rate,
+                              max_base_search_s=args.base_search_s, min_rom_deg=args.min_rom_deg,
+                              source=" + ".join(Path(f).name for f in args.files))
+        except CalibrationError as exc:
+            raise UserError(str(exc)) from None
+        except IndexError:
+            raise UserError(f"--base-frame {args.base_frame} is outside the {len(markers)} frames") from None
+    print(f"layout {definition.name}: {len(model.joint_names)} joints from {len(markers)} frames")
+    print(quality_table(model))
+    for w in caught:
+        if issubclass(w.category, CalibrationWarning):
+            print(f"warning: {w.message}")
+    try:
+        save_model(model, args.output)
+    except OSError as exc:
+        raise UserError(f"{args.output}: cannot write ({exc.strerror or exc})") from None
+    print(f"wrote {args.output}")
+    return 0
+
+
+# ----- solve -------------------------------------------------------------------------------------
+def cmd_solve(args: argparse.Namespace) -> int:
+    from ..kinematics.model import ModelFileError, load_model
+    from ..kinematics.solver import FrameSolver
+    from ..nodes.model_messages import marker_index
+
+    out = Path(args.output)
+    if out.suffix.lower() not in OUTPUT_KINDS:
+        raise UserError(f"{out}: unknown output type {out.suffix or '(none)'!r} (expected .csv, .trc or .mcap)")
+    try:
+        model = load_model(args.model)
+    except ModelFileError as exc:
+        raise UserError(str(exc)) from None
+    inp = read_marker_input(args.trial, args.topic)
+    where, missing = _place(model, inp, args.allow_missing)
+    x = np.concatenate([inp.positions, np.full(inp.positions.shape[:1] + (1, 3), np.nan)], axis=1)
+    x = x[:, np.where(where >= 0, where, inp.positions.shape[1])]
+    numbers = inp.frame_numbers
+    if args.frames:
+        sl = parse_frames(args.frames, len(x), inp.path.name)
+        x, numbers = x[sl], numbers[sl]
+    if not np.isfinite(x).all(-1).any():
+        raise UserError(f"{inp.path.name}: no model marker is visible in any frame (all NaN)")
+    if missing:
+        print(f"note: {len(missing)} model markers absent from {inp.path.name} (always missing): {', '.join(missing)}")
+    times = (numbers - numbers[0]) / inp.rate_hz
+    try:
+        solver = FrameSolver(model, rate_hz=inp.rate_hz, max_gap_s=args.max_gap_s,
+                             enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    res = solver.solve(x, times)
+    q = res.joint_quality
+    T, J = q.shape
+    print(f"{inp.path.name}: {T} frames, {J} joints: {100 * (q == 2).mean():.1f} % good, "
+          f"{100 * (q == 1).mean():.1f} % estimated, {100 * (q == 0).mean():.1f} % missing")
+    bad = [model.joint_names[j] for j in range(J) if (q[:, j] == 0).all()]
+    if bad:
+        print(f"note: never solved (too few markers): {', '.join(bad)}")
+    kind = out.suffix.lower()
+    try:
+        if kind == ".csv":
+            _write_csv(out, model, res, numbers, times)
+        elif kind == ".trc":
+            from ..formats import FormatError, MarkerTrial, write_trc
+
+            try:
+                write_trc(out, MarkerTrial(labels=list(model.joint_names), positions=res.joints, residuals=None,
+                                           rate_hz=inp.rate_hz, first_frame=int(numbers[0]),
+                                           source=f"joint centres solved from {inp.path.name}"))
+            except FormatError as exc:
+                raise UserError(str(exc)) from None
+        else:
+            _write_bag(out, model, res, numbers, times, args.actor, inp)
+    except OSError as exc:
+        raise UserError(f"{out}: cannot write ({exc.strerror or exc})") from None
+    print(f"wrote {out}")
+    return 0
+
+
+def _place(model, inp: MarkerInput, allow_missing: bool) -> tuple[np.ndarray, list[str]]:
+    """Model marker -> input column (-1 absent); UserError for another layout or absent markers."""
+    from ..kinematics.model import ModelFileError
+    from ..nodes.model_messages import ModelLabels, marker_index
+
+    try:
+        return marker_index(model, inp.layout_name, inp.labels, source=inp.path.name), []
+    except ModelFileError as exc:
+        where, _ = ModelLabels(model.layout, tuple(model.marker_labels)).match_labels(inp.labels)
+        missing = [model.marker_labels[m] for m in np.flatnonzero(where < 0)]
+        if not allow_missing or not (where >= 0).any():
+            raise UserError(f"{exc}" + ("" if allow_missing else "; --allow-missing solves without them")) from None
+        return where, missing
+
+
+def _write_csv(out: Path, model, res, numbers: np.ndarray, times: np.ndarray) -> None:
+    cols = ["frame", "time_s"]
+    for n in model.joint_names:
+        cols += [f"{n}_x_m", f"{n}_y_m", f"{n}_z_m", f"{n}_quality"]
+    T, J = res.joint_quality.shape
+    table = np.concatenate([res.joints, res.joint_quality[..., None].astype(float)], axis=-1).reshape(T, 4 * J)
+    with open(out, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for t in range(T):
+            cells = ["" if math.isnan(v) else (f"{v:.0f}" if k % 4 == 3 else f"{v:.6f}")
+                     for k, v in enumerate(table[t].tolist())]
+            w.writerow([int(numbers[t]), f"{times[t]:.6f}", *cells])
+
+
+def _write_bag(out: Path, model, res, numbers: np.ndarray, times: np.ndarray, actor: str, inp: MarkerInput) -> None:
+    from ..bag.errors import BagError
+    from ..bag.writer import BagWriter, base_metadata
+    from ..nodes.model_messages import model_to_message, pose_message
+
+    stamps = np.round(times * 1e9).astype(np.int64)
+    try:
+        with BagWriter(out, metadata=base_metadata("mocapgraph solve", source=str(inp.path))) as w:
+            w.write("skeleton_model", model_to_message(model), seq=1, capture_ns=int(stamps[0]), sender="solve")
+            for t in range(len(stamps)):
+                w.write("actor_pose", pose_message(res[t], actor, int(numbers[t])), seq=t + 1,
+                        capture_ns=int(stamps[t]), sender="solve")
+    except BagError as exc:
+        raise UserError(str(exc)) from None
+
+
+# ----- registration ------------------------------------------------------------------------------
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="calibrate an actor skeleton model from static/ROM files",
+                       description="Calibrate from one or more marker files (C3D, TRC, bag), concatenated after "
+                                   "matching them to the layout: e.g. a static trial then a range-of-motion trial. "
+                                   "The base pose is the first frame with every marker visible.")
+    p.add_argument("files", nargs="+", metavar="FILE", help="static and/or range-of-motion files")
+    p.add_argument("--layout", required=True, help="marker layout name (graph_configs/marker_layouts) or YAML path")
+    p.add_argument("-o", "--output", required=True, help="model JSON to write")
+    p.add_argument("--frames", action="append", metavar="A:B",
+                   help="frames to use (0-based, end excluded); once for all files or once per file")
+    p.add_argument("--base-frame", type=int, default=None, help="base-pose frame index in the concatenated frames")
+    p.add_argument("--base-search-s", type=float, default=10.0, help="seconds searched for a base pose")
+    p.add_argument("--min-rom-deg", type=float, default=25.0, help="joints moving less are unreliable, deg")
+    p.add_argument("--topic", help="marker topic of bag inputs (when a bag has several)")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("solve", help="solve a marker trial with a calibrated model",
+                       description="Joint centres of every frame of a trial (C3D, TRC, bag) -> CSV, TRC or bag.")
+    p.add_argument("trial", metavar="TRIAL")
+    p.add_argument("--model", required=True, help="model JSON from `mocapgraph calibrate` or a calibration node")
+    p.add_argument("-o", "--output", required=True, help="out.csv, out.trc (joint centres) or out.mcap")
+    p.add_argument("--frames", metavar="A:B", help="frames to solve (0-based, end excluded)")
+    p.add_argument("--max-gap-s", type=float, default=0.1, help="longest gap predicted over, s (0: none)")
+    p.add_argument("--filter", default="", choices=("", "one_euro", "constant_velocity"), help="joint filter")
+    p.add_argument("--no-enforce-lengths", action="store_true", help="do not keep calibrated bone lengths")
+    p.add_argument("--allow-missing", action="store_true", help="solve even if some model markers are absent")
+    p.add_argument("--actor", default="actor", help="actor name in bag output")
+    p.add_argument("--topic", help="marker topic of a bag input (when it has several)")
+    p.set_defaults(func=cmd_solve)
