@@ -151,6 +151,7 @@ class Playback:
         self._rate_mark: tuple[float, int] | None = None
         self.achieved_rate = float("nan")
         self._loop_gap_ns = self._typical_period_ns()
+        np.percentile(self._lags[:2], [50, 99])  # numpy's first call costs ~15 ms: not while playing
 
     # ----- reading -----------------------------------------------------------------------------
     def _typical_period_ns(self) -> int:

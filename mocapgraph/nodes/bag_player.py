@@ -77,6 +77,7 @@ class BagPlayer(Node):
             raise NodeConfigError(str(exc)) from None
         self._timer: list | None = None
         self._last_state = ""
+        self._status_at = 0.0
         self.finished_at: float | None = None
 
     # ----- sending ---------------------------------------------------------------------------------
@@ -105,8 +106,11 @@ class BagPlayer(Node):
                 self._by_topic[self._ports[name].topic] = self._ports[name]
         self._send(self.playback.latched_first())
         self.playback.begin(paused=self.paused)
+        self.playback.fill(budget_s=0.05)  # read ahead now, not between two due messages
         self._timer = self.add_timer(0.001, self._pump, first_delay_s=0.0)
-        self.add_timer(STATUS_PERIOD_S, self._publish_status)
+        # run before the runtime's own timers (diagnostics) when both are due
+        self._timers.remove(self._timer)
+        self._timers.insert(0, self._timer)
         self._publish_status()
 
     def _pump(self) -> None:
@@ -121,10 +125,12 @@ class BagPlayer(Node):
             if pb.state == "finished":
                 self._finished(now)
         else:
-            if due - now > 0.003:
-                pb.fill(min(0.002, (due - now) / 3))
             self._timer[0] = due
-        if pb.state != self._last_state:
+        # Reading ahead and status reports only in idle time, so they never delay a due message.
+        idle = (due - now) if due is not None else 1.0
+        if idle > 0.003:
+            pb.fill(min(0.002, idle - 0.002))
+        if pb.state != self._last_state or (idle > 0.003 and now - self._status_at >= STATUS_PERIOD_S):
             self._publish_status()
 
     def _finished(self, now: float) -> None:
@@ -191,6 +197,7 @@ class BagPlayer(Node):
     def _publish_status(self) -> None:
         pb = self.playback
         self._last_state = pb.state
+        self._status_at = time.monotonic()
         d = self.status_data()
         detail = f"{d['position_s']:.2f}/{d['duration_s']:.2f} s at {pb.rate:g}x"
         progress = d["position_s"] / d["duration_s"] if d["duration_s"] > 0 else float("nan")
