@@ -1,0 +1,181 @@
+"""The actor pipeline as real processes: synthetic actor -> calibration -> solver -> logger.
+
+The source runs at 4x real time; calibration and solver go by capture stamps, so they see a
+120 Hz capture. Poses are compared with the source's exact ground truth frame by frame.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from actor_support import PIPELINE, joints, poses, read_jsonl, states, statuses, wait_until
+from mocapgraph.kinematics.model import load_model
+
+SOURCE = """\
+  - name: src
+    type: actor_source:ActorSource
+    params: {{duration_s: {duration}, speed: 4.0, seed: 3}}
+"""
+
+
+def _pipeline_graph(tmp_path, log, model_file, duration=12.0) -> str:
+    return f"""\
+include:
+  - file: {PIPELINE}
+    args: {{gym_seconds: 5.0, model_file: {model_file}}}
+nodes:
+{SOURCE.format(duration=duration)}\
+  - name: logger
+    type: topic_logger
+    params: {{path: {log}, topics: [actor_pose, ground_truth, calibration_status]}}
+"""
+
+
+def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_identically(launch_graph, tmp_path):
+    model_file = tmp_path / "actor_model.json"
+    log1, log2 = tmp_path / "run1.jsonl", tmp_path / "run2.jsonl"
+    g = launch_graph(_pipeline_graph(tmp_path, log1, model_file))
+    g.wait_ready()
+    g.wait_for("node src exited with code 0", timeout=30)
+    assert g.stop() == 0
+    seq = states(log1, "calibration")
+    assert seq == ["finding_base_pose", "base_pose_found", "capturing_gym", "gym_captured", "processing",
+                   "calibrated"], seq
+    final = statuses(log1, "calibration")[-1]
+    report = json.loads(final["data_json"])
+    assert report["origin"] == "calibration" and report["model_file"] == str(model_file)
+    assert all(j["reliable"] and j["residual_mm"] < 5.0 and j["rom_deg"] > 25 for j in report["joints"])
+    capturing = [m["progress"] for m in statuses(log1, "calibration") if m["state"] == "capturing_gym"]
+    assert capturing == sorted(capturing) and 0 <= capturing[0] < 0.5 < capturing[-1] <= 1.0
+    model = load_model(model_file, "kiip_full_body", load_model(model_file).marker_labels)
+    assert model.n_gym_frames == 301  # base pose + 5 s at 60 frames/s
+
+    p1, truth = poses(log1), poses(log1, "ground_truth")
+    frames = sorted(p1)
+    assert len(truth) == 1440 and frames[-1] == 1439
+    assert frames[0] > 600 and frames == list(range(frames[0], 1440))  # from calibration on, none lost
+    err = np.linalg.norm(joints(p1, frames) - joints(truth, frames), axis=-1)
+    print(f"\nlive pipeline: {len(frames)} frames, joint error mean {1000 * err.mean():.2f} mm, "
+          f"max {1000 * err.max():.2f} mm")
+    assert err.mean() < 0.005 and err.max() < 0.02
+    assert all(set(p1[f]["joint_quality"]) == {2} for f in frames)
+
+    # A second session loads the saved model at once and interprets the same frames identically.
+    g2 = launch_graph(_pipeline_graph(tmp_path, log2, model_file))
+    g2.wait_ready()
+    g2.wait_for("node src exited with code 0", timeout=30)
+    assert g2.stop() == 0
+    assert states(log2, "calibration") == ["calibrated"]
+    assert json.loads(statuses(log2, "calibration")[-1]["data_json"])["origin"] == f"loaded {model_file}"
+    p2 = poses(log2)
+    assert sorted(p2) == list(range(1440))
+    for f in frames:
+        assert p2[f]["joint_positions"] == p1[f]["joint_positions"], f
+        assert p2[f]["limb_orientations"] == p1[f]["limb_orientations"], f
+
+
+class CommandSender:
+    """An external publisher of NodeCommand on ``calibration_command`` (declared in the graph)."""
+
+    def __init__(self) -> None:
+        import zmq
+
+        self.sock = zmq.Context.instance().socket(zmq.XPUB)
+        self.port = self.sock.bind_to_random_port("tcp://127.0.0.1")
+        self.seq = 0
+
+    def wait_subscriber(self) -> None:
+        from mocapgraph.messages.codec import topic_frame
+
+        assert self.sock.poll(15000), "the calibration node never subscribed"
+        assert self.sock.recv() == b"\x01" + topic_frame("calibration_command")
+
+    def send(self, command: str, target: str = "", **args) -> None:
+        import time
+
+        from mocapgraph.messages import NodeCommand, encode
+
+        self.seq += 1
+        msg = NodeCommand(target=target, command=command, args_json=json.dumps(args))
+        self.sock.send_multipart([bytes(f) for f in encode("calibration_command", msg, self.seq,
+                                                            time.time_ns(), "test")])
+
+    def close(self) -> None:
+        self.sock.close(0)
+
+
+def test_calibration_driven_by_commands_reports_every_state(launch_graph, tmp_path):
+    log = tmp_path / "status.jsonl"
+    saved = tmp_path / "commanded.json"
+    cmd = CommandSender()
+    g = launch_graph(f"""\
+external:
+  - {{topic: calibration_command, type: NodeCommand, endpoint: "tcp://127.0.0.1:{cmd.port}"}}
+nodes:
+{SOURCE.format(duration=60.0)}\
+  - name: cal
+    type: calibration
+    params: {{layout: kiip_full_body}}
+  - name: logger
+    type: topic_logger
+    params: {{path: {log}, topics: [calibration_status, skeleton_model]}}
+""")
+    g.wait_ready()
+    cmd.wait_subscriber()
+
+    def last() -> dict:
+        st = statuses(log, "cal")
+        return st[-1] if st else {}
+
+    def reach(state: str, detail: str = "") -> dict:
+        return wait_until(lambda: (m := last()).get("state") == state and detail in m["detail"] and m,
+                          what=f"state {state} {detail!r}", graph=g)
+
+    reach("idle")
+    cmd.send("process")
+    reach("idle", "nothing captured")
+    cmd.send("capture_gym", seconds=1.0)
+    reach("idle", "no base pose yet")
+    cmd.send("find_base_pose", target="cal")
+    found = reach("base_pose_found")
+    cmd.send("capture_gym", seconds=4.0, rate_hz=30.0)
+    captured = reach("gym_captured")
+    assert json.loads(captured["data_json"])["frames"] in (120, 121)
+    cmd.send("process")
+    done = reach("calibrated")
+    report = json.loads(done["data_json"])
+    assert report["origin"] == "calibration" and len(report["joints"]) == 16
+    assert report["base_frame"] == json.loads(found["data_json"])["base_frame"]
+    cmd.send("save", path=str(saved))
+    reach("calibrated", f"saved to {saved}")
+    assert load_model(saved).layout == "kiip_full_body"
+    n = len(statuses(log, "cal"))
+    cmd.send("reset", target="someone_else")  # not for this node: ignored
+    cmd.send("save", target="cal", path=str(saved) + ".2")
+    reach("calibrated", f"saved to {saved}.2")
+    assert {m["state"] for m in statuses(log, "cal")[n:]} == {"calibrated"}
+    cmd.send("reset")
+    reach("idle", "reset")
+    cmd.send("load", path=str(saved))
+    reach("calibrated", f"loaded {saved}")
+    cmd.send("load", path=str(tmp_path / "nope.json"))
+    reach("error", "no such skeleton model file")
+    cmd.send("dance")
+    reach("error", "unknown command 'dance'")
+    cmd.send("capture_gym", seconds="long")
+    cmd.send("find_base_pose")
+    reach("base_pose_found")
+    cmd.send("capture_gym", seconds=-1)
+    reach("base_pose_found", "seconds must be > 0")
+
+    seq = states(log, "cal")
+    assert seq[:7] == ["idle", "finding_base_pose", "base_pose_found", "capturing_gym", "gym_captured",
+                       "processing", "calibrated"], seq
+    progress = [m["progress"] for m in statuses(log, "cal") if m["state"] == "capturing_gym"]
+    assert len(progress) >= 2 and progress[0] == 0.0 and max(progress) > 0.4  # reported at 2 Hz
+    models = read_jsonl(log, "skeleton_model")
+    assert len(models) == 2 and models[0]["msg"] == models[1]["msg"]  # calibrated, then the same reloaded
+    assert g.proc.poll() is None
+    assert g.stop() == 0
+    cmd.close()
