@@ -8,6 +8,15 @@ from __future__ import annotations
 NODE_TYPES: dict[str, str] = {
     "marker_test_pattern": "mocapgraph.nodes.test_pattern:MarkerTestPattern",
     "topic_logger": "mocapgraph.nodes.topic_logger:TopicLogger",
+    # inputs: marker readers (markers + marker_layout) and skeleton sources (skeleton_pose + skeleton_info)
+    "synthetic_actor": "mocapgraph.nodes.synthetic_actor:SyntheticActorNode",
+    "c3d_reader": "mocapgraph.nodes.c3d_reader:C3DReader",
+    "trc_reader": "mocapgraph.nodes.trc_reader:TRCReader",
+    "serial_reader": "mocapgraph.nodes.serial_reader:SerialReader",
+    "udp_reader": "mocapgraph.nodes.udp_reader:UDPReader",
+    "lsl_reader": "mocapgraph.nodes.lsl_reader:LSLReader",
+    "kinect_reader": "mocapgraph.nodes.kinect_reader:KinectReader",
+    "bvh_player": "mocapgraph.nodes.bvh_player:BVHPlayer",
     # actor: calibration (latched SkeletonModel) and the per-frame solver (ActorPose)
     "calibration": "mocapgraph.nodes.calibration:CalibrationNode",
     "frame_solver": "mocapgraph.nodes.frame_solver:FrameSolverNode",

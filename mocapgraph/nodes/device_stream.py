@@ -1,0 +1,203 @@
+"""What the serial and UDP readers share: the wire decoder, channel labels, the device-to-world
+transform, the device clock, counters, and waking the node's loop when the device has bytes.
+
+- Bytes go through :mod:`mocapgraph.formats.wire_protocol`'s streaming decoders, which never
+  raise: garbage is skipped and counted (``rejected_bytes``, ``rejected_frames``, ``crc_errors``).
+  The counts appear in the node's Diagnostics as an incoming device edge, in ``reader_status``
+  and in the log (rate-limited).
+- Channel labels come from the device file's ``channels``; without them the channels are the
+  layout's markers in layout order (the counts must agree), or ``M0..`` with ``layout: ""``.
+  A frame with another marker count is rejected and counted.
+- Capture stamps: the device's own time stamps, mapped to our clock by the offset seen on the
+  first frame (device time + offset = arrival time). If the mapping drifts more than
+  ``RESYNC_S`` from arrival times (device restarted, clock jumped) it is re-anchored and counted.
+- The device's file descriptor is registered with the node's poller, so its bytes wake the
+  event loop at once (no polling timer); they are read right after each loop turn.
+"""
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import zmq
+
+from ..bus import Param
+from ..formats.wire_protocol import WireFrame, make_decoder
+from .device_config import DeviceConfig, device_or_default
+from .marker_source import LayoutMap, MarkerSourceNode
+from .source_base import INPUT_ERRORS
+
+RESYNC_S = 0.5
+
+
+class WireDeviceSource(MarkerSourceNode):
+    """Base of the serial and UDP readers (see module doc). Subclasses open the device in
+    ``on_start`` (then call ``watch_fd``) and implement ``read_device`` (drain without blocking)."""
+
+    device = Param("", "device configuration (graph_configs/devices name or path): channel labels, "
+                       "device-to-world transform, nominal rate; '' = device frame is the world frame")
+    rate_hz = Param(0.0, "nominal frame rate written into MarkerFrames, Hz; 0 = the device file's, "
+                         "else measured from the device time stamps", minimum=0.0)
+
+    endpoint = ""
+
+    def wire_protocol(self) -> str:
+        """'text' or 'binary' (see mocapgraph.formats.wire_protocol)."""
+        return "binary"
+
+    def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
+        super().__init__(name, params, wiring)
+        self.decoder = make_decoder(self.wire_protocol())
+        self.config_error = ""
+        try:
+            self.dev: DeviceConfig = device_or_default(self.device)
+        except INPUT_ERRORS as exc:
+            self.config_error = str(exc)
+            self.dev = DeviceConfig()
+        self._fd: int | None = None
+        self.frames = 0
+        self.device_gaps = 0
+        self.count_mismatches = 0
+        self.clock_resyncs = 0
+        self.disconnects = 0
+        self._offset_ns: int | None = None
+        self._last_frame: int | None = None
+        self._last_dev_ns = 0
+        self._rate_est = 0.0
+        self._seen_rejects = (0, 0)
+        self.last_arrival = 0.0
+
+    # ----- event loop integration -----------------------------------------------------------
+    def watch_fd(self, fd: int) -> None:
+        self._poller.register(fd, zmq.POLLIN)
+        self._fd = fd
+
+    def unwatch_fd(self) -> None:
+        if self._fd is not None:
+            try:
+                self._poller.unregister(self._fd)
+            except KeyError:
+                pass
+            self._fd = None
+
+    def spin_once(self, timeout_s: float) -> None:
+        super().spin_once(timeout_s)
+        if self._fd is not None and not self._stop:
+            self.read_device()
+
+    def read_device(self) -> None:
+        raise NotImplementedError
+
+    # ----- layout --------------------------------------------------------------------------
+    def start_layout(self) -> bool:
+        """Publish the layout now when the channel labels are known; False after a failure."""
+        if self.config_error:
+            self.fail(self.config_error)
+            return False
+        if self.dev.channels:
+            try:
+                self.bind_layout(self.dev.channels, self.units_note(), self.source_text())
+            except INPUT_ERRORS as exc:
+                self.fail(str(exc))
+                return False
+        return True
+
+    def units_note(self) -> str:
+        return f"wire protocol millimetres -> m; {self.dev.describe()}"
+
+    def source_text(self) -> str:
+        return f"{self.wire_protocol()} {type(self).__name__.replace('Reader', '').lower()} {self.endpoint}"
+
+    def _bind_from_count(self, n: int) -> bool:
+        """First frame of a device without channel labels: its count defines the channels."""
+        try:
+            if self.layout:
+                lmap = LayoutMap.in_order(self.layout, n)
+            else:
+                lmap = LayoutMap.build("", [f"M{i}" for i in range(n)])
+        except INPUT_ERRORS as exc:
+            self.warn_limited("bind", "frame with %d markers rejected: %s", n, exc)
+            return False
+        self.publish_layout(lmap, self.units_note(), self.source_text())
+        return True
+
+    # ----- frames ---------------------------------------------------------------------------
+    def handle_bytes(self, data: bytes, arrival_ns: int, end_of_message: bool = False) -> None:
+        """Decode ``data`` (a chunk of a stream, or a whole datagram) and publish its frames."""
+        frames = self.decoder.feed(data)
+        if end_of_message:
+            frames += self.decoder.flush()
+        for wf in frames:
+            self.handle_frame(wf, arrival_ns)
+        st = self.decoder.stats
+        seen = (st.rejected_bytes, st.rejected_frames)
+        if seen != self._seen_rejects:
+            self._seen_rejects = seen
+            self.warn_limited("rejects", "%s: skipped %d bad byte(s), %d bad frame(s), %d CRC error(s) so far "
+                              "(last: %s)", self.endpoint, st.rejected_bytes, st.rejected_frames,
+                              st.crc_errors, st.last_error or "bytes outside any frame", every_s=5.0)
+
+    def handle_frame(self, wf: WireFrame, arrival_ns: int) -> None:
+        n = wf.positions.shape[0]
+        if self.lmap is None and not self._bind_from_count(n):
+            self.count_mismatches += 1
+            return
+        if n != self.lmap.n_source:
+            self.count_mismatches += 1
+            self.warn_limited("count", "frame %d has %d markers, the device is configured for %d: rejected",
+                              wf.frame, n, self.lmap.n_source)
+            return
+        if self._last_frame is not None:
+            step = wf.frame - self._last_frame
+            if step > 1:
+                self.device_gaps += step - 1
+            if step > 0 and wf.device_time_ns > self._last_dev_ns:
+                inst = step * 1e9 / (wf.device_time_ns - self._last_dev_ns)
+                self._rate_est = inst if not self._rate_est else 0.9 * self._rate_est + 0.1 * inst
+        self._last_frame, self._last_dev_ns = wf.frame, wf.device_time_ns
+        capture = self.map_clock(wf.device_time_ns, arrival_ns)
+        pos = self.lmap.positions(self.dev.points_to_world(wf.positions))
+        self.publish_frame(wf.frame, self.nominal_rate(), pos, capture)
+        self.frames += 1
+        self.last_arrival = time.monotonic()
+
+    def map_clock(self, device_ns: int, arrival_ns: int) -> int:
+        """Device time -> our clock (offset from the first frame; re-anchored on a jump)."""
+        if self._offset_ns is None:
+            self._offset_ns = arrival_ns - device_ns
+        mapped = device_ns + self._offset_ns
+        if abs(mapped - arrival_ns) > RESYNC_S * 1e9:
+            self.clock_resyncs += 1
+            self.warn_limited("clock", "%s: device clock jumped by %.3f s (restart?): re-anchored",
+                              self.endpoint, (mapped - arrival_ns) / 1e9)
+            self._offset_ns = arrival_ns - device_ns
+            mapped = arrival_ns
+        return mapped
+
+    def nominal_rate(self) -> float:
+        return self.rate_hz or self.dev.rate_hz or round(self._rate_est, 3)
+
+    def reset_stream(self) -> None:
+        """The byte stream broke (device lost): drop a half frame, forget frame numbering."""
+        self.decoder.flush()
+        self._last_frame = None
+
+    # ----- reporting -------------------------------------------------------------------------
+    def status_data(self) -> dict[str, Any]:
+        st = self.decoder.stats
+        return {"frames": self.frames, "device_gaps": self.device_gaps, "bytes_in": st.bytes_in,
+                "rejected_bytes": st.rejected_bytes, "rejected_frames": st.rejected_frames,
+                "crc_errors": st.crc_errors, "count_mismatches": self.count_mismatches,
+                "reject_reasons": dict(st.errors), "clock_resyncs": self.clock_resyncs,
+                "disconnects": self.disconnects, "rate_hz": self.nominal_rate(),
+                "last_frame_age_s": (time.monotonic() - self.last_arrival) if self.last_arrival else None}
+
+    def device_edges(self) -> list[dict[str, Any]]:
+        st = self.decoder.stats
+        return [{"topic": f"{type(self).__name__.replace('Reader', '').lower()}:{self.endpoint}",
+                 "sender": self.dev.name, "rate_hz": self._rate_est, "received": self.frames,
+                 "gaps": self.device_gaps, "rejected": st.rejected_frames + self.count_mismatches}]
+
+    def on_stop(self) -> None:
+        self.unwatch_fd()
