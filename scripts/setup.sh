@@ -16,12 +16,16 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   touch "$stamp"
 fi
 
-if ! command -v chromium >/dev/null 2>&1; then
+# Debian packages: chromium (browser tests of the viewer), graphviz (graph show --format png).
+missing=""
+command -v chromium >/dev/null 2>&1 || missing="$missing chromium"
+command -v dot >/dev/null 2>&1 || missing="$missing graphviz"
+if [ -n "$missing" ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    echo "setup: installing Debian's chromium for the browser tests and the viewer"
-    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
-      || echo "setup: could not install chromium; browser tests will be skipped"
+    echo "setup: installing Debian packages:$missing"
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >/dev/null) \
+      || echo "setup: could not install$missing; the tests that need them will be skipped"
   else
-    echo "setup: chromium not found (sudo apt-get install chromium); browser tests will be skipped"
+    echo "setup: missing$missing (sudo apt-get install$missing); the tests that need them will be skipped"
   fi
 fi

@@ -63,3 +63,13 @@ def test_shutdown_order_is_upstream_first() -> None:
     g = check_graph(load_graph(EXAMPLE))
     assert shutdown_order(g) == ["pattern", "logger"]
     assert nx.is_directed_acyclic_graph(g.flow)
+
+
+def test_graph_show_renders_an_image(capsys, tmp_path) -> None:
+    import shutil
+
+    if not shutil.which("dot"):
+        pytest.skip("Graphviz 'dot' is not installed")
+    png = tmp_path / "g.png"
+    assert main(["graph", "show", str(EXAMPLE), "--format", "png", "-o", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 1000
