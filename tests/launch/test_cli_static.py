@@ -47,8 +47,18 @@ def test_node_info_unknown_type(capsys) -> None:
 
 
 def test_every_shipped_graph_passes_the_check(capsys) -> None:
-    graphs = sorted((REPO / "graph_configs").rglob("*.yaml"))
-    graphs = [g for g in graphs if "nodes:" in g.read_text() or "include:" in g.read_text()]
+    """Every launchable graph; pieces that other graphs include may expect topics from them."""
+    import yaml
+
+    graphs = [g for g in sorted((REPO / "graph_configs").rglob("*.yaml"))
+              if "nodes:" in g.read_text() or "include:" in g.read_text()]
+    included = set()
+    for g in graphs:
+        for inc in (yaml.safe_load(g.read_text()) or {}).get("include") or []:
+            target = inc if isinstance(inc, str) else inc.get("file", "")
+            if "${" not in target:
+                included.add((g.parent / target).resolve())
+    graphs = [g for g in graphs if g.resolve() not in included]
     assert graphs
     for g in graphs:
         code = main(["graph", "check", str(g)])
