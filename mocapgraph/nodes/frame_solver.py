@@ -88,7 +88,8 @@ class FrameSolverNode(Node):
         if self.model is None or layout is None:
             return
         try:
-            where = marker_index(self.model, layout.name, layout.labels, source=self.model_source)
+            where = marker_index(self.model, layout.name, layout.labels,
+                                 source=f"marker stream of {layout.source or layout.name!r} (model: {self.model_source})")
         except ModelFileError as exc:
             key = (self.model.marker_fingerprint, layout.name + "\n" + "\n".join(layout.labels))
             if self._refused != key:  # once per model/layout pair, not per frame

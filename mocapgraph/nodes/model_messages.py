@@ -176,7 +176,8 @@ def marker_index(model: KinModel, stream_layout: str, stream_labels: Sequence[st
                 f"layout '{stream_layout}' which lacks {len(missing)} of its {len(where)} markers "
                 f"({', '.join(missing[:6])}{', ...' if len(missing) > 6 else ''})")
         raise ModelMismatchError(
-            f"{source}: markers of model '{model.layout}' absent from the marker stream: {', '.join(missing)}")
+            f"{source}: lacks {len(missing)} of the {len(where)} markers of model '{model.layout}': "
+            f"{', '.join(missing)}")
     return where
 
 
