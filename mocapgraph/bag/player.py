@@ -15,8 +15,10 @@ What is sent. The stored frames, byte for byte, except:
   duplicates); in the first pass they are the recorded ones, recorded gaps included.
 Capture stamps are always the recorded ones, so they jump back on a loop or a backward seek.
 
-Latched topics: before the first message, the last value of every latched topic at or before
-the start position (or its first value if it comes later) is handed out first.
+Latched topics: before anything else, the last value of every latched topic at or before the start
+position is handed out (`latched_first`), even when starting paused; a latched topic whose first
+value comes later is sent at its time. The node keeps the last value of each latched topic for
+late joiners (the bus's XPUB resend).
 """
 from __future__ import annotations
 
@@ -144,6 +146,7 @@ class Playback:
         self._seq_last: dict[tuple[str, bytes], int] = {}
         self._seq_offset: dict[tuple[str, bytes], int] = {}
         self._rebase = False
+        self._sent_early: set[tuple[str, int]] = set()
         self.sent = 0
         self.loops = 0
         self._lags = np.zeros(LAG_WINDOW)
@@ -182,6 +185,8 @@ class Playback:
                 self._src = None
                 self._exhausted = True
                 return False
+            if self._sent_early and self._pass == 0 and (raw.topic, raw.log_ns) in self._sent_early:
+                continue  # already sent by latched_first
             t = raw.publish_ns or raw.log_ns
             if self._pass_first_ns is None:
                 self._pass_first_ns = t
@@ -216,8 +221,9 @@ class Playback:
                 break
         out = []
         for raw in best.values():
-            if raw.log_ns < self.start_ns:  # otherwise it is also in the played window
+            if raw.log_ns <= self.start_ns:
                 out.append(self._outgoing(raw.publish_ns, raw, self.clock()))
+                self._sent_early.add((raw.topic, raw.log_ns))
         return out
 
     def begin(self, paused: bool = False) -> None:
@@ -259,6 +265,7 @@ class Playback:
         self._shift_ns = 0
         self._last_t = -(1 << 62)
         self._rebase = True
+        self._sent_early.clear()
         self._open_source(max(target, self.start_ns))
         first = self._peek()
         t0 = first[0] if first else target
