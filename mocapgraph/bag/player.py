@@ -16,7 +16,7 @@ What is sent. The stored frames, byte for byte, except:
 Capture stamps are always the recorded ones, so they jump back on a loop or a backward seek.
 
 Latched topics: before anything else, the last value of every latched topic at or before the start
-position is handed out (`latched_first`), even when starting paused; a latched topic whose first
+position (+0.1 s) is handed out (`latched_first`), even when starting paused; a latched topic whose first
 value comes later is sent at its time. The node keeps the last value of each latched topic for
 late joiners (the bus's XPUB resend).
 """
@@ -43,6 +43,7 @@ _Q = struct.Struct("<Q")
 _q = struct.Struct("<q")
 DEFAULT_EXCLUDE = ("diagnostics",)
 LAG_WINDOW = 8192
+LATCHED_GRACE_NS = 100_000_000
 
 
 def set_publish_stamp(header: bytearray, now_ns: int | None = None) -> None:
@@ -213,15 +214,18 @@ class Playback:
         latched = [t for t, info in self.topics.items() if info.latched]
         if not latched:
             return []
+        # a latched value recorded just after the start (a recorder reads its topics' sockets in turn)
+        # is the state at the start all the same
+        horizon = self.start_ns + LATCHED_GRACE_NS
         best: dict[str, RawMessage] = {}
         for raw in self.reader.messages(latched, None, None):
-            if raw.log_ns <= self.start_ns or raw.topic not in best:
+            if raw.log_ns <= horizon or raw.topic not in best:
                 best[raw.topic] = raw
-            if raw.log_ns > self.start_ns and len(best) == len(latched):
+            if raw.log_ns > horizon and len(best) == len(latched):
                 break
         out = []
         for raw in best.values():
-            if raw.log_ns <= self.start_ns:
+            if raw.log_ns <= horizon:
                 out.append(self._outgoing(raw.publish_ns, raw, self.clock()))
                 self._sent_early.add((raw.topic, raw.log_ns))
         return out

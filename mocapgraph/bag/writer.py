@@ -84,15 +84,18 @@ class BagWriter:
     compression: "lz4" or "none".
     chunk_kb: chunk size that closes a chunk early (flush() closes one anyway).
     split_mb / split_s: start a new file after this many MB / seconds of log time (0: never).
+    on_exists: "overwrite", "rename" (first free <stem>_<n>: a respawned recorder never destroys
+        the bag of its previous life) or "error".
         Each split file is complete on its own: schemas, channels, metadata, and the last
         message of every latched topic again at its start.
     """
 
     def __init__(self, path: str | Path, *, compression: str = "lz4", chunk_kb: int = 512,
-                 split_mb: float = 0.0, split_s: float = 0.0, metadata: Mapping[str, str] | None = None) -> None:
+                 split_mb: float = 0.0, split_s: float = 0.0, metadata: Mapping[str, str] | None = None,
+                 on_exists: str = "overwrite") -> None:
         if compression not in COMPRESSIONS:
             raise BagError(path, f"compression {compression!r} is not one of {sorted(COMPRESSIONS)}")
-        self.base = Path(path)
+        self.base = _free_path(Path(path), on_exists)
         self.compression = compression
         self.chunk_bytes = int(chunk_kb * 1024)
         self.split_bytes = int(split_mb * 1e6)
@@ -235,6 +238,20 @@ class BagWriter:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _free_path(path: Path, on_exists: str) -> Path:
+    """``path``, or (on_exists="rename") the first free ``<stem>_<n><suffix>``; "error" refuses."""
+    if on_exists == "overwrite" or not path.exists():
+        return path
+    if on_exists == "error":
+        raise BagError(path, "already exists (choose another name or --force to overwrite)")
+    n = 1
+    while True:
+        cand = path.with_name(f"{path.stem}_{n}{path.suffix}")
+        if not cand.exists():
+            return cand
+        n += 1
 
 
 def fsync_path(path: Path) -> None:

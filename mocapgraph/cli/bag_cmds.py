@@ -60,7 +60,7 @@ def cmd_record(args: argparse.Namespace) -> int:
                                                 for n in manifest.get("nodes", [])]))
     try:
         writer = BagWriter(out, compression=args.compression, chunk_kb=args.chunk_kb, split_mb=args.split_mb,
-                           split_s=args.split_s, metadata=meta)
+                           split_s=args.split_s, metadata=meta, on_exists="overwrite" if args.force else "error")
     except BagError as exc:
         raise _fail(exc) from None
     rec = Recorder(writer, args.flush_s)
@@ -75,6 +75,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     print(f"recording {len(topics)} topic(s) to {writer.paths[0]}: {', '.join(topics)}", flush=True)
     t_end = time.monotonic() + args.duration if args.duration else None
     next_status = time.monotonic() + 1.0
+    last_msg = time.monotonic()
     try:
         while not stop["flag"]:
             if sock.poll(20):
@@ -84,8 +85,16 @@ def cmd_record(args: argparse.Namespace) -> int:
                     except zmq.Again:
                         break
                     rec.receive(frames)
+                last_msg = time.monotonic()
             now = time.monotonic()
             rec.tick(now)
+            if now - last_msg > 2.0:  # quiet: is the graph still there?
+                last_msg = now
+                try:
+                    fetch_manifest(args.master, timeout_s=0.5)
+                except NoGraphError:
+                    print("the graph has stopped", flush=True)
+                    break
             if now >= next_status:
                 next_status = now + 1.0
                 if tty:
@@ -431,6 +440,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split-mb", type=float, default=0.0, help="new file after this many MB")
     p.add_argument("--split-s", type=float, default=0.0, help="new file after this many seconds")
     p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds")
+    p.add_argument("-f", "--force", action="store_true", help="overwrite an existing bag")
     p.add_argument("--master", help="manifest endpoint of the running graph")
     p.set_defaults(func=cmd_record)
 

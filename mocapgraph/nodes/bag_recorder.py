@@ -55,7 +55,7 @@ class BagRecorder(Node):
             path = self.path or default_bag_name()
             try:
                 writer = BagWriter(path, compression=self.compression, chunk_kb=self.chunk_kb,
-                                   split_mb=self.split_mb, split_s=self.split_s, metadata=meta)
+                                   split_mb=self.split_mb, split_s=self.split_s, metadata=meta, on_exists="rename")
             except BagError as exc:
                 raise NodeConfigError(str(exc)) from None
             self.recorder = Recorder(writer, self.flush_s)

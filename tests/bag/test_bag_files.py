@@ -126,3 +126,14 @@ def test_recover_via_cli_prints_counts(tmp_path):
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 0, r.stderr
     assert "saved 101 messages" in r.stdout and "t.recovered.mcap" in r.stdout
+
+
+def test_existing_bag_is_never_destroyed_by_a_respawned_recorder(tmp_path):
+    first = write_bag(tmp_path / "r.mcap", frames=3)
+    w = BagWriter(first, on_exists="rename")
+    assert w.paths == [tmp_path / "r_1.mcap"]
+    w.close()
+    with pytest.raises(BagError, match="already exists"):
+        BagWriter(first, on_exists="error")
+    with BagReader(first) as r:
+        assert r.summary().count == 4

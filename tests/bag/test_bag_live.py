@@ -285,3 +285,40 @@ nodes:
         check_graph(load_graph(bad))
     text = str(err.value)
     assert "b.yaml" in text and "params.file" in text and "no such file" in text
+
+
+def test_terminal_keys_step_and_quit(tmp_path):
+    import pty
+    import select
+
+    bag = write_bag(tmp_path / "k.mcap", frames=50)
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "bag", "play", str(bag), "--paused", "--no-wait",
+                             "--no-manifest"], stdin=slave, stdout=slave, stderr=slave, close_fds=True)
+    os.close(slave)
+    out = b""
+
+    def read_until(text: bytes, timeout: float = 10.0) -> None:
+        nonlocal out
+        t_end = time.monotonic() + timeout
+        while text not in out and time.monotonic() < t_end:
+            if select.select([master], [], [], 0.05)[0]:
+                try:
+                    out += os.read(master, 4096)
+                except OSError:
+                    return
+
+    try:
+        read_until(b"keys: space")
+        os.write(master, b"s")
+        read_until(b"sent 2")  # the latched layout first, then one step: frame 0
+        os.write(master, b"q")
+        read_until(b"played ")
+        read_until(b"\n", timeout=1.0)
+        assert proc.wait(10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        os.close(master)
+    text = out.decode(errors="replace")
+    assert "played 2 messages" in text, text
