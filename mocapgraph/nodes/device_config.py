@@ -70,6 +70,12 @@ class DeviceConfig:
             return p
         return p @ self.rotation.T + self.translation
 
+    def points_from_world(self, p: np.ndarray) -> np.ndarray:
+        """World points [..., 3] (metres) to the device frame (the inverse of points_to_world)."""
+        if self.is_identity:
+            return p
+        return (p - self.translation) @ self.rotation
+
     def quats_to_world(self, q: np.ndarray) -> np.ndarray:
         """Device orientations [..., 4] wxyz to world; NaN rows stay NaN."""
         if np.array_equal(self.rotation, np.eye(3)):

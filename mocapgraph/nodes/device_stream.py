@@ -179,9 +179,11 @@ class WireDeviceSource(MarkerSourceNode):
         return self.rate_hz or self.dev.rate_hz or round(self._rate_est, 3)
 
     def reset_stream(self) -> None:
-        """The byte stream broke (device lost): drop a half frame, forget frame numbering."""
+        """The byte stream broke (device lost): drop a half frame, forget frame numbering and the
+        clock offset (a reconnected device may have restarted: its next frame anchors again)."""
         self.decoder.flush()
         self._last_frame = None
+        self._offset_ns = None
 
     # ----- reporting -------------------------------------------------------------------------
     def status_data(self) -> dict[str, Any]:
