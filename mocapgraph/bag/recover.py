@@ -19,7 +19,7 @@ from typing import Callable
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Chunk, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
@@ -136,7 +136,16 @@ def _walk(f, size: int, w: Writer, rep: RecoveryReport, progress) -> None:
         rep.start_ns = m.log_time if rep.saved == 1 else min(rep.start_ns, m.log_time)
         rep.end_ns = max(rep.end_ns, m.log_time)
 
+    saved_compressed = 0  # compressed bytes of saved chunks, to estimate what a damaged region held
+
+    def lose_region(nbytes: int, why: str) -> None:
+        rep.chunks_bad += 1
+        rep.reason = why
+        if saved_compressed and rep.saved:
+            rep.lost_estimate += max(1, round(nbytes / (saved_compressed / rep.saved)))
+
     while True:
+        rec_start = pos
         head = f.read(_REC.size)
         if len(head) < _REC.size:
             rep.tail_bytes = len(head)
@@ -144,9 +153,16 @@ def _walk(f, size: int, w: Writer, rep: RecoveryReport, progress) -> None:
                 rep.reason = rep.reason or "the file ends inside a record header"
             break
         opcode, length = _REC.unpack(head)
-        if length > size - pos - _REC.size:
+        if opcode not in _OPCODES or length > size - pos - _REC.size:
+            nxt = _resync(f, rec_start + 1, size)
+            if nxt is not None:  # damage in the middle: skip to the next intact chunk
+                lose_region(nxt - rec_start, f"damaged bytes {rec_start}..{nxt} were skipped")
+                f.seek(nxt)
+                pos = nxt
+                continue
             # a record cut short by the end of the file
             rep.tail_bytes = size - pos
+            f.seek(pos + _REC.size)
             body = f.read(min(length, 64))
             if opcode == Opcode.CHUNK and len(body) >= _CHUNK_HEAD.size:
                 t0, t1, usize, _crc = _CHUNK_HEAD.unpack_from(body)
@@ -166,15 +182,13 @@ def _walk(f, size: int, w: Writer, rep: RecoveryReport, progress) -> None:
         try:
             if opcode == Opcode.HEADER:
                 header_seen = True
-                from mcap.records import Header
-
                 h = Header.read(stream)
                 start(h.profile, h.library)
             elif opcode == Opcode.SCHEMA:
                 start()
-                s = Schema.read(stream)
-                pending_schemas[s.id] = s
-                add_schema(s)
+                sc = Schema.read(stream)
+                pending_schemas[sc.id] = sc
+                add_schema(sc)
             elif opcode == Opcode.CHANNEL:
                 start()
                 add_channel(Channel.read(stream))
@@ -202,6 +216,7 @@ def _walk(f, size: int, w: Writer, rep: RecoveryReport, progress) -> None:
                         add_message(r)
                 rep.chunks_saved += 1
                 saved_bytes += chunk.uncompressed_size
+                saved_compressed += length
             elif opcode == Opcode.METADATA:
                 start()
                 meta_records.append(Metadata.read(stream))
@@ -210,12 +225,19 @@ def _walk(f, size: int, w: Writer, rep: RecoveryReport, progress) -> None:
                 a = Attachment.read(stream)
                 w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
             elif opcode == Opcode.FOOTER:
-                rep.was_complete = True
+                rep.was_complete = rep.chunks_bad == 0
                 break
             # DataEnd, indexes, statistics and summary records are rebuilt by the writer
         except READ_ERRORS as exc:
-            rep.reason = f"a damaged record at byte {pos - length - _REC.size} ({type(exc).__name__})"
-            rep.tail_bytes = size - pos
+            nxt = _resync(f, rec_start + 1, size)
+            if nxt is not None:
+                lose_region(nxt - rec_start, f"a damaged record at byte {rec_start} ({type(exc).__name__}); "
+                                             f"skipped to byte {nxt}")
+                f.seek(nxt)
+                pos = nxt
+                continue
+            rep.reason = f"a damaged record at byte {rec_start} ({type(exc).__name__})"
+            rep.tail_bytes = size - rec_start
             break
     if not header_seen:
         rep.reason = rep.reason or "no MCAP header record"
@@ -228,6 +250,48 @@ def _walk(f, size: int, w: Writer, rep: RecoveryReport, progress) -> None:
         "tail_bytes": str(rep.tail_bytes), "reason": rep.reason or ("complete" if rep.was_complete else "")})
     if progress is not None:
         progress(size, size)
+
+
+_OPCODES = {int(o) for o in Opcode}
+_CHUNK_FIXED = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
+
+
+def _chunk_at(mm, off: int, size: int) -> bool:
+    """True when the bytes at ``off`` frame a plausible chunk record (lengths agree to the byte)."""
+    if off + _REC.size + _CHUNK_FIXED.size > size:
+        return False
+    length = struct.unpack_from("<Q", mm, off + 1)[0]
+    if length < _CHUNK_FIXED.size + 8 or off + _REC.size + length > size:
+        return False
+    *_, clen = _CHUNK_FIXED.unpack_from(mm, off + _REC.size)
+    if clen > 16:
+        return False
+    at = off + _REC.size + _CHUNK_FIXED.size
+    if bytes(mm[at:at + clen]) not in (b"", b"lz4", b"zstd"):
+        return False
+    data_len = struct.unpack_from("<Q", mm, at + clen)[0]
+    return _CHUNK_FIXED.size + clen + 8 + data_len == length
+
+
+def _resync(f, start: int, size: int) -> int | None:
+    """Offset of the next plausible chunk record at or after ``start`` (its CRC is checked when read)."""
+    import mmap
+
+    try:
+        mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    except (ValueError, OSError):
+        return None
+    try:
+        off = start
+        while True:
+            off = mm.find(bytes([Opcode.CHUNK]), off, size)
+            if off < 0:
+                return None
+            if _chunk_at(mm, off, size):
+                return off
+            off += 1
+    finally:
+        mm.close()
 
 
 def _estimate(uncompressed: int, saved_bytes: int, saved_count: int) -> int:

@@ -295,6 +295,8 @@ def cmd_play(args: argparse.Namespace) -> int:
             node.close()
             if server is not None:
                 server.close()
+    if node.error:
+        raise UserError(node.error)
     p50, p99, pmax = pb.lag_ms()
     print(f"played {pb.sent} messages ({pb.loops} loops), position {pb.position_s:.2f} s; achieved rate "
           f"{pb.achieved_rate:.3f}x; lag behind schedule p50 {p50:.3f} ms, p99 {p99:.3f} ms, max {pmax:.3f} ms")

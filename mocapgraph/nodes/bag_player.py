@@ -78,6 +78,7 @@ class BagPlayer(Node):
         self._timer: list | None = None
         self._last_state = ""
         self._status_at = 0.0
+        self.error = ""
         self.finished_at: float | None = None
 
     # ----- sending ---------------------------------------------------------------------------------
@@ -104,9 +105,15 @@ class BagPlayer(Node):
             if name in self.playback.topics:
                 self.playback.remap[name] = self._ports[name].topic
                 self._by_topic[self._ports[name].topic] = self._ports[name]
-        self._send(self.playback.latched_first())
-        self.playback.begin(paused=self.paused)
-        self.playback.fill(budget_s=0.05)  # read ahead now, not between two due messages
+        try:
+            self._send(self.playback.latched_first())
+            self.playback.begin(paused=self.paused)
+            self.playback.fill(budget_s=0.05)  # read ahead now, not between two due messages
+        except BagError as exc:
+            self.error = str(exc)
+            self.log.error("%s", exc)
+            self.request_stop()
+            return
         self._timer = self.add_timer(0.001, self._pump, first_delay_s=0.0)
         # run before the runtime's own timers (diagnostics) when both are due
         self._timers.remove(self._timer)
@@ -114,6 +121,16 @@ class BagPlayer(Node):
         self._publish_status()
 
     def _pump(self) -> None:
+        try:
+            self._pump_once()
+        except BagError as exc:  # damage found mid-file: say so and leave, no traceback
+            self.error = str(exc)
+            self.log.error("%s", exc)
+            self.playback.state = "failed"
+            self._publish_status()
+            self.request_stop()
+
+    def _pump_once(self) -> None:
         pb = self.playback
         items = pb.take_due()
         if items:
@@ -170,7 +187,7 @@ class BagPlayer(Node):
         elif command == "step":
             if pb.state == "playing":
                 pb.pause()
-            self._send(pb.step())
+            self._send(pb.step())  # BagError: reported by on_command
         elif command == "seek":
             pb.seek(float(args["position_s"]))
             self.finished_at = None

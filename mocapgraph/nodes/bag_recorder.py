@@ -68,12 +68,20 @@ class BagRecorder(Node):
 
     def _tick(self) -> None:
         if self.recorder is not None:
-            self.recorder.tick()
+            try:
+                self.recorder.tick()
+            except OSError as exc:
+                self.log.error("cannot record: %s", exc)
+                self.request_stop()
 
     def _deliver(self, port, env, frames) -> None:  # noqa: ANN001 - runtime hook
         # Raw frames straight into the bag: no payload decode, unknown types kept as they came.
         port.envelope = env
-        self._open().receive(frames, env)
+        try:
+            self._open().receive(frames, env)
+        except (OSError, BagError, NodeConfigError) as exc:  # disk full, folder gone: say so and stop
+            self.log.error("cannot record: %s", exc)
+            self.request_stop()
 
     def on_stop(self) -> None:
         if self.recorder is not None:

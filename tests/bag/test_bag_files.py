@@ -137,3 +137,21 @@ def test_existing_bag_is_never_destroyed_by_a_respawned_recorder(tmp_path):
         BagWriter(first, on_exists="error")
     with BagReader(first) as r:
         assert r.summary().count == 4
+
+
+def test_recover_skips_a_damaged_region_in_the_middle(tmp_path):
+    path = write_bag(tmp_path / "c.mcap", frames=2000, chunk_kb=16)
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 3000] = bytes(b ^ 0x5A for b in data[mid:mid + 3000])
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with BagReader(bad) as r:  # the index is intact, the data is not
+        with pytest.raises(BagError, match="damaged data.*bag recover"):
+            list(r.messages())
+    rep = recover(bad)
+    with BagReader(rep.output) as r:
+        nums = np.array([m.frame_number for _, m in r.decoded("markers")])
+    assert rep.chunks_bad >= 1 and not rep.was_complete
+    assert len(nums) > 1800 and np.all(np.diff(nums) > 0)  # chunks after the damage are saved too
+    assert nums[-1] == 1999 and np.count_nonzero(np.diff(nums) > 1) == 1
