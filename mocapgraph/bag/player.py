@@ -133,7 +133,7 @@ class Playback:
         self.origin_ns, last_pub = reader.publish_span(sorted(self.topics))
         self.duration_s = (end_s if end_s is not None else max(0.0, (last_pub - self.origin_ns) / 1e9))
         self.state = "idle"
-        self._buf: deque[tuple[int, RawMessage]] = deque()
+        self._buf: deque[tuple[int, RawMessage, int]] = deque()  # (bag time, message, generation)
         self._src: Iterator[RawMessage] | None = None
         self._exhausted = False
         self._pass = 0
@@ -146,7 +146,8 @@ class Playback:
         self._last_sent_ns: int | None = None
         self._seq_last: dict[tuple[str, bytes], int] = {}
         self._seq_offset: dict[tuple[str, bytes], int] = {}
-        self._rebase = False
+        self._gen = 0  # bumped by every loop and seek: sequence numbers are rebased at the change
+        self._out_gen = 0
         self._sent_early: set[tuple[str, int]] = set()
         self.sent = 0
         self.loops = 0
@@ -180,7 +181,7 @@ class Playback:
                     self._shift_ns += self._last_t - self._shift_ns - self._pass_first_ns + self._loop_gap_ns
                     self._pass += 1
                     self.loops += 1
-                    self._rebase = True
+                    self._gen += 1
                     self._open_source(self.start_ns)
                     continue
                 self._src = None
@@ -193,7 +194,7 @@ class Playback:
                 self._pass_first_ns = t
             t = max(t + self._shift_ns, self._last_t)
             self._last_t = t
-            self._buf.append((t, raw))
+            self._buf.append((t, raw, self._gen))
             return True
 
     def fill(self, budget_s: float = 0.002, ahead: int = 2048) -> None:
@@ -203,7 +204,7 @@ class Playback:
             if not self._read_one():
                 break
 
-    def _peek(self) -> tuple[int, RawMessage] | None:
+    def _peek(self) -> tuple[int, RawMessage, int] | None:
         if not self._buf and not self._read_one():
             return None
         return self._buf[0]
@@ -226,7 +227,7 @@ class Playback:
         out = []
         for raw in best.values():
             if raw.log_ns <= horizon:
-                out.append(self._outgoing(raw.publish_ns, raw, self.clock()))
+                out.append(self._outgoing(raw.publish_ns, raw, self.clock(), self._gen))
                 self._sent_early.add((raw.topic, raw.log_ns))
         return out
 
@@ -268,7 +269,7 @@ class Playback:
         self._buf.clear()
         self._shift_ns = 0
         self._last_t = -(1 << 62)
-        self._rebase = True
+        self._gen += 1
         self._sent_early.clear()
         self._open_source(max(target, self.start_ns))
         first = self._peek()
@@ -336,12 +337,12 @@ class Playback:
             now = None
 
     def _pop(self, now: float, due: float | None = None) -> Outgoing:
-        t, raw = self._buf.popleft()
-        o = self._outgoing(t, raw, now if due is None else due)
+        t, raw, gen = self._buf.popleft()
+        o = self._outgoing(t, raw, now if due is None else due, gen)
         self._last_sent_ns = t
         return o
 
-    def _outgoing(self, t: int, raw: RawMessage, due: float) -> Outgoing:
+    def _outgoing(self, t: int, raw: RawMessage, due: float, gen: int = 0) -> Outgoing:
         topic = self.remap.get(raw.topic, raw.topic)
         frames = raw.frames(topic)
         header = bytearray(frames[1])
@@ -349,10 +350,11 @@ class Playback:
         sender = bytes(header[HEADER.size + tlen:HEADER.size + tlen + slen])
         key = (raw.topic, sender)
         seq = _Q.unpack_from(header, SEQ_AT)[0]
-        if self._rebase:
-            # a new pass or a seek: continue every stream's numbering from the last sent
-            self._seq_offset = {k: None for k in self._seq_last}
-            self._rebase = False
+        if gen != self._out_gen:
+            # the first message of a new pass or after a seek: continue every stream's numbering
+            # from the last one sent
+            self._seq_offset = {}
+            self._out_gen = gen
         off = self._seq_offset.get(key)
         if off is None:
             off = self._seq_offset[key] = (self._seq_last[key] + 1 - seq) if key in self._seq_last else 0

@@ -116,6 +116,7 @@ def test_loop_keeps_sequence_continuous_and_time_growing(tmp_path):
         sent = []
         while len(sent) < 35:
             sent += [(clock.t, o) for o in pb.take_due() if o.topic == "markers"]
+            pb.fill(budget_s=1.0, ahead=25)  # read ahead across the loop seam, as the node does
             clock.t += 0.001
     seqs = [decode_envelope(o.frames).seq for _, o in sent]
     assert seqs == list(range(500, 535))
