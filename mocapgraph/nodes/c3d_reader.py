@@ -18,7 +18,8 @@ class C3DReader(MarkerFilePlayer):
     """
 
     summary = "replay a C3D file's markers (real time or faster, loop, frame range, unit/axis conversion)"
-    up_axis = Param("", "the file's up axis ('+Y', 'Z', ...); '' = from POINT:Y_SCREEN, else Z")
+    up_axis = Param("", "the file's up axis ('+Y', 'Z', ...); '' = from POINT:Y_SCREEN, else Z",
+                    choices=("", "+X", "-X", "+Y", "-Y", "+Z", "-Z", "X", "Y", "Z"))
     include_unlabelled = Param(False, "also pass unlabelled points (*NNN, empty labels) as markers "
                                       "(with a layout they are reported as unplaced)")
 

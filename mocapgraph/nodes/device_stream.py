@@ -83,7 +83,7 @@ class WireDeviceSource(MarkerSourceNode):
 
     def spin_once(self, timeout_s: float) -> None:
         super().spin_once(timeout_s)
-        if self._fd is not None and not self._stop:
+        if self._fd is not None:
             self.read_device()
 
     def read_device(self) -> None:

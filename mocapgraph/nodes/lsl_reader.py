@@ -195,10 +195,9 @@ class LSLReader(MarkerSourceNode):
                 return self._tc
             if now - self._opened_at < 3.0:
                 return None
-            else:
-                self.log.warning("%s: no clock correction after 3 s; using its time stamps as they are",
-                                 self.stream_desc)
-                self._tc = 0.0
+            self.log.warning("%s: no clock correction after 3 s; using its time stamps as they are",
+                             self.stream_desc)
+            self._tc = 0.0
         self._tc_at = now
         return self._tc
 

@@ -71,6 +71,8 @@ class SourceNode(Node):
         self.detail = ""
         self.progress = math.nan
         self._warned: dict[str, list[float]] = {}  # key -> [count, last log time]
+        # Timers run only once the graph has started, so this first fires at start.
+        self.add_timer(STATUS_PERIOD_S, self.publish_status)
 
     # ----- state and failure --------------------------------------------------------------
     def status_data(self) -> dict[str, Any]:
@@ -81,7 +83,7 @@ class SourceNode(Node):
         """Change state; published at once on change, else once a second."""
         changed = (state, detail) != (self.state, self.detail)
         self.state, self.detail, self.progress = state, detail, progress
-        if changed and self._started:
+        if changed:  # sources change state only once started (in on_start or later)
             self.publish_status()
 
     def publish_status(self) -> None:
@@ -105,13 +107,6 @@ class SourceNode(Node):
             suffix = f" ({int(rec[0])} so far)" if rec[0] > 3 else ""
             self.log.warning(message + suffix, *args)
             rec[1] = now
-
-    def _start(self) -> None:
-        if not self._started:
-            self.add_timer(STATUS_PERIOD_S, self.publish_status)
-        super()._start()
-        if self._started and not self._stop:
-            self.publish_status()
 
     def run(self) -> int:
         code = super().run()

@@ -17,7 +17,8 @@ class TRCReader(MarkerFilePlayer):
     """
 
     summary = "replay a TRC file's markers (real time or faster, loop, frame range, unit/axis conversion)"
-    up_axis = Param("+Y", "the file's up axis; +Y for OpenSim files, +Z for files exported Z-up")
+    up_axis = Param("+Y", "the file's up axis; +Y for OpenSim files, +Z for files exported Z-up",
+                    choices=("+X", "-X", "+Y", "-Y", "+Z", "-Z", "X", "Y", "Z"))
 
     def read_trial(self, path: Path) -> MarkerTrial:
         return read_trc(path, up_axis=self.up_axis)

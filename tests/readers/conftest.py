@@ -61,7 +61,7 @@ class RunningNode:
         return self.exit_code
 
     def stop(self) -> int | None:
-        self.node._stop = True
+        self.node.request_stop()
         self.thread.join(5)
         self._stop_rx = True
         if self._rx is not None:

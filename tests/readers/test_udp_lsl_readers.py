@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mocapgraph.formats.wire_protocol import encode_binary
-from mocapgraph.kinematics.synthetic_actor import SyntheticActor
+from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 from mocapgraph.nodes.device_simulator import SimulatedDevice
 
 
@@ -71,7 +71,7 @@ def test_udp_port_in_use_is_a_clear_error(run_node) -> None:
 def simulate_lsl(name: str, layout: str, device: str, count: int, rate: float = 100.0) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "mocapgraph", "device", "simulate", "lsl", "--name", name,
                              "--layout", layout, "--device", device, "--rate", str(rate), "--count", str(count),
-                             "--seed", "4"],
+                             "--seed", "4", "--noise-mm", "0.5"],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
 
 
@@ -98,9 +98,10 @@ def test_lsl_wrong_channel_count_is_refused_then_the_right_stream_is_read(run_no
         wrong.kill()
         wrong.wait()
     lay = n.messages("marker_layout")[0]
-    actor = SyntheticActor("plug_in_gait", rate=100.0, seed=4)
+    actor = SyntheticActor("plug_in_gait", rate=100.0, seed=4, options=CaptureOptions(noise_mm=0.5))
     assert lay.labels == list(actor.skeleton.marker_labels) and "mm -> m" in lay.units_note
-    # LSL has no frame counter: find which simulated frame each sample is by its content.
+    # LSL has no frame counter: find which simulated frame each sample is by its content
+    # (unique: every frame has its own noise).
     first = recs[0].msg.positions
     ref = actor.capture(0, 400).markers
     k0 = int(np.argmin(np.nanmax(np.abs(ref - first), axis=(1, 2))))
