@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import shutil
 import socket
 import subprocess
 import sys
@@ -193,6 +194,14 @@ def main() -> None:
     a = ap.parse_args()
     tmp = Path(a.tmp or tempfile.mkdtemp(prefix="bagbench-"))
     tmp.mkdir(parents=True, exist_ok=True)
+    try:
+        run(a, tmp)
+    finally:
+        if not a.tmp:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def run(a: argparse.Namespace, tmp: Path) -> None:
     print(f"64-marker MarkerFrame, {a.messages} messages, bags in {tmp}")
     for comp in ("lz4", "none"):
         rate, per_msg, raw = bench_recorder(tmp, a.messages, comp)

@@ -215,7 +215,7 @@ class BagReader:
             info.count += counts.get(cid, 0)
             if ch.message_encoding != MESSAGE_ENCODING:
                 info.known = False
-                info.problem = f"message encoding {ch.message_encoding!r} is not mocapgraph's; cannot decode"
+                info.problem = f"message encoding {ch.message_encoding!r} is not mocapgraph's ({MESSAGE_ENCODING})"
                 continue
             try:
                 cls = lookup(tname)
