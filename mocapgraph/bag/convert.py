@@ -253,7 +253,8 @@ class SkeletonFrames:
     positions: np.ndarray  # [T, J, 3] m, world
     orientations: np.ndarray  # [T, J, 4] wxyz world (may hold NaN)
     capture_ns: np.ndarray
-    kind: str
+    kind: str  # SkeletonPose or CharacterPose
+    topic: str = ""
 
 
 def bag_to_skeleton_frames(reader: BagReader, topic: str | None = None,
@@ -287,7 +288,7 @@ def bag_to_skeleton_frames(reader: BagReader, topic: str | None = None,
     if P[0].shape[0] != J:
         raise BagError(reader.path, f"topic {topic!r} has {P[0].shape[0]} joints, its info names {J}")
     return SkeletonFrames(list(info.joint_names), parents, rest, np.stack(P), np.stack(Q),
-                          np.asarray(stamps, np.int64), tname)
+                          np.asarray(stamps, np.int64), tname, topic)
 
 
 def _character_world(m: CharacterPose, parents: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -311,12 +312,13 @@ def skeleton_to_bvh(sk: SkeletonFrames, frame_time_s: float) -> BvhMotion:
     """
     J = len(sk.names)
     T = sk.positions.shape[0]
-    if not np.all(np.isfinite(sk.orientations)):
-        bad = np.flatnonzero(~np.isfinite(sk.orientations).all(axis=(0, 2)))
-        if len(bad) == J or bad.size > 0:
-            raise BagError(None, f"joint orientations are missing ({sk.names[bad[0]]} and {len(bad) - 1} more "
-                                 "joints have NaN rotations; a positions-only source such as Kinect cannot "
-                                 "be written as BVH)")
+    bad = np.flatnonzero(~np.isfinite(sk.orientations).all(axis=(0, 2)))
+    if bad.size:
+        # BVH stores rotations; deriving them from positions alone is an IK step (kinematics), not a
+        # file conversion
+        raise BagError(None, f"joint orientations are missing ({sk.names[bad[0]]} and {len(bad) - 1} more "
+                             "joints have NaN rotations; a positions-only source such as Kinect cannot "
+                             "be written as BVH)")
     order = _topological_order(sk.parents)
     new_index = np.empty(J, np.int64)
     new_index[order] = np.arange(J)
@@ -473,7 +475,7 @@ def bag_to_file(src: str | Path, dst: str | Path, *, topic: str | None = None, u
                 except BagError as exc:
                     raise BagError(src, exc.fault) from None
                 write_bvh(dst, motion)
-                rep.topics[topic or sk.kind] = sk.positions.shape[0]
+                rep.topics[sk.topic] = sk.positions.shape[0]
                 rep.notes.append(f"{len(sk.names)} joints, frame time {frame_time * 1e3:.3f} ms, centimetres, Y up")
         except FormatError as exc:
             raise BagError(dst, exc.fault) from None

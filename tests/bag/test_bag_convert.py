@@ -102,3 +102,33 @@ def test_kinect_csv_into_a_bag(tmp_path, shared_data):
     assert np.array_equal(np.stack([m.tracking_state for _, m in got]), trial.tracking_state)
     stamps = np.array([e.capture_ns for e, _ in got])
     assert np.array_equal(stamps, trial.timestamps_ns - trial.timestamps_ns[0])  # the sensor's frame times
+
+
+def test_character_poses_to_bvh(tmp_path, shared_data):
+    from scipy.spatial.transform import Rotation
+
+    from mocapgraph.bag.writer import BagWriter
+    from mocapgraph.messages import CharacterInfo, CharacterPose
+
+    motion = read_bvh(shared_data / "bvh/mixamo/test_freebvh.bvh")
+    pos, quat = motion.forward_kinematics()
+    rest = motion.rest_positions()
+    par = motion.parents
+    off = rest.copy()
+    off[par >= 0] = rest[par >= 0] - rest[par[par >= 0]]
+    R = Rotation.from_quat(quat.reshape(-1, 4), scalar_first=True).as_matrix().reshape(*quat.shape[:2], 3, 3)
+    parent_R = np.where((par >= 0)[None, :, None, None], R[:, np.maximum(par, 0)], np.eye(3))
+    local = np.einsum("tjki,tjkl->tjil", parent_R, R)  # CharacterPose: rotation relative to the parent
+    lq = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_quat(scalar_first=True).reshape(quat.shape)
+    with BagWriter(tmp_path / "c.mcap") as w:
+        w.write("character_info", CharacterInfo(character="mixamo", joint_names=motion.names, joint_parent=par,
+                                                rest_offsets=off), seq=1, capture_ns=0)
+        for t in range(motion.n_frames):
+            w.write("character_pose", CharacterPose(character="mixamo", frame_number=t, root_position=pos[t, 0],
+                                                    local_rotations=lq[t], joint_positions=pos[t]),
+                    seq=t + 1, capture_ns=int(t * motion.frame_time_s * 1e9))
+    rep = bag_to_file(tmp_path / "c.mcap", tmp_path / "c.bvh")
+    assert rep.topics == {"character_pose": motion.n_frames}
+    back = read_bvh(tmp_path / "c.bvh")
+    idx = [back.names.index(n) for n in motion.names]
+    assert np.abs(back.forward_kinematics()[0][:, idx] - pos).max() < 1e-6
