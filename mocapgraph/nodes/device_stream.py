@@ -136,7 +136,8 @@ class WireDeviceSource(MarkerSourceNode):
             self._seen_rejects = seen
             self.warn_limited("rejects", "%s: skipped %d bad byte(s), %d bad frame(s), %d CRC error(s) so far "
                               "(last: %s)", self.endpoint, st.rejected_bytes, st.rejected_frames,
-                              st.crc_errors, st.last_error or "bytes outside any frame", every_s=5.0)
+                              st.crc_errors, st.last_error or "bytes outside any frame", every_s=5.0,
+                              count=False)
 
     def handle_frame(self, wf: WireFrame, arrival_ns: int) -> None:
         n = wf.positions.shape[0]

@@ -144,6 +144,9 @@ class MarkerSourceNode(SourceNode):
 class MarkerFilePlayer(FilePlayback, MarkerSourceNode):
     """Replays a MarkerTrial (C3D, TRC) in real time or faster; subclasses only read the file."""
 
+    #: False for formats without per-sample residuals (their MarkerTrial holds 0): sent as NaN
+    has_residuals = True
+
     def read_trial(self, path: Path) -> MarkerTrial:
         raise NotImplementedError
 
@@ -158,7 +161,8 @@ class MarkerFilePlayer(FilePlayback, MarkerSourceNode):
         # Reorder the whole file once: per-frame work is then a row lookup.
         self.positions = np.ascontiguousarray(self.lmap.positions(trial.positions))
         self.valid = ~np.isnan(self.positions).any(axis=2)
-        self.residuals = self.lmap.values(trial.residuals, np.nan).astype(np.float32)
+        res = trial.residuals if self.has_residuals else np.full(trial.residuals.shape, np.nan)
+        self.residuals = self.lmap.values(res, np.nan).astype(np.float32)
         self.times_ns = trial.timestamps_ns
         self.frame_numbers = trial.first_frame + np.arange(trial.n_frames)
         self.rate_hz = trial.rate_hz

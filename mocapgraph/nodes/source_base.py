@@ -98,13 +98,14 @@ class SourceNode(Node):
         self.exit_code = 1
         self.request_stop()
 
-    def warn_limited(self, key: str, message: str, *args: Any, every_s: float = 5.0) -> None:
-        """Log the first 3 occurrences of ``key``, then at most one line per ``every_s`` with a count."""
+    def warn_limited(self, key: str, message: str, *args: Any, every_s: float = 5.0, count: bool = True) -> None:
+        """Log the first 3 occurrences of ``key``, then at most one line per ``every_s`` (with the
+        number of occurrences unless ``count`` is False because the message carries its own)."""
         rec = self._warned.setdefault(key, [0, -math.inf])
         rec[0] += 1
         now = time.monotonic()
         if rec[0] <= 3 or now - rec[1] >= every_s:
-            suffix = f" ({int(rec[0])} so far)" if rec[0] > 3 else ""
+            suffix = f" ({int(rec[0])} so far)" if rec[0] > 3 and count else ""
             self.log.warning(message + suffix, *args)
             rec[1] = now
 

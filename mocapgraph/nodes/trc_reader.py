@@ -20,5 +20,7 @@ class TRCReader(MarkerFilePlayer):
     up_axis = Param("+Y", "the file's up axis; +Y for OpenSim files, +Z for files exported Z-up",
                     choices=("+X", "-X", "+Y", "-Y", "+Z", "-Z", "X", "Y", "Z"))
 
+    has_residuals = False  # TRC carries positions only
+
     def read_trial(self, path: Path) -> MarkerTrial:
         return read_trc(path, up_axis=self.up_axis)

@@ -91,6 +91,7 @@ def test_trc_replay_fast_with_loop_keeps_stamps_increasing(run_node, shared_data
     want = np.where(np.array(rows)[:, None] >= 0, trial.positions[141 - 1][np.maximum(rows, 0)], np.nan)
     np.testing.assert_array_equal(recs[0].msg.positions, want)
     assert not recs[0].msg.valid[[lay.labels.index(a) for a in absent]].any()
+    assert np.isnan(recs[0].msg.residual).all()                         # TRC has no residuals
     assert "mm -> m" in lay.units_note and "Z-up" in lay.units_note
 
 

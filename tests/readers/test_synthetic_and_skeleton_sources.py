@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapgraph.formats import bvh_to_skeleton, read_bvh, read_kinect_csv
+from mocapgraph.formats import KINECT_V1_JOINTS, KINECT_V1_PARENTS, bvh_to_skeleton, read_bvh, read_kinect_csv
 from mocapgraph.kinematics.model import marker_fingerprint
 from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 from mocapgraph.messages import QUALITY_GOOD
@@ -103,6 +103,22 @@ def test_kinect_replay_keeps_recorded_timing_tracking_and_device_pose(run_node, 
     rest = info.rest_offsets
     neck = info.joint_names.index("Neck")
     assert 0.03 < np.linalg.norm(rest[neck]) < 0.2 and rest[neck][2] > 0   # neck sits above its parent
+
+
+def test_kinect_v1_recording_uses_the_20_joint_definition(run_node, shared_data, tmp_path) -> None:
+    # A v1 recording: the 20 joints v1 shares with v2 (v2's first 20), same line format.
+    lines = (shared_data / "kinect2" / "Ges01_wavehand.csv").read_text().splitlines()[:40]
+    v1 = tmp_path / "v1.csv"
+    v1.write_text("\n".join(",".join(line.rstrip(",").split(",")[:1 + 20 * 4]) for line in lines) + "\n")
+    n = run_node("kinect_reader", {"file": str(v1), "version": "v1", "rate_scale": 0.0})
+    assert n.wait_exit(10) == 0
+    info = n.messages("skeleton_info")[0]
+    assert info.source == "kinect_v1" and info.joint_names == list(KINECT_V1_JOINTS)
+    np.testing.assert_array_equal(info.joint_parent, KINECT_V1_PARENTS)
+    ref = read_kinect_csv(v1)
+    got = np.array([m.joint_positions for m in n.messages("skeleton_pose")])
+    np.testing.assert_array_equal(got, ref.positions)
+    assert got.shape == (40, 20, 3)
 
 
 def test_kinect_version_mismatch_is_a_clear_error(run_node, shared_data) -> None:
