@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 
 from ..bus import Output, Param
-from ..kinematics.layout import LayoutError
 from ..kinematics.model import marker_fingerprint
 from ..kinematics.synthetic_actor import CaptureOptions, SyntheticActor, SyntheticCapture
 from ..messages import QUALITY_GOOD, ActorPose, SkeletonModel
@@ -108,7 +107,7 @@ class SyntheticActorNode(MarkerSourceNode):
                                   swap_rate_hz=self.swap_rate_hz)
             self.actor_model = SyntheticActor(self.layout, rate=self.rate_hz, seed=self.seed, options=opts,
                                               duration_s=self.duration_s or None)
-        except (*INPUT_ERRORS, LayoutError, ValueError, OSError) as exc:
+        except (*INPUT_ERRORS, ValueError, OSError) as exc:
             self.load_error = f"synthetic actor: {exc}"
             return
         sk = self.actor_model.skeleton

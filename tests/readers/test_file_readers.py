@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 
 from mocapgraph.formats import read_c3d, read_trc
 from mocapgraph.kinematics.skeleton import SkeletonDefinition

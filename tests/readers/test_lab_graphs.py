@@ -4,7 +4,6 @@ documents its params in `mocapgraph node info`."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time

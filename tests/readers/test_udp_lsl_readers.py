@@ -13,7 +13,7 @@ import pytest
 
 from mocapgraph.formats.wire_protocol import encode_binary
 from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
-from mocapgraph.nodes.device_simulator import SimulatedDevice
+from mocapgraph.nodes.device_simulator import SimulatedDevice, run_udp
 
 
 def free_udp_port() -> int:
@@ -57,6 +57,25 @@ def test_udp_datagrams_through_a_device_file_and_bad_datagrams_counted(run_node)
     assert st["datagrams"] == 33 and st["frames"] == 30 and st["rejected_bytes"] >= 500
     time.sleep(0.05)
     assert len(n.records("markers")) == 30                               # nothing invented from garbage
+
+
+def test_udp_reader_fed_by_the_device_simulator_in_real_time(run_node) -> None:
+    port = free_udp_port()
+    n = run_node("udp_reader", {"port": port, "device": "example_udp_bridge", "layout": "plug_in_gait",
+                                "allow_from": "127.0.0.1"})
+    n.wait_for(lambda: n.messages("reader_status") and n.messages("reader_status")[-1].state == "streaming",
+               what="listening")
+    sim = SimulatedDevice("plug_in_gait", "example_udp_bridge", rate_hz=240.0, seed=5, start_frame=500)
+    assert run_udp(sim, "127.0.0.1", port, count=120) == 120             # half a second, paced
+    recs = n.wait_for(lambda: n.records("markers") if len(n.records("markers")) >= 120 else None,
+                      what="120 frames")
+    want = SyntheticActor("plug_in_gait", rate=240.0, seed=5).capture(500, 620).markers
+    np.testing.assert_allclose(np.array([r.msg.positions for r in recs]), want, atol=2e-6)
+    assert all(r.msg.rate_hz == 120.0 for r in recs)                     # the device file's nominal rate
+    cap = np.array([r.env.capture_ns for r in recs])
+    np.testing.assert_allclose(np.diff(cap), 1e9 / 240, atol=1000)       # device stamps (µs) kept
+    lag = np.array([r.env.publish_ns - r.env.capture_ns for r in recs]) / 1e6
+    assert np.median(np.abs(lag)) < 20                                   # mapped onto our clock
 
 
 def test_udp_port_in_use_is_a_clear_error(run_node) -> None:
