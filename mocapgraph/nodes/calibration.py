@@ -72,9 +72,12 @@ class CalibrationNode(Node):
     status_rate_hz = Param(2.0, "periodic status rate, Hz", minimum=0.1)
 
     # ----- life cycle ---------------------------------------------------------------------------
-    def on_start(self) -> None:
+    def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
+        super().__init__(name, params, wiring)
+        # State lives from construction: the latched layout may arrive before on_start.
         self.state, self.detail, self.progress, self.data = IDLE, "", float("nan"), {}
         self.definition: SkeletonDefinition | None = None
+        self._layout_error = ""
         self.where: np.ndarray | None = None      # layout marker -> stream index
         self.stream: MarkerLayout | None = None
         self.model: SkeletonModel | None = None
@@ -84,13 +87,18 @@ class CalibrationNode(Node):
             try:
                 self.definition = SkeletonDefinition.from_layout_file(self.layout)
             except LayoutError as exc:
-                self._error(str(exc))
-        loaded = False
-        if self.model_file and Path(self.model_file).exists():
-            loaded = self._load(self.model_file, at_start=True)
-        if not loaded and self.auto and self.state != ERROR:
-            self._auto_running = True
-            self._begin_find()
+                self._layout_error = str(exc)
+
+    def on_start(self) -> None:
+        if self._layout_error:
+            self._error(self._layout_error)
+        elif self.state != ERROR:
+            loaded = False
+            if self.model_file and Path(self.model_file).exists():
+                loaded = self._load(self.model_file)
+            if not loaded and self.auto and self.state != ERROR:
+                self._auto_running = True
+                self._begin_find()
         self._publish_status()
         self.add_timer(1.0 / self.status_rate_hz, self._publish_status)
 
@@ -148,7 +156,7 @@ class CalibrationNode(Node):
 
     def _bind(self) -> bool:
         """Place the layout's markers in the stream; False (with an error state) if impossible."""
-        if self.stream is None:
+        if self.stream is None or self._layout_error:
             return False
         if self.definition is None:
             if not self.stream.name:
@@ -302,7 +310,7 @@ class CalibrationNode(Node):
             self.log.warning("%s", w)
         self._set(CALIBRATED, detail, 1.0, report)
 
-    def _load(self, path: str, at_start: bool = False) -> bool:
+    def _load(self, path: str) -> bool:
         try:
             if self.definition is not None:
                 model = load_model(path, self.definition)

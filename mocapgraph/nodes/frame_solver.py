@@ -44,11 +44,14 @@ class FrameSolverNode(Node):
     actor = Param("actor", "actor name carried in every ActorPose")
     model_file = Param("", "model JSON loaded at start instead of waiting for skeleton_model")
 
-    def on_start(self) -> None:
+    def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
+        super().__init__(name, params, wiring)
+        # State lives from construction: a latched model or layout may arrive before on_start.
         self.model: SkeletonModel | None = None
         self.model_source = ""
         self.solver: FrameSolver | None = None
         self.where: np.ndarray | None = None
+        self.n_stream = 0
         self.identity = False
         self._last_t = -np.inf
         self._t0_ns: int | None = None  # capture-time origin, so float seconds stay precise
@@ -56,14 +59,17 @@ class FrameSolverNode(Node):
         self._bad_frames = 0
         self._failures = 0
         self._refused: tuple[str, str] | None = None
-        if self.model_file:
-            if not Path(self.model_file).exists():
-                self.log.error("model_file %s does not exist; waiting for skeleton_model", self.model_file)
-            else:
-                try:
-                    self._use_model(load_model(self.model_file), self.model_file)
-                except ModelFileError as exc:
-                    self.log.error("%s; waiting for skeleton_model", exc)
+
+    def on_start(self) -> None:
+        if not self.model_file or self.model is not None:
+            return  # a model from the topic came first and wins
+        if not Path(self.model_file).exists():
+            self.log.error("model_file %s does not exist; waiting for skeleton_model", self.model_file)
+            return
+        try:
+            self._use_model(load_model(self.model_file), self.model_file)
+        except ModelFileError as exc:
+            self.log.error("%s; waiting for skeleton_model", exc)
 
     # ----- model and layout ---------------------------------------------------------------------
     def on_skeleton_model(self, msg: ModelMsg) -> None:
