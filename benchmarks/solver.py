@@ -1,13 +1,22 @@
 """Frame solver and calibration speed on the Kiip full-body layout (synthetic actor, 1 mm noise).
 
 Prints: live single-frame solve rate (FrameSolver.step, one core), batch solve rate over a whole
-trial (FrameSolver.solve), and calibration time for 60 s of gym at 120 Hz.
+trial (FrameSolver.solve), calibration time for 60 s of gym at 120 Hz, and the per-frame latency
+through a launched graph (synthetic_actor reader at 240 Hz -> frame_solver node): from the
+reader publishing a MarkerFrame to the solver publishing its ActorPose, and on to a subscriber.
 Targets (issue 5): live >= 2000 frames/s, batch >= 20000 frames/s.
-Run: .venv/bin/python benchmarks/solver.py
+Run: .venv/bin/python benchmarks/solver.py [--graph-seconds 20] [--no-graph]
 """
 from __future__ import annotations
 
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -25,7 +34,87 @@ def _rate(fn, n: int, repeat: int = 3) -> float:
     return n / best
 
 
+GRAPH = """\
+nodes:
+  - name: reader
+    type: synthetic_actor
+    params: {{rate_hz: 240.0, noise_mm: 1.0, duration_s: {duration}, loop: false}}
+  - name: solver
+    type: frame_solver
+    params: {{model_file: {model}}}
+"""
+
+
+def graph_latency(seconds: float) -> None:
+    """Launch reader -> solver at 240 Hz and time every frame from the reader's publish stamp."""
+    from mocapgraph.kinematics.model import save_model
+    from mocapgraph.launch.manifest import NoGraphError, fetch_manifest, subscribe
+    from mocapgraph.messages import decode_envelope
+
+    # The solver loads a model calibrated here on the same synthetic actor (seed 0) as the reader.
+    cap = SyntheticActor("kiip_full_body", rate=240.0, options=CaptureOptions(noise_mm=1.0)).capture(0, 4080)
+    model = calibrate(cap.skeleton, cap.markers[::4], rate_hz=60.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        save_model(model, Path(tmp) / "model.json")
+        graph = Path(tmp) / "graph.yaml"
+        graph.write_text(GRAPH.format(duration=seconds + 5.0, model=Path(tmp) / "model.json"))
+        master = f"ipc://{tmp}/master"
+        proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)],
+                                env=dict(os.environ, MOCAPGRAPH_MASTER=master), stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL, start_new_session=True)
+        try:
+            t_end = time.monotonic() + 30
+            while True:
+                try:
+                    manifest = fetch_manifest(master, 0.5)
+                    if "actor_pose" in manifest["topics"]:
+                        break
+                except NoGraphError:
+                    pass
+                if time.monotonic() > t_end:
+                    raise SystemExit("graph did not start")
+            sock = subscribe(manifest, ["markers", "actor_pose"])
+            sent: dict[int, int] = {}                 # capture stamp -> reader publish ns
+            solved: dict[int, tuple[int, int]] = {}   # capture stamp -> (solver publish, receive) ns
+            rows = []  # (reader publish, solver publish, receive) ns
+            t_stop = time.monotonic() + 1.0 + seconds
+            t_warm = time.monotonic() + 1.0
+            while time.monotonic() < t_stop:
+                if not sock.poll(200):
+                    continue
+                frames = sock.recv_multipart()
+                now = time.time_ns()
+                env = decode_envelope(frames)
+                # The solver stamps a pose with its markers' capture stamp: match on it. The two
+                # publishers reach this socket independently, so either may come first.
+                if env.topic == "markers":
+                    sent[env.capture_ns] = env.publish_ns
+                else:
+                    solved[env.capture_ns] = (env.publish_ns, now)
+                key = env.capture_ns
+                if key in sent and key in solved:
+                    pub, (done, got) = sent.pop(key), solved.pop(key)
+                    if time.monotonic() > t_warm:
+                        rows.append((pub, done, got))
+            sock.close(0)
+        finally:
+            os.killpg(proc.pid, signal.SIGINT)
+            proc.wait(10)
+    a = np.asarray(rows, dtype=np.float64)
+    solve_ms = (a[:, 1] - a[:, 0]) / 1e6
+    recv_ms = (a[:, 2] - a[:, 0]) / 1e6
+    print(f"launched graph, synthetic_actor 240 Hz -> frame_solver, {len(a)} frames over {seconds:g} s "
+          f"({len(a) / seconds:.0f} poses/s; {len(sent)} marker frames left unmatched):")
+    for name, v in (("reader publish -> solver publish", solve_ms), ("reader publish -> subscriber", recv_ms)):
+        print(f"  {name:<34} median {np.median(v):6.2f} ms  p99 {np.percentile(v, 99):6.2f} ms  "
+              f"max {v.max():6.2f} ms")
+
+
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--graph-seconds", type=float, default=20.0, help="length of the launched-graph run, s")
+    ap.add_argument("--no-graph", action="store_true", help="skip the launched-graph latency")
+    opts = ap.parse_args()
     actor = SyntheticActor("kiip_full_body", duration_s=120.0, options=CaptureOptions(noise_mm=1.0))
     cap = actor.capture()
     sk = cap.skeleton
@@ -52,6 +141,8 @@ def main() -> None:
     n = len(perf)
     print(f"batch solve, {n} frames, gaps on: {_rate(lambda: FrameSolver(model).solve(perf), n):8.0f} frames/s (target 20000)")
     print(f"batch solve, {n} frames, gaps off:{_rate(lambda: FrameSolver(model, max_gap_s=0).solve(perf), n):8.0f} frames/s")
+    if not opts.no_graph:
+        graph_latency(opts.graph_seconds)
 
 
 if __name__ == "__main__":
