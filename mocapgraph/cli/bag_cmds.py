@@ -203,7 +203,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     params = {"file": args.file, "rate": args.rate, "loop": args.loop, "start": args.start, "end": args.end or 0.0,
               "topics": args.topics or [], "exclude": args.exclude or "", "paused": args.paused,
-              "stop_at_end": not args.stay}
+              "stop_at_end": not args.stay, "realtime": args.realtime}
     if not args.rate > 0:
         raise UserError(f"--rate must be positive, got {args.rate}")
     try:
@@ -459,6 +459,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bind", help="publisher endpoint (default tcp://127.0.0.1:<free port>)")
     p.add_argument("--no-wait", action="store_true", help="start at once instead of at the first subscriber")
     p.add_argument("--stay", action="store_true", help="keep running at the end (seek/restart from the keys)")
+    p.add_argument("--realtime", action="store_true",
+                   help="real-time scheduling (SCHED_FIFO) for steady timing on a busy machine")
     p.add_argument("--master", help="serve the manifest here (default $MOCAPGRAPH_MASTER) when no graph does")
     p.add_argument("--no-manifest", action="store_true", help="do not serve a manifest")
     p.add_argument("-q", "--quiet", action="store_true", help="no status lines when not on a terminal")

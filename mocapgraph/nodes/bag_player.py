@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from typing import Any
 
@@ -36,6 +37,7 @@ class BagPlayer(Node):
     exclude = Param("", "regular expression of topics not to play")
     paused = Param(False, "start paused (send 'play' or 'step')")
     stop_at_end = Param(True, "leave the graph when the bag has been played (no loop)")
+    realtime = Param(False, "ask the OS for real-time scheduling (SCHED_FIFO 10): steady timing on a busy machine")
     status = Output("player_status", NodeStatus, "state, position, rate and lag, on change and twice a second")
     command = Input("player_command", NodeCommand, "play/pause/toggle/step/seek/rate/stop", required=False)
 
@@ -98,7 +100,19 @@ class BagPlayer(Node):
             port.seq += 1
         self.playback.record_sent(items, time.monotonic())
 
+    def _ask_realtime(self) -> None:
+        # On a loaded machine a woken process can wait milliseconds for a CPU; a real-time class
+        # lets the player preempt ordinary work. It sleeps between messages, and the kernel's RT
+        # throttling caps it at 95 % of a core should it ever spin.
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+            self.log.info("real-time scheduling on (SCHED_FIFO 10)")
+        except (AttributeError, OSError) as exc:
+            self.log.warning("real-time scheduling refused (%s); timing may suffer on a busy machine", exc)
+
     def on_start(self) -> None:
+        if self.realtime:
+            self._ask_realtime()
         # bag topic -> bound output port (its topic may be remapped by the graph)
         self._by_topic = {}
         for name, decl in self._iface.outputs.items():
