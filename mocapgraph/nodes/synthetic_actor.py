@@ -177,7 +177,8 @@ class SyntheticActorNode(MarkerSourceNode):
             pass
         if self._worker is None or not self._worker.is_alive():
             return None  # the session is over (loop off) or generation failed
-        self.late_frames += 1  # the worker is behind: wait for it
+        if self.rate_scale:
+            self.late_frames += 1  # real time and the worker is behind: this frame goes out late
         while True:
             try:
                 return self._queue.get(timeout=0.05)
