@@ -55,8 +55,9 @@ class CalibrationNode(Node):
     summary = "actor calibration (base pose, gym, per-joint quality) -> latched SkeletonModel"
     markers = Input("markers", MarkerFrame, "labelled markers, m, world, in marker_layout order")
     marker_layout = Input("marker_layout", MarkerLayout, "latched labels of the marker stream", latched=True)
-    calibration_command = Input("calibration_command", NodeCommand, "commands (see module doc)",
-                                required=False)
+    calibration_command = Input("calibration_command", NodeCommand,
+                                "find_base_pose, capture_gym {seconds, rate_hz}, process, reset, "
+                                "save {path}, load {path}; target '' or this node", required=False)
     skeleton_model = Output("skeleton_model", ModelMsg, "latched calibrated model")
     calibration_status = Output("calibration_status", NodeStatus,
                                 "state, progress, per-joint quality (data_json)", latched=True)

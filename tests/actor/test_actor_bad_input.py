@@ -39,6 +39,14 @@ nodes:
     type: actor_source:ActorSource
     params: {{duration_s: 5.0, speed: 4.0, gym_scale: 0.02}}
     remap: {{markers: still_markers, marker_layout: still_layout, ground_truth: still_truth}}
+  - name: hidden
+    type: actor_source:ActorSource
+    params: {{duration_s: 3.0, speed: 4.0, hide: [LKNE, RFIN]}}
+    remap: {{markers: hidden_markers, marker_layout: hidden_layout, ground_truth: hidden_truth}}
+  - name: cal_hidden
+    type: calibration
+    params: {{auto: true, base_pose_timeout_s: 1.5}}
+    remap: {{markers: hidden_markers, marker_layout: hidden_layout, skeleton_model: hidden_model}}
   - name: cal_extra
     type: calibration
     params: {{layout: {extra}, auto: true}}
@@ -71,6 +79,8 @@ nodes:
             return st[-1]["detail"] if st else ""
         return wait_until(err, what=f"an error from {node}", graph=g)
 
+    # Markers that never appear: no base pose, named, after the timeout (in capture time).
+    assert error_of("cal_hidden") == "no base pose in 1.5 s of capture: markers never visible: RFIN, LKNE"  # layout order
     # A layout naming a marker the stream lacks.
     assert error_of("cal_extra") == ("layout 'kiip_plus' names markers the marker stream ('kiip_full_body') "
                                      "lacks: XTRA")
