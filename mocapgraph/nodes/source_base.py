@@ -71,7 +71,7 @@ class SourceNode(Node):
         self.detail = ""
         self.progress = math.nan
         self._warned: dict[str, list[float]] = {}  # key -> [count, last log time]
-        # Timers run only once the graph has started, so this first fires at start.
+        # Timers run only once the graph has started: no status before the sockets exist.
         self.add_timer(STATUS_PERIOD_S, self.publish_status)
 
     # ----- state and failure --------------------------------------------------------------
