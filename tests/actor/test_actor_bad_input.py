@@ -66,9 +66,11 @@ nodes:
     {solver.format("pose_nan")}{{model_file: {kiip_model}, max_gap_s: 0.0}}
   - name: solver_gap
     {solver.format("pose_gap")}{{model_file: {kiip_model}}}
+  - name: solver_filter
+    {solver.format("pose_filter")}{{model_file: {kiip_model}, filter: constant_velocity}}
   - name: logger
     type: topic_logger
-    params: {{path: {log}, topics: [calibration_status, pose_other, pose_nan, pose_gap, ground_truth]}}
+    params: {{path: {log}, topics: [calibration_status, pose_other, pose_nan, pose_gap, pose_filter, ground_truth]}}
 """)
     g.wait_ready(timeout=30)
     g.wait_for("node src exited with code 0", timeout=30)
@@ -115,8 +117,33 @@ nodes:
             # the 4 s test gym turns limbs too fast for constant velocity; the walk after it is smooth
             walk = [f for f in nan_frames if f >= 600]
             assert np.linalg.norm(joints(p, walk) - joints(truth, walk), axis=-1).max() < 0.015
+    filt = poses(log, "pose_filter")  # a filtered solver over the same NaN frames: never garbage
+    assert sorted(filt) == list(range(720))
+    walk = [f for f in filt if f >= 600]
+    assert np.linalg.norm(joints(filt, walk) - joints(truth, walk), axis=-1).mean() < 0.01
     assert g.proc.poll() is None
     exited = [line for line in g.lines if "exited" in line and not any(f"node {n} " in line for n in
                                                                        ("src", "still", "hidden"))]
     assert exited == [], exited
     assert g.stop() == 0
+
+
+def test_bad_solver_and_calibration_params_fail_the_graph_check(tmp_path, capsys):
+    from mocapgraph.cli import main
+
+    g = tmp_path / "g.yaml"
+    g.write_text("""\
+nodes:
+  - name: src
+    type: synthetic_actor
+  - name: solver
+    type: frame_solver
+    params: {filter: kalman}
+""")
+    assert main(["graph", "check", str(g)]) == 2
+    err = capsys.readouterr().err
+    assert "g.yaml:6" in err and "'kalman' is not one of ['', 'one_euro', 'constant_velocity']" in err
+    g.write_text(g.read_text().replace("type: frame_solver\n    params: {filter: kalman}",
+                                       "type: calibration\n    params: {gym_seconds: 0}"))
+    assert main(["graph", "check", str(g)]) == 2
+    assert "gym_seconds" in capsys.readouterr().err
