@@ -98,8 +98,9 @@ def jitter(tmp: Path, label: str, cls: str, params: dict, rate: float, seconds: 
         p50, p99, p999 = np.percentile(dev, [50, 99, 99.9])
         late = (st[:, col] - st[0, col]) / 1e6 - np.arange(len(st)) * period_ms
         late -= np.median(late)
+        stalls = int((np.diff(st[:, col]) / 1e6 > 2 * period_ms).sum())
         print(f"    {what:<15} interval jitter p50 {p50:6.3f}  p99 {p99:6.3f}  p99.9 {p999:6.3f}  max {dev.max():6.2f} ms"
-              f" | drift from schedule p99 {np.percentile(np.abs(late), 99):6.3f} ms"
+              f" | drift from schedule p99 {np.percentile(np.abs(late), 99):6.3f} ms | {stalls} stalls > 2 periods"
               f"  target p99 < 1 ms: {'OK' if p99 < 1.0 else 'MISSED'}")
     lat = (st[:, 1] - st[:, 0]) / 1e6
     print(f"    publish->receive latency p50 {np.median(lat):.3f} ms, p99 {np.percentile(lat, 99):.3f} ms")
