@@ -8,6 +8,7 @@ pulled) is retried with doubling back-off; the node stays alive, counts it and s
 """
 from __future__ import annotations
 
+import errno
 import os
 import time
 from typing import Any
@@ -59,6 +60,8 @@ class SerialReader(WireDeviceSource):
         except (serial.SerialException, OSError, ValueError) as exc:
             self.reopen_attempts += 1
             why = os.strerror(exc.errno) if getattr(exc, "errno", None) else str(exc)
+            if getattr(exc, "errno", None) == errno.EACCES:
+                why += " (on Linux, add your user to the 'dialout' group)"
             self.warn_limited("open", "cannot open %s (%s); retrying every %.1f s at most",
                               self.port, why, self.reopen_max_s, every_s=10.0)
             self.set_state("reconnecting" if self.disconnects else "waiting",
