@@ -2,9 +2,11 @@
 
 The embedded default source (no download, no hardware). Frames come from
 :class:`mocapgraph.kinematics.synthetic_actor.SyntheticActor` (base pose hold, range-of-motion
-gym, walk / reach / turn / kick performance); they are computed ahead in chunks on a worker
-thread, so the timer that publishes them only looks rows up. The session ends in the base pose
-where it began, so ``loop`` restarts seamlessly; frame numbers and stamps keep counting.
+gym, walk / reach / turn / kick performance). The whole session is computed before the graph
+starts when it fits in ``precompute_mb`` (the default one-pass session does at any usual rate);
+longer sessions are computed ahead in chunks on a worker thread. Either way the timer that
+publishes frames only looks rows up. The session ends in the base pose where it began, so
+``loop`` restarts seamlessly; frame numbers and stamps keep counting.
 """
 from __future__ import annotations
 
@@ -89,6 +91,10 @@ class SyntheticActorNode(MarkerSourceNode):
     shadow_rate_hz = Param(0.0, "limb-shadowing occlusions (a limb's markers hidden) per second", minimum=0.0)
     swap_rate_hz = Param(0.0, "label swaps between nearby markers per second", minimum=0.0)
     actor = Param("synthetic", "actor name carried in the ground truth")
+    # Computing the whole session at start leaves no worker thread competing for the GIL with the
+    # publishing timer (that costs about 1 ms of jitter at 240 Hz).
+    precompute_mb = Param(64.0, "sessions up to this size (markers + ground truth, MB) are computed before "
+                                "the graph starts; longer ones on a worker thread while playing", minimum=0.0)
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
@@ -115,9 +121,17 @@ class SyntheticActorNode(MarkerSourceNode):
         self._onehot = np.zeros((sk.n_markers, sk.n_limbs), np.int16)
         self._onehot[np.arange(sk.n_markers), np.asarray(sk.marker_limb)] = 1
         self.chunk_frames = max(8, int(round(CHUNK_S * self.rate_hz)))
-        first = self.actor_model.capture(0, min(self.chunk_frames, self.n_frames))
-        self._first = first
-        self._queue.put(self._pack(first))
+        per_frame = sk.n_markers * 25 + sk.n_joints * 24 + sk.n_limbs * 34
+        self._whole: _Chunk | None = None
+        self._whole_sent = False
+        if self.n_frames * per_frame <= self.precompute_mb * 1e6:
+            parts = [self._pack(c) for c in self.actor_model.chunks(1024)]
+            self._whole = _Chunk(0, *(np.concatenate([getattr(p, f) for p in parts])
+                                      for f in ("markers", "valid", "joints", "limb_quat", "visible")))
+            self._first = self.actor_model.capture(0, min(1, self.n_frames))
+        else:
+            self._first = self.actor_model.capture(0, min(self.chunk_frames, self.n_frames))
+            self._queue.put(self._pack(self._first))
 
     # ----- producing frames (worker thread) ------------------------------------------------
     def _pack(self, cap: SyntheticCapture) -> _Chunk:
@@ -161,16 +175,22 @@ class SyntheticActorNode(MarkerSourceNode):
                 f"shadows {opts.shadow_rate_hz:g}/s, swaps {opts.swap_rate_hz:g}/s, seed {self.seed}")
         self.publish_layout(lmap, note, f"synthetic actor ({sk.name})")
         self.ground_truth_model.publish(ground_truth_model(self._first, sk.name))
-        # A worker thread holding the GIL must not delay the timer by Python's default 5 ms.
-        sys.setswitchinterval(0.0005)
-        self._worker = threading.Thread(target=self._produce, name=f"{self.name}-frames", daemon=True)
-        self._worker.start()
+        if self._whole is None:
+            # A worker thread holding the GIL must not delay the timer by Python's default 5 ms.
+            sys.setswitchinterval(0.0005)
+            self._worker = threading.Thread(target=self._produce, name=f"{self.name}-frames", daemon=True)
+            self._worker.start()
         self.mono0, self.wall0 = time.monotonic(), time.time_ns()
         period = 0.0 if self.rate_scale == 0 else 1.0 / (self.rate_hz * self.rate_scale)
         self.set_state("streaming", f"{sk.name}, {self.rate_hz:g} Hz, session {self.n_frames / self.rate_hz:g} s")
         self.add_timer(period, self._tick, first_delay_s=0.0)
 
     def _next_chunk(self) -> _Chunk | None:
+        if self._whole is not None:
+            if self._whole_sent and not self.loop:
+                return None
+            self._whole_sent = True
+            return self._whole
         try:
             return self._queue.get_nowait()
         except queue.Empty:
@@ -190,7 +210,8 @@ class SyntheticActorNode(MarkerSourceNode):
         if self.rate_scale == 0:
             due = self.frames_sent + 64
         else:  # frames whose time has come (more than one only after a stall)
-            due = math.floor((time.monotonic() - self.mono0) * self.rate_hz * self.rate_scale + 0.5) + 1
+            # (0.1 ms of slack for the timer's rounding: a frame is never sent earlier than that)
+            due = math.floor((time.monotonic() - self.mono0 + 1e-4) * self.rate_hz * self.rate_scale) + 1
         while self.frames_sent < due:
             c = self._chunk
             if c is None or self._row >= c.markers.shape[0]:

@@ -11,10 +11,11 @@ from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 from mocapgraph.messages import QUALITY_GOOD
 
 
-def test_synthetic_actor_node_sends_the_library_capture_and_exact_ground_truth(run_node) -> None:
+@pytest.mark.parametrize("precompute_mb", [64.0, 0.0])   # whole session at start / worker thread
+def test_synthetic_actor_node_sends_the_library_capture_and_exact_ground_truth(run_node, precompute_mb) -> None:
     opts = dict(noise_mm=2.0, wobble_mm=3.0, dropout_rate_hz=0.5, shadow_rate_hz=0.5, swap_rate_hz=0.3)
     n = run_node("synthetic_actor", {"layout": "plug_in_gait", "rate_hz": 200.0, "seed": 7, "duration_s": 1.5,
-                                     "loop": False, "rate_scale": 0.0, **opts})
+                                     "loop": False, "rate_scale": 0.0, "precompute_mb": precompute_mb, **opts})
     assert n.wait_exit(10) == 0
     ref = SyntheticActor("plug_in_gait", rate=200.0, seed=7, duration_s=1.5,
                          options=CaptureOptions(**opts)).capture()
@@ -58,9 +59,11 @@ def test_synthetic_actor_paces_frames_in_real_time(run_node) -> None:
     assert 0.45 < pub[-1] - pub[0] < 0.6                                 # 49 periods of 10 ms
 
 
-def test_synthetic_actor_loops_seamlessly_with_continuing_numbers(run_node) -> None:
+@pytest.mark.parametrize("precompute_mb", [64.0, 0.0])
+def test_synthetic_actor_loops_seamlessly_with_continuing_numbers(run_node, precompute_mb) -> None:
     rate = 40.0
-    n = run_node("synthetic_actor", {"layout": "one_arm", "rate_hz": rate, "rate_scale": 0.0, "loop": True})
+    n = run_node("synthetic_actor", {"layout": "one_arm", "rate_hz": rate, "rate_scale": 0.0, "loop": True,
+                                     "precompute_mb": precompute_mb})
     per_pass = int(round(SyntheticActor("one_arm", rate=rate).n_frames))
     recs = n.wait_for(lambda: n.records("markers")[: per_pass + 40] if len(n.records("markers")) >= per_pass + 40
                       else None, what="a pass and a bit")
