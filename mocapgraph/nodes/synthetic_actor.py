@@ -23,9 +23,10 @@ import numpy as np
 from ..bus import Output, Param
 from ..kinematics.model import marker_fingerprint
 from ..kinematics.synthetic_actor import CaptureOptions, SyntheticActor, SyntheticCapture
+from ..kinematics.synthetic_motion import MotionScript
 from ..messages import QUALITY_GOOD, ActorPose, SkeletonModel
 from .marker_source import LayoutMap, MarkerSourceNode
-from .source_base import INPUT_ERRORS
+from .source_base import INPUT_ERRORS, SourceError
 
 CHUNK_S = 0.25  # seconds of frames computed per worker step
 
@@ -91,6 +92,9 @@ class SyntheticActorNode(MarkerSourceNode):
     shadow_rate_hz = Param(0.0, "limb-shadowing occlusions (a limb's markers hidden) per second", minimum=0.0)
     swap_rate_hz = Param(0.0, "label swaps between nearby markers per second", minimum=0.0)
     actor = Param("synthetic", "actor name carried in the ground truth")
+    script = Param({}, "motion script timing, overriding any of: base_s (base-pose hold), gym_block_s (each of "
+                       "4 gym blocks), walk_s, reach_s, turn_s, kick_s (performance clips), s; walk_speed (m/s), "
+                       "stride_s, gym_scale (x the gym's ranges)")
     # Computing the whole session at start leaves no worker thread competing for the GIL with the
     # publishing timer (that costs about 1 ms of jitter at 240 Hz).
     precompute_mb = Param(64.0, "sessions up to this size (markers + ground truth, MB) are computed before "
@@ -108,12 +112,17 @@ class SyntheticActorNode(MarkerSourceNode):
         self._row = 0
         self.worker_error = ""
         try:
+            known = set(MotionScript.__dataclass_fields__)
+            bad = sorted(set(self.script) - known)
+            if bad:
+                raise SourceError(f"script has no setting {bad[0]!r} (known: {', '.join(sorted(known))})")
+            script = MotionScript(**{k: float(v) for k, v in self.script.items()})
             opts = CaptureOptions(noise_mm=self.noise_mm, wobble_mm=self.wobble_mm,
                                   dropout_rate_hz=self.dropout_rate_hz, shadow_rate_hz=self.shadow_rate_hz,
                                   swap_rate_hz=self.swap_rate_hz)
             self.actor_model = SyntheticActor(self.layout, rate=self.rate_hz, seed=self.seed, options=opts,
-                                              duration_s=self.duration_s or None)
-        except (*INPUT_ERRORS, ValueError, OSError) as exc:
+                                              duration_s=self.duration_s or None, script=script)
+        except (*INPUT_ERRORS, ValueError, TypeError, OSError) as exc:
             self.load_error = f"synthetic actor: {exc}"
             return
         sk = self.actor_model.skeleton

@@ -78,10 +78,20 @@ def test_synthetic_actor_loops_seamlessly_with_continuing_numbers(run_node, prec
     assert step.max() > 0.02 and step[seam] <= 1.5 * step[seam - 4:seam].max() + 1e-6
 
 
-def test_synthetic_actor_bad_layout_is_a_clear_error(run_node) -> None:
-    n = run_node("synthetic_actor", {"layout": "no_such_layout"})
+def test_synthetic_actor_script_timing(run_node) -> None:
+    n = run_node("synthetic_actor", {"layout": "one_arm", "rate_hz": 50.0, "rate_scale": 0.0, "loop": False,
+                                     "script": {"base_s": 0.5, "gym_block_s": 1.0, "walk_s": 1.0, "reach_s": 0.5,
+                                                "turn_s": 0.5, "kick_s": 0.5}})
+    assert n.wait_exit(10) == 0
+    assert len(n.messages("markers")) == 50 * (0.5 + 4 * 1.0 + 2 * 1.0 + 0.5 + 2 * 0.5 + 0.5)
+
+
+@pytest.mark.parametrize("params, fault", [({"layout": "no_such_layout"}, "no_such_layout"),
+                                           ({"script": {"walk_speedd": 2}}, "walk_speedd")])
+def test_synthetic_actor_bad_settings_are_clear_errors(run_node, params, fault) -> None:
+    n = run_node("synthetic_actor", params)
     assert n.wait_exit(10) == 1
-    assert "no_such_layout" in n.messages("reader_status")[-1].detail
+    assert fault in n.messages("reader_status")[-1].detail
 
 
 def test_kinect_replay_keeps_recorded_timing_tracking_and_device_pose(run_node, shared_data) -> None:
