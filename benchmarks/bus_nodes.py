@@ -76,16 +76,17 @@ class BenchReceiver(Node):
 
     def input_handler(self, name):
         self.lat: list[int] = []
+        self.port = self.input_ports[name]
         return self._on_inp
 
     def _on_inp(self, msg: MarkerFrame) -> None:
-        self.lat.append(time.time_ns() - self._ports["inp"].envelope.publish_ns)
+        self.lat.append(time.time_ns() - self.port.envelope.publish_ns)
         if self.echo:
             self.back.publish(msg)
 
     def on_stop(self) -> None:
         if self.out_file:
-            edges = list(self._ports["inp"].stats.edges.values())
+            edges = list(self.port.stats.edges.values())
             gaps = sum(e.gaps for e in edges)
             last = max((e.last_seq for e in edges), default=0)
             np.save(self.out_file, np.array(self.lat, np.int64))

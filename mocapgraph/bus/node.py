@@ -10,6 +10,16 @@ A node subclasses `Node`, declares `Input`/`Output`/`Param` class attributes, an
   publisher of its topic;
 - counts per edge: rate from sender stamps, latency, sequence gaps, rejected frames, and
   publishes them on ``diagnostics`` once a second.
+
+Order of events in a node's life: ``__init__`` (params checked) -> sockets set up -> handlers
+may already receive messages, latched ones above all (so set up state in ``__init__``, not in
+``on_start``) -> ``on_start`` once the whole graph is ready (timers start ticking; sources
+publish from here) -> ``on_stop`` -> sockets closed.
+
+Public hooks besides the declarations: `add_timer` (returns a `Timer` with cancel/reschedule),
+`add_reader` for file descriptors (serial ports, UDP sockets), ``Input(raw=True)`` for handlers
+that take undecoded frames, `OutputPort.publish_frames` for re-publishing recorded bytes,
+`begin` to run a node by hand (the bag player CLI), `input_ports`/`output_ports`/`iface`.
 """
 from __future__ import annotations
 
@@ -67,6 +77,27 @@ class Wiring:
         return cls(**json.loads(text))
 
 
+class Timer:
+    """A periodic callback on monotonic time; returned by `Node.add_timer`."""
+
+    __slots__ = ("due", "period", "callback", "_node")
+
+    def __init__(self, node: "Node", due: float, period: float, callback: Callable[[], Any]) -> None:
+        self.due = due
+        self.period = period
+        self.callback = callback
+        self._node = node
+
+    def cancel(self) -> None:
+        """Stop calling back (safe to call twice)."""
+        if self in self._node._timers:
+            self._node._timers.remove(self)
+
+    def reschedule(self, due: float) -> None:
+        """Next call at monotonic time ``due`` (s); the period applies after it."""
+        self.due = due
+
+
 class OutputPort:
     """A bound output: ``publish(msg)`` sends it to every subscriber of its topic."""
 
@@ -89,6 +120,23 @@ class OutputPort:
         if self.latched:
             frames = [bytes(f) for f in frames]  # keep a copy we own for resends
             self.last_frames = frames
+        self._send(frames)
+
+    def publish_frames(self, frames: list, latched: bool = False) -> None:
+        """Send already-encoded frames (a bag player's recorded bytes) on this port's topic.
+
+        The header is sent as given (its sequence number and stamps are the caller's); frame 0
+        is replaced by this port's topic so that remaps apply.
+        """
+        frames = list(frames)
+        frames[0] = self._topic_frame
+        if self.latched or latched:
+            frames = [bytes(f) for f in frames]
+            self.last_frames = frames
+        self.seq += 1
+        self._send(frames)
+
+    def _send(self, frames: list) -> None:
         send = self.node._pub.send
         copy = len(frames[-1]) < 65536  # zero-copy pays off only for large payloads
         for f in frames[:-1]:
@@ -124,7 +172,8 @@ class Node:
         self.wiring = wiring or Wiring(node=name)
         self._iface = iface
         self._ports: dict[str, InputPort | OutputPort] = {}
-        self._timers: list[list[Any]] = []  # [next_due_s, period_s, callback]
+        self._timers: list[Timer] = []
+        self._readers: dict[int, Callable[[], Any]] = {}
         self._stop = False
         self._started = False
         self._t0 = time.monotonic()
@@ -177,15 +226,54 @@ class Node:
         """The callable that receives messages of an input: ``on_<port name>`` by default."""
         return getattr(self, f"on_{port_name}", None)
 
-    def add_timer(self, period_s: float, callback: Callable[[], Any], first_delay_s: float | None = None) -> list:
-        """Call ``callback`` every ``period_s`` seconds of monotonic time (no drift)."""
-        t = [time.monotonic() + (period_s if first_delay_s is None else first_delay_s), period_s, callback]
+    def add_timer(self, period_s: float, callback: Callable[[], Any], first_delay_s: float | None = None) -> Timer:
+        """Call ``callback`` every ``period_s`` seconds of monotonic time (no drift), once started.
+
+        Due timers run earliest-due first; a timer that fell behind skips ticks rather than
+        bursting.
+        """
+        t = Timer(self, time.monotonic() + (period_s if first_delay_s is None else first_delay_s), period_s,
+                  callback)
         self._timers.append(t)
         return t
 
-    def cancel_timer(self, timer: list) -> None:
-        if timer in self._timers:
-            self._timers.remove(timer)
+    def cancel_timer(self, timer: Timer) -> None:
+        timer.cancel()
+
+    def add_reader(self, fd: int, callback: Callable[[], Any]) -> None:
+        """Call ``callback`` whenever file descriptor ``fd`` (a serial port, a UDP socket) is readable."""
+        self._poller.register(fd, zmq.POLLIN)
+        self._readers[fd] = callback
+
+    def remove_reader(self, fd: int) -> None:
+        """Stop watching ``fd`` (before closing it)."""
+        if self._readers.pop(fd, None) is not None:
+            try:
+                self._poller.unregister(fd)
+            except KeyError:
+                pass
+
+    @property
+    def iface(self) -> Interface:
+        """This node's declared ports and params (as shaped by its params)."""
+        return self._iface
+
+    @property
+    def input_ports(self) -> dict[str, "InputPort"]:
+        return {k: p for k, p in self._ports.items() if isinstance(p, InputPort)}
+
+    @property
+    def output_ports(self) -> dict[str, OutputPort]:
+        """Bound outputs by port name (the runtime's diagnostics output excluded)."""
+        return {k: p for k, p in self._ports.items() if isinstance(p, OutputPort) and k in self._iface.outputs}
+
+    @property
+    def started(self) -> bool:
+        return self._started
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop
 
     def request_stop(self) -> None:
         """Leave the event loop after the current callback (a finished file source calls this)."""
@@ -314,6 +402,11 @@ class Node:
             edge = port.stats.edge(env.topic, env.sender)
             if not edge.accept(env.seq, env.publish_ns, now):
                 continue
+            if port.decl.raw:
+                port.envelope = env
+                if port.handler is not None:
+                    port.handler(env, frames)
+                continue
             if port.decl.latest_only:
                 newest = (env, frames)
                 continue
@@ -384,7 +477,7 @@ class Node:
     def spin_once(self, timeout_s: float) -> None:
         """Serve sockets and timers for at most ``timeout_s`` seconds."""
         now = time.monotonic()
-        due = min((t[0] for t in self._timers), default=now + timeout_s) if self._started else now + timeout_s
+        due = min((t.due for t in self._timers), default=now + timeout_s) if self._started else now + timeout_s
         wait = max(0.0, min(due, now + timeout_s) - now)
         # zmq_poll has millisecond resolution: poll short of the deadline, then sleep the rest,
         # so that timer-driven sources keep sub-millisecond timing.
@@ -393,6 +486,10 @@ class Node:
             self._on_subscription()
         if self._control is not None and self._control in events:
             self._on_control()
+        if self._readers:
+            for fd, callback in list(self._readers.items()):
+                if fd in events:
+                    callback()
         for port in self._ports.values():
             if isinstance(port, InputPort) and port.socket in events:
                 self._on_input(port)
@@ -405,19 +502,32 @@ class Node:
 
     def _run_timers(self) -> None:
         now = time.monotonic()
-        for t in list(self._timers):
-            if t[0] <= now and t in self._timers:
-                t[0] += t[1]
-                if t[0] < now:  # fell behind (a slow callback): skip, do not burst
-                    t[0] = now + t[1]
-                t[2]()
-                if self._stop:
-                    return
+        due = [t for t in self._timers if t.due <= now]
+        if len(due) > 1:
+            due.sort(key=lambda t: t.due)
+        for t in due:
+            if t not in self._timers:
+                continue  # cancelled by an earlier callback
+            t.due += t.period
+            if t.due < now:  # fell behind (a slow callback): skip, do not burst
+                t.due = now + t.period
+            t.callback()
+            if self._stop:
+                return
+
+    def announce_ready(self) -> None:
+        """Tell the launcher we are ready once every expected subscriber has subscribed
+        (without a launcher: start now)."""
+        self._check_ready()
+
+    def begin(self) -> None:
+        """Set up sockets and announce readiness (a node run without a launcher starts at once)."""
+        self.setup()
+        self.announce_ready()
 
     def run(self) -> int:
         """Set up, serve until stopped, clean up. Returns the process exit code."""
-        self.setup()
-        self._check_ready()
+        self.begin()
         try:
             while not self._stop:
                 self.spin_once(0.1)

@@ -97,6 +97,7 @@ class Input(_PortDeclaration):
     queue: messages buffered by the socket before new ones are dropped (and counted as gaps).
     latest_only: deliver only the newest message per loop turn (viewers).
     required: the graph check fails when no node publishes the topic.
+    raw: the handler gets ``(envelope, frames)`` without decoding the payload (recorders).
     """
 
     topic: str
@@ -106,6 +107,7 @@ class Input(_PortDeclaration):
     queue: int = 1000
     latest_only: bool = False
     required: bool = True
+    raw: bool = False
     name: str = ""
 
     @property

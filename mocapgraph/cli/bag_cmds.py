@@ -149,8 +149,8 @@ class _ManifestServer:
 
 def _player_manifest(node, file: str) -> dict:
     topics: dict[str, Any] = {}
-    for name, decl in node._iface.outputs.items():
-        port = node._ports[name]
+    for name, decl in node.iface.outputs.items():
+        port = node.output_ports[name]
         topics[port.topic] = {"type": decl.type_name, "subscribers": [],
                               "publishers": [{"node": node.name, "endpoint": node.wiring.pub_endpoint,
                                               "latched": decl.is_latched}]}
@@ -159,7 +159,7 @@ def _player_manifest(node, file: str) -> dict:
     return {"graph": f"bag play {file}", "launcher_pid": os.getpid(),
             "nodes": [{"name": node.name, "type": "bag_player", "class": "mocapgraph.nodes.bag_player:BagPlayer",
                        "pid": os.getpid(), "endpoint": node.wiring.pub_endpoint, "params": node.params,
-                       "inputs": {}, "outputs": {n: node._ports[n].topic for n in node._iface.outputs},
+                       "inputs": {}, "outputs": {n: p.topic for n, p in node.output_ports.items()},
                        "restarts": 0, "running": True}],
             "topics": topics}
 
@@ -251,13 +251,13 @@ def cmd_play(args: argparse.Namespace) -> int:
     if keys.fd is not None:
         print("keys: space pause/resume, s step, + / - rate x2 / x0.5, r restart, q quit", flush=True)
     if args.no_wait:
-        node._check_ready()
+        node.announce_ready()
     else:
         print("waiting for a subscriber (--no-wait starts at once)", flush=True)
     next_status = time.monotonic() + 1.0
     tty = sys.stderr.isatty()
     try:
-        while not stop["flag"] and not node._stop:
+        while not stop["flag"] and not node.stopping:
             node.spin_once(0.02)
             if server is not None:
                 server.serve()
@@ -275,7 +275,7 @@ def cmd_play(args: argparse.Namespace) -> int:
                 elif k == "q":
                     stop["flag"] = True
             now = time.monotonic()
-            if now >= next_status and node._started:
+            if now >= next_status and node.started:
                 next_status = now + 1.0
                 line = _status_line(node)
                 if tty:

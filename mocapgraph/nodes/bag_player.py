@@ -77,7 +77,7 @@ class BagPlayer(Node):
                                      rate=self.rate, start_s=self.start, end_s=self.end or None, loop=self.loop)
         except BagError as exc:
             raise NodeConfigError(str(exc)) from None
-        self._timer: list | None = None
+        self._timer = None
         self._last_state = ""
         self._status_at = 0.0
         self.error = ""
@@ -85,19 +85,12 @@ class BagPlayer(Node):
 
     # ----- sending ---------------------------------------------------------------------------------
     def _send(self, items: list[Outgoing]) -> None:
-        pub = self._pub
         for o in items:
             port = self._by_topic.get(o.topic)
             if port is None:
                 continue
-            frames = o.frames
-            frames[0] = port._topic_frame
-            set_publish_stamp(frames[1])
-            if port.latched or o.latched:
-                frames = [bytes(f) for f in frames]
-                port.last_frames = frames
-            pub.send_multipart(frames, copy=False)
-            port.seq += 1
+            set_publish_stamp(o.frames[1])
+            port.publish_frames(o.frames, latched=o.latched)
         self.playback.record_sent(items, time.monotonic())
 
     def _ask_realtime(self) -> None:
@@ -115,10 +108,10 @@ class BagPlayer(Node):
             self._ask_realtime()
         # bag topic -> bound output port (its topic may be remapped by the graph)
         self._by_topic = {}
-        for name, decl in self._iface.outputs.items():
+        for name, port in self.output_ports.items():
             if name in self.playback.topics:
-                self.playback.remap[name] = self._ports[name].topic
-                self._by_topic[self._ports[name].topic] = self._ports[name]
+                self.playback.remap[name] = port.topic
+                self._by_topic[port.topic] = port
         try:
             self._send(self.playback.latched_first())
             self.playback.begin(paused=self.paused)
@@ -129,9 +122,6 @@ class BagPlayer(Node):
             self.request_stop()
             return
         self._timer = self.add_timer(0.001, self._pump, first_delay_s=0.0)
-        # run before the runtime's own timers (diagnostics) when both are due
-        self._timers.remove(self._timer)
-        self._timers.insert(0, self._timer)
         self._publish_status()
 
     def _pump(self) -> None:
@@ -152,11 +142,11 @@ class BagPlayer(Node):
         due = pb.next_due()
         now = time.monotonic()
         if due is None:
-            self._timer[0] = now + 0.02
+            self._timer.reschedule(now + 0.02)
             if pb.state == "finished":
                 self._finished(now)
         else:
-            self._timer[0] = due
+            self._timer.reschedule(due)
         # Reading ahead and status reports only in idle time, so they never delay a due message.
         idle = (due - now) if due is not None else 1.0
         if idle > 0.003:
@@ -212,7 +202,7 @@ class BagPlayer(Node):
         else:
             raise ValueError(f"unknown command {command!r} (play, pause, toggle, step, seek, rate, stop)")
         if self._timer is not None:
-            self._timer[0] = time.monotonic()
+            self._timer.reschedule(time.monotonic())
 
     def status_data(self) -> dict[str, Any]:
         pb = self.playback

@@ -39,7 +39,8 @@ class BagRecorder(Node):
         topics = params.get("topics", cls.topics.default)
         if isinstance(topics, list):
             for i, topic in enumerate(topics):
-                iface.inputs[f"in{i}"] = Input(str(topic), None, f"recorded topic {topic}", queue=0, name=f"in{i}")
+                iface.inputs[f"in{i}"] = Input(str(topic), None, f"recorded topic {topic}", queue=0, raw=True,
+                                               name=f"in{i}")
         return iface
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
@@ -74,9 +75,11 @@ class BagRecorder(Node):
                 self.log.error("cannot record: %s", exc)
                 self.request_stop()
 
-    def _deliver(self, port, env, frames) -> None:  # noqa: ANN001 - runtime hook
+    def input_handler(self, port_name: str):
+        return self._record
+
+    def _record(self, env, frames) -> None:  # noqa: ANN001 - raw input handler
         # Raw frames straight into the bag: no payload decode, unknown types kept as they came.
-        port.envelope = env
         try:
             self._open().receive(frames, env)
         except (OSError, BagError, NodeConfigError) as exc:  # disk full, folder gone: say so and stop

@@ -70,21 +70,13 @@ class WireDeviceSource(MarkerSourceNode):
 
     # ----- event loop integration -----------------------------------------------------------
     def watch_fd(self, fd: int) -> None:
-        self._poller.register(fd, zmq.POLLIN)
+        self.add_reader(fd, self.read_device)
         self._fd = fd
 
     def unwatch_fd(self) -> None:
         if self._fd is not None:
-            try:
-                self._poller.unregister(self._fd)
-            except KeyError:
-                pass
+            self.remove_reader(self._fd)
             self._fd = None
-
-    def spin_once(self, timeout_s: float) -> None:
-        super().spin_once(timeout_s)
-        if self._fd is not None:
-            self.read_device()
 
     def read_device(self) -> None:
         raise NotImplementedError

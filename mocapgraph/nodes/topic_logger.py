@@ -25,7 +25,7 @@ class TopicLogger(Node):
         return iface
 
     def input_handler(self, port_name: str):
-        port = self._ports[port_name]
+        port = self.input_ports[port_name]
         if not hasattr(self, "_file"):
             self._file = open(self.path, "a", buffering=1 << 16)
             self._lines = 0
