@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from ..formats.errors import FormatError
 from ..formats.marker_trial import MarkerTrial
-from ..formats.skeleton_trial import SkeletonTrial, _topological_order
+from ..formats.skeleton_trial import SkeletonTrial, topological_order
 from ..messages import (Array, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, Message, Scalar,
                         SkeletonInfo, SkeletonPose, Strings)
 from .errors import BagError
@@ -296,7 +296,7 @@ def _character_world(m: CharacterPose, parents: np.ndarray, rest: np.ndarray) ->
     J = len(parents)
     local = Rotation.from_quat(m.local_rotations, scalar_first=True).as_matrix()
     world = np.empty((J, 3, 3))
-    for j in _topological_order(parents):
+    for j in topological_order(parents):
         p = parents[j]
         world[j] = local[j] if p < 0 else world[p] @ local[j]
     q = Rotation.from_matrix(world).as_quat(scalar_first=True)
@@ -319,7 +319,7 @@ def skeleton_to_bvh(sk: SkeletonFrames, frame_time_s: float) -> BvhMotion:
         raise BagError(None, f"joint orientations are missing ({sk.names[bad[0]]} and {len(bad) - 1} more "
                              "joints have NaN rotations; a positions-only source such as Kinect cannot "
                              "be written as BVH)")
-    order = _topological_order(sk.parents)
+    order = topological_order(sk.parents)
     new_index = np.empty(J, np.int64)
     new_index[order] = np.arange(J)
     parents = np.array([new_index[sk.parents[j]] if sk.parents[j] >= 0 else -1 for j in order])

@@ -50,7 +50,7 @@ class SkeletonTrial:
         if self.positions.shape != (T, J, 3) or len(self.names) != J or self.parents.shape != (J,):
             raise ValueError(f"inconsistent shapes: {len(self.names)} names, parents "
                              f"{self.parents.shape}, positions {self.positions.shape}")
-        self.topological_order = _topological_order(self.parents)
+        self.topological_order = topological_order(self.parents)
         self.tracking_state = np.asarray(self.tracking_state, dtype=np.int8)
         self.timestamps_ns = np.asarray(self.timestamps_ns, dtype=np.int64)
         if self.tracking_state.shape != (T, J) or self.timestamps_ns.shape != (T,):
@@ -99,7 +99,7 @@ class SkeletonTrial:
         return [int(k) for k in np.flatnonzero(self.parents == j)]
 
 
-def _topological_order(parents: np.ndarray) -> np.ndarray:
+def topological_order(parents: np.ndarray) -> np.ndarray:
     """Joint indices with every parent before its children; ValueError if not a forest."""
     J = len(parents)
     if np.any((parents < -1) | (parents >= J)):

@@ -97,7 +97,11 @@ def check_graph(spec: GraphSpec) -> CheckedGraph:
             raise ns.error("name", f"duplicate node name (first at {first.file}:{first.line})")
         seen[ns.name] = ns
         path, cls = load_node_class(ns.type, ns)
-        iface = cls.interface(ns.params)
+        try:
+            iface = cls.interface(ns.params)
+        except (NodeConfigError, ValueError, TypeError, OSError) as exc:
+            # A node shaping its ports from params (a bag player reading its file) may refuse them.
+            raise ns.error("params", str(exc)) from None
         for key in ns.params:
             if key not in iface.params:
                 raise ns.error(f"params.{key}", f"unknown parameter of {ns.type}{did_you_mean(key, list(iface.params))}")
