@@ -17,6 +17,9 @@ A graph file::
         respawn: true           # restart with back-off when it dies
         required: false         # when it dies and does not respawn, stop the graph (exit 1)
         host: 127.0.0.1         # address its publisher binds (default loopback, ipc)
+        if: "${viewer}"         # a bool (after substitution): false leaves the node out
+
+``if:`` also works on an include.
 
 ``${name}`` is replaced by the arg's value; a string that is only ``${name}`` takes the arg's
 type (so numbers stay numbers).
@@ -31,9 +34,9 @@ from typing import Any
 
 from .yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
-NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "doc")
+NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "doc", "if")
 TOP_KEYS = ("args", "include", "nodes", "external", "description")
-INCLUDE_KEYS = ("file", "args")
+INCLUDE_KEYS = ("file", "args", "if")
 EXTERNAL_KEYS = ("topic", "type", "endpoint")
 _SUBST = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
@@ -121,6 +124,18 @@ def _substitute(value: Any, args: dict[str, Any], file: str, line: int, key: str
     return value
 
 
+def _condition(d: LinedDict, args: dict[str, Any], file: str, key: str) -> bool:
+    """The value of an optional ``if:`` key, which must be a bool after substitution."""
+    if "if" not in d:
+        return True
+    value = _substitute(d["if"], args, file, d.line_of("if"), key)
+    if isinstance(value, str) and value.lower() in ("true", "false"):
+        value = value.lower() == "true"
+    if not isinstance(value, bool):
+        raise GraphError(file, d.line_of("if"), key, f"wants true or false, got {value!r}")
+    return value
+
+
 def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> GraphSpec:
     """Read a graph file with its includes and args; GraphError names file, line and key."""
     path = Path(path).resolve()
@@ -183,6 +198,8 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
                 raise GraphError(path, line, f"include[{i}]", "needs a 'file'")
             inc_file = inc["file"]
             inc_args = inc.get("args") or {}
+            if not _condition(inc, args, str(path), f"include[{i}].if"):
+                continue
         else:
             raise GraphError(path, line, f"include[{i}]", "must be a file name or {file:, args:}")
         inc_file = _substitute(inc_file, args, str(path), line, f"include[{i}].file")
@@ -210,6 +227,8 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
             if key not in raw:
                 raise GraphError(path, line, f"nodes[{raw.get('name', i)}]", f"needs a '{key}'")
         name = str(_substitute(raw["name"], args, str(path), raw.line_of("name"), "name"))
+        if not _condition(raw, args, str(path), f"nodes[{name}].if"):
+            continue
         params = raw.get("params") or LinedDict()
         if not isinstance(params, dict):
             raise GraphError(path, raw.line_of("params"), f"nodes[{name}].params", "must be a mapping")

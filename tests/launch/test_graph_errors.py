@@ -97,3 +97,18 @@ def test_cli_exit_code_and_no_traceback_from_a_real_process(tmp_path) -> None:
     assert r.returncode == 2
     assert r.stderr.strip().startswith("mocapgraph: ") and "bad.yaml:5: nodes[pattern].type" in r.stderr
     assert "Traceback" not in r.stderr + r.stdout
+
+
+def test_if_leaves_nodes_and_includes_out(tmp_path, capsys) -> None:
+    from mocapgraph.launch.graph import load_graph
+
+    (tmp_path / "extra.yaml").write_text("nodes:\n  - {name: extra, type: marker_test_pattern}\n")
+    text = GOOD.replace("  - name: logger\n", "  - name: logger\n    if: \"${log}\"\n").replace(
+        "args:\n", "args:\n  log: {default: true}\n  more: {default: false}\n") + \
+        "include:\n  - {file: extra.yaml, if: \"${more}\"}\n"
+    path = tmp_path / "g.yaml"
+    path.write_text(text)
+    assert [n.name for n in load_graph(path).nodes] == ["pattern", "logger"]
+    assert [n.name for n in load_graph(path, {"log": False, "more": True}).nodes] == ["extra", "pattern"]
+    code, msg = check(tmp_path, text, capsys, "log:=maybe")
+    assert code == 2 and "nodes[logger].if: wants true or false, got 'maybe'" in msg
