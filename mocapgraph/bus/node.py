@@ -23,6 +23,7 @@ that take undecoded frames, `OutputPort.publish_frames` for re-publishing record
 """
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import os
@@ -173,7 +174,8 @@ class Node:
         self._iface = iface
         self._ports: dict[str, InputPort | OutputPort] = {}
         self._timers: list[Timer] = []
-        self._readers: dict[int, Callable[[], Any]] = {}
+        # What to call when poll says a socket or file descriptor is readable.
+        self._dispatch: dict[Any, Callable[[], Any]] = {}
         self._stop = False
         self._started = False
         self._t0 = time.monotonic()
@@ -243,11 +245,11 @@ class Node:
     def add_reader(self, fd: int, callback: Callable[[], Any]) -> None:
         """Call ``callback`` whenever file descriptor ``fd`` (a serial port, a UDP socket) is readable."""
         self._poller.register(fd, zmq.POLLIN)
-        self._readers[fd] = callback
+        self._dispatch[fd] = callback
 
     def remove_reader(self, fd: int) -> None:
         """Stop watching ``fd`` (before closing it)."""
-        if self._readers.pop(fd, None) is not None:
+        if self._dispatch.pop(fd, None) is not None:
             try:
                 self._poller.unregister(fd)
             except KeyError:
@@ -297,6 +299,7 @@ class Node:
             self._pub.bind("tcp://127.0.0.1:*")
             w.pub_endpoint = self._pub.getsockopt_string(zmq.LAST_ENDPOINT)
         self._poller.register(self._pub, zmq.POLLIN)
+        self._dispatch[self._pub] = self._on_subscription
         for name, decl in self._iface.outputs.items():
             topic = w.outputs.get(name, {}).get("topic", decl.topic)
             self._ports[name] = OutputPort(self, decl, topic)
@@ -318,12 +321,14 @@ class Node:
                 sock.connect(ep)
             port.socket = sock
             self._poller.register(sock, zmq.POLLIN)
+            self._dispatch[sock] = (lambda p=port: self._on_input(p))
         if w.control:
             self._control = self._ctx.socket(zmq.DEALER)
             self._control.setsockopt(zmq.IDENTITY, self.name.encode())
             self._control.setsockopt(zmq.LINGER, 200)
             self._control.connect(w.control)
             self._poller.register(self._control, zmq.POLLIN)
+            self._dispatch[self._control] = self._on_control
             self._control.send_multipart([b"hello", str(os.getpid()).encode()])
         self.add_timer(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
 
@@ -385,11 +390,15 @@ class Node:
     def _on_input(self, port: InputPort) -> None:
         sock = port.socket
         newest: tuple[Envelope, list[bytes]] | None = None
-        for _ in range(256):  # bounded so one busy input cannot starve the others
-            # Ask before receiving: a raised zmq.Again costs more than the message itself.
-            if not sock.getsockopt(_EVENTS) & _POLLIN:
+        for i in range(256):  # bounded so one busy input cannot starve the others
+            # Poll said readable for the first; ask before the others: a raised zmq.Again costs
+            # more than the message itself.
+            if i and not sock.getsockopt(_EVENTS) & _POLLIN:
                 break
-            frames = sock.recv_multipart(_NOBLOCK)
+            try:
+                frames = sock.recv_multipart(_NOBLOCK)
+            except zmq.Again:
+                break
             now = time.time_ns()
             try:
                 env = decode_envelope(frames)
@@ -481,18 +490,12 @@ class Node:
         wait = max(0.0, min(due, now + timeout_s) - now)
         # zmq_poll has millisecond resolution: poll short of the deadline, then sleep the rest,
         # so that timer-driven sources keep sub-millisecond timing.
-        events = dict(self._poller.poll(int(wait * 1000) if wait > 0.002 else 0))
-        if self._pub in events:
-            self._on_subscription()
-        if self._control is not None and self._control in events:
-            self._on_control()
-        if self._readers:
-            for fd, callback in list(self._readers.items()):
-                if fd in events:
-                    callback()
-        for port in self._ports.values():
-            if isinstance(port, InputPort) and port.socket in events:
-                self._on_input(port)
+        events = self._poller.poll(int(wait * 1000) if wait > 0.002 else 0)
+        dispatch = self._dispatch
+        for sock, _ in events:
+            handler = dispatch.get(sock)
+            if handler is not None:
+                handler()
                 if self._stop:
                     return
         if not events and 0 < wait <= 0.002:
@@ -528,6 +531,9 @@ class Node:
     def run(self) -> int:
         """Set up, serve until stopped, clean up. Returns the process exit code."""
         self.begin()
+        # Start-up objects (modules, params, models) need no more scanning by the collector:
+        # fewer and shorter pauses on the per-message path.
+        gc.freeze()
         try:
             while not self._stop:
                 self.spin_once(0.1)
