@@ -23,8 +23,10 @@ class EdgeStats:
     gaps: int = 0
     duplicates: int = 0
     restarts: int = 0
-    _pub: np.ndarray = field(default_factory=lambda: np.zeros(WINDOW, np.int64))
-    _lat: np.ndarray = field(default_factory=lambda: np.zeros(WINDOW, np.int64))
+    # Plain lists: one store per message is cheaper than a numpy element store; numpy is used
+    # once a second when the figures are read.
+    _pub: list = field(default_factory=lambda: [0] * WINDOW)
+    _lat: list = field(default_factory=lambda: [0] * WINDOW)
     _n: int = 0
 
     def accept(self, seq: int, publish_ns: int, now_ns: int) -> bool:
@@ -53,7 +55,7 @@ class EdgeStats:
         if n < 2:
             return 0.0
         stamps = self._pub[:n]
-        span = float(stamps.max() - stamps.min())
+        span = float(max(stamps) - min(stamps))
         return (n - 1) * 1e9 / span if span > 0 else 0.0
 
     def latency_ms(self) -> tuple[float, float]:
@@ -61,7 +63,7 @@ class EdgeStats:
         n = min(self._n, WINDOW)
         if n == 0:
             return float("nan"), float("nan")
-        lat = self._lat[:n]
+        lat = np.asarray(self._lat[:n], np.int64)
         return float(np.median(lat)) / 1e6, float(lat.max()) / 1e6
 
 

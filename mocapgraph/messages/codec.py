@@ -6,9 +6,17 @@ Frames of one message::
                         'markers' never delivers 'markers_raw')
     1  header           struct HEADER (little-endian) followed by the type name and the
                         sending node's name, both UTF-8
-    2  fields           JSON object: {"f": {scalar and string-list fields}, "s": [array shapes]}
+    2  fields           little-endian binary, in declaration order: each numeric scalar
+                        (int: i64, float: f64, bool: u8), then each array's dimensions (u32
+                        each, as many as the field's declared rank); then, only for types
+                        with text fields, a UTF-8 JSON object of the str and string-list
+                        fields. (Binary because this frame is parsed on every message: JSON
+                        cost more than the rest of decoding on a cold cache.)
     3+ array payloads   raw C-order little-endian buffers, one frame per array field,
                         in declaration order
+
+`field_layout(cls)` gives the struct format of frame 2 for a type; the JSON Schema of a type
+(``Message.json_schema()``) lists the fields in the same order.
 
 HEADER = magic b"MG", codec version (u8), flags (u8), schema version (u16), type-name length
 (u16), node-name length (u16), sequence number (u64), capture stamp ns (i64), publish stamp ns
@@ -58,6 +66,35 @@ def topic_frame(topic: str) -> bytes:
     return topic.encode() + b"\0"
 
 
+class _Plan:
+    """Per-type encoding plan: the struct of frame 2 and the field order."""
+
+    def __init__(self, info) -> None:
+        self.numeric = [sc for sc in info.scalars if sc.kind != "str"]
+        self.text = [sc for sc in info.scalars if sc.kind == "str"] + list(info.strings)
+        self.arrays = [(a, np.dtype(a.dtype)) for a in info.arrays]
+        self.ranks = [len(a.shape) for a in info.arrays]
+        codes = "".join(_CODES[sc.kind] for sc in self.numeric) + "I" * sum(self.ranks)
+        self.struct = struct.Struct("<" + codes)
+        self.py = [SCALAR_PY[sc.kind] for sc in self.numeric]
+
+
+_CODES = {"int": "q", "float": "d", "bool": "?"}
+_PLAN_CACHE: dict[str, _Plan] = {}
+
+
+def _plan(info) -> _Plan:
+    plan = _PLAN_CACHE.get(info.name)
+    if plan is None:
+        plan = _PLAN_CACHE[info.name] = _Plan(info)
+    return plan
+
+
+def field_layout(cls: type[Message]) -> str:
+    """The struct format string of frame 2 for ``cls`` (numeric scalars, then array dims)."""
+    return _plan(cls._info).struct.format
+
+
 def encode(
     topic: str,
     msg: Message,
@@ -69,14 +106,17 @@ def encode(
 ) -> list[bytes | memoryview]:
     """The multipart frames of ``msg`` on ``topic``. ``publish_ns`` defaults to now."""
     info = msg._info
+    plan = _plan(info)
     tname = info.name.encode()
     sname = sender.encode()
     d = msg.__dict__
-    fields = {s.name: d[s.name] for s in info.scalars}
-    for s in info.strings:
-        fields[s.name] = d[s.name]
-    arrays = [d[a.name] for a in info.arrays]
-    meta = json.dumps({"f": fields, "s": [a.shape for a in arrays]}, separators=(",", ":"))
+    arrays = [d[a.name] for a, _ in plan.arrays]
+    values = [d[sc.name] for sc in plan.numeric]
+    for arr in arrays:
+        values.extend(arr.shape)
+    block = plan.struct.pack(*values)
+    if plan.text:
+        block += json.dumps({f.name: d[f.name] for f in plan.text}, separators=(",", ":")).encode()
     header = HEADER.pack(
         MAGIC,
         CODEC_VERSION,
@@ -88,7 +128,7 @@ def encode(
         capture_ns,
         time.time_ns() if publish_ns is None else publish_ns,  # stamped last: encoding is not latency
     )
-    frames: list[bytes | memoryview] = [topic_frame(topic), header + tname + sname, meta.encode()]
+    frames: list[bytes | memoryview] = [topic_frame(topic), header + tname + sname, block]
     for arr in arrays:
         # The field setters keep arrays contiguous with the declared dtype; native order on
         # every platform we support is little-endian.
@@ -113,7 +153,8 @@ def decode_envelope(frames: Sequence[bytes | memoryview]) -> Envelope:
     try:
         tname = head[HEADER.size : HEADER.size + tlen].decode()
         sname = head[HEADER.size + tlen :].decode()
-        topic = bytes(frames[0]).rstrip(b"\0").decode()
+        t = frames[0] if isinstance(frames[0], bytes) else bytes(frames[0])
+        topic = (t[:-1] if t.endswith(b"\0") else t).decode()
     except UnicodeDecodeError as exc:
         raise DecodeError(f"names are not UTF-8 ({exc.reason})") from None
     return Envelope(topic, tname, version, seq, cap, pub, sname, bool(flags & FLAG_LATCHED))
@@ -136,59 +177,48 @@ def decode_payload(cls: type[Message], env: Envelope, frames: Sequence[bytes | m
         raise DecodeError(
             f"{info.name} schema version {env.schema_version} differs from this build's {info.version}"
         )
-    if len(frames) != 3 + len(info.arrays):
-        raise DecodeError(f"{info.name} wants {3 + len(info.arrays)} frames, got {len(frames)}")
+    plan = _plan(info)
+    if len(frames) != 3 + len(plan.arrays):
+        raise DecodeError(f"{info.name} wants {3 + len(plan.arrays)} frames, got {len(frames)}")
     block = frames[2]
-    try:
-        meta = json.loads(block if isinstance(block, bytes) else bytes(block))
-        values = meta["f"]
-        shapes = meta["s"]
-    except (ValueError, KeyError, TypeError) as exc:
-        raise DecodeError(f"{info.name} field block is not valid JSON ({exc})") from None
-    if not isinstance(values, dict) or not isinstance(shapes, list) or len(shapes) != len(info.arrays):
-        raise DecodeError(f"{info.name} field block has the wrong layout")
+    if not isinstance(block, bytes):
+        block = bytes(block)
+    st = plan.struct
+    if len(block) < st.size:
+        raise DecodeError(f"{info.name} field block of {len(block)} bytes is truncated (wants {st.size})")
+    values = st.unpack_from(block)
     msg = cls.__new__(cls)
     d = msg.__dict__
-    try:
-        for s, py in _scalar_plan(info):
-            v = values.get(s.name, s.default)
-            d[s.name] = v if type(v) is py else s.coerce(v)
-        for s in info.strings:
-            d[s.name] = s.coerce(values.get(s.name, []))
-    except MessageError as exc:
-        raise DecodeError(f"{info.name}: {exc}") from None
+    n = len(plan.numeric)
+    for sc, py, v in zip(plan.numeric, plan.py, values):
+        d[sc.name] = v if type(v) is py else py(v)
+    if plan.text:
+        try:
+            text = json.loads(block[st.size:])
+            if not isinstance(text, dict):
+                raise TypeError("not an object")
+            for f in plan.text:
+                d[f.name] = f.coerce(text[f.name]) if f.name in text else (f.default if hasattr(f, "default") else [])
+        except (ValueError, TypeError, KeyError) as exc:
+            raise DecodeError(f"{info.name} text fields are not valid JSON ({exc})") from None
+        except MessageError as exc:
+            raise DecodeError(f"{info.name}: {exc}") from None
+    elif len(block) != st.size:
+        raise DecodeError(f"{info.name} field block has {len(block) - st.size} bytes too many")
     symbols: dict[str, int] = {}
-    for (spec, dtype), shape, buf in zip(_array_plan(info), shapes, frames[3:]):
+    i = n
+    for (spec, dtype), rank, buf in zip(plan.arrays, plan.ranks, frames[3:]):
+        shape = values[i:i + rank]
+        i += rank
         d[spec.name] = _decode_array(info.name, spec, dtype, shape, buf, symbols)
     return msg
 
 
-_PLANS: dict[str, tuple[list, list]] = {}
-
-
-def _scalar_plan(info) -> list:
-    plan = _PLANS.get(info.name)
-    if plan is None:
-        plan = _PLANS[info.name] = (
-            [(s, SCALAR_PY[s.kind]) for s in info.scalars],
-            [(a, np.dtype(a.dtype)) for a in info.arrays],
-        )
-    return plan[0]
-
-
-def _array_plan(info) -> list:
-    return _PLANS[info.name][1] if info.name in _PLANS else (_scalar_plan(info), _PLANS[info.name][1])[1]
-
-
-def _decode_array(tname: str, spec, dtype: np.dtype, shape, buf, symbols: dict[str, int]) -> np.ndarray:
-    if type(shape) is not list or len(shape) != len(spec.shape):
-        raise DecodeError(f"{tname}.{spec.name}: shape {shape} does not match {spec.shape_text()}")
+def _decode_array(tname: str, spec, dtype: np.dtype, shape: tuple, buf, symbols: dict[str, int]) -> np.ndarray:
     for size, want in zip(shape, spec.shape):
-        if type(size) is not int or size < 0:
-            raise DecodeError(f"{tname}.{spec.name}: bad shape {shape}")
         if type(want) is int:
             if size != want:
-                raise DecodeError(f"{tname}.{spec.name}: shape {shape} is not {spec.shape_text()}")
+                raise DecodeError(f"{tname}.{spec.name}: shape {list(shape)} is not {spec.shape_text()}")
         elif symbols.setdefault(want, size) != size:
             raise DecodeError(
                 f"{tname}.{spec.name}: {want}={size} disagrees with {want}={symbols[want]} elsewhere"
@@ -197,7 +227,7 @@ def _decode_array(tname: str, spec, dtype: np.dtype, shape, buf, symbols: dict[s
     nbytes = len(buf) if isinstance(buf, bytes) else memoryview(buf).nbytes
     if nbytes != count * dtype.itemsize:
         raise DecodeError(
-            f"{tname}.{spec.name}: {nbytes} bytes for shape {shape} of {dtype} "
+            f"{tname}.{spec.name}: {nbytes} bytes for shape {list(shape)} of {dtype} "
             f"(wants {count * dtype.itemsize})"
         )
     return np.frombuffer(buf, dtype=dtype).reshape(shape)

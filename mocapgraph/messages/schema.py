@@ -227,8 +227,15 @@ class Message:
             "description": (cls.__doc__ or "").strip(),
             "type": "object",
             "x-mocapgraph-version": info.version,
+            "x-field-block": _field_block(cls),
             "properties": {k: s.json_schema() for k, s in info.fields.items()},
         }
+
+
+def _field_block(cls: type[Message]) -> str:
+    from .codec import field_layout  # the codec builds on the schema, not the other way round
+
+    return field_layout(cls)
 
 
 class _FieldDescriptor:

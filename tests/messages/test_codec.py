@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import struct
 
 import numpy as np
 import pytest
@@ -77,8 +78,9 @@ def good_frames() -> list[bytes]:
     (lambda f: [f[0], b"XX" + f[1][2:], *f[2:]], "magic"),
     (lambda f: [f[0], f[1].replace(b"MarkerFrame", b"MarkerFrumx"), *f[2:]], "unknown message type"),
     (lambda f: [*f[:3], f[3][:-8], *f[4:]], "bytes for shape"),
-    (lambda f: [*f[:2], b"{not json", *f[3:]], "not valid JSON"),
-    (lambda f: [*f[:2], json.dumps({"f": {}, "s": [[8, 3], [9], [8]]}).encode(), *f[3:]], "disagrees"),
+    (lambda f: [*f[:2], f[2][:5], *f[3:]], "truncated"),
+    (lambda f: [*f[:2], f[2] + b"xx", *f[3:]], "too many"),
+    (lambda f: [*f[:2], f[2][:24] + struct.pack("<I", 9) + f[2][28:], *f[3:]], "disagrees"),
     (lambda f: f[:-1], "wants 6 frames"),
 ])
 def test_garbage_raises_decode_error(mutate, reason: str) -> None:
@@ -106,3 +108,11 @@ def test_envelope_is_cheap_and_carries_header() -> None:
     env = decode_envelope(frames)
     assert (env.seq, env.capture_ns, env.publish_ns, env.sender, env.latched) == (9, 5, 77, "viewer", True)
     assert len(frames[1]) == HEADER.size + len("NodeCommand") + len("viewer")
+
+
+def test_text_fields_travel_as_json_and_bad_text_is_rejected() -> None:
+    msg = MarkerLayout(name="kiip", labels=["A", "B"], limb_names=["arm"], marker_limb=[0, 0])
+    frames = [bytes(f) for f in encode("marker_layout", msg, 1, 0)]
+    assert decode(frames)[1] == msg
+    with pytest.raises(DecodeError, match="text fields"):
+        decode([*frames[:2], frames[2][:-3], *frames[3:]])
