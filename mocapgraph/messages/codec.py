@@ -136,6 +136,9 @@ def encode(
     return frames
 
 
+_NAMES: dict[tuple[int, bytes], tuple[str, str]] = {}
+
+
 def decode_envelope(frames: Sequence[bytes | memoryview]) -> Envelope:
     """Read topic and header only (cheap: recorders and statistics need no payload)."""
     if len(frames) < 3:
@@ -150,9 +153,17 @@ def decode_envelope(frames: Sequence[bytes | memoryview]) -> Envelope:
         raise DecodeError(f"codec version {codec} is not supported (this is {CODEC_VERSION})")
     if len(head) != HEADER.size + tlen + slen:
         raise DecodeError("header length does not match its name lengths")
+    key = (tlen, head[HEADER.size:])
+    names = _NAMES.get(key)
+    if names is None:
+        try:
+            names = (head[HEADER.size : HEADER.size + tlen].decode(), head[HEADER.size + tlen :].decode())
+        except UnicodeDecodeError as exc:
+            raise DecodeError(f"names are not UTF-8 ({exc.reason})") from None
+        if len(_NAMES) < 4096:  # a few (type, sender) pairs per graph; bounded against garbage
+            _NAMES[key] = names
+    tname, sname = names
     try:
-        tname = head[HEADER.size : HEADER.size + tlen].decode()
-        sname = head[HEADER.size + tlen :].decode()
         t = frames[0] if isinstance(frames[0], bytes) else bytes(frames[0])
         topic = (t[:-1] if t.endswith(b"\0") else t).decode()
     except UnicodeDecodeError as exc:
@@ -230,4 +241,4 @@ def _decode_array(tname: str, spec, dtype: np.dtype, shape: tuple, buf, symbols:
             f"{tname}.{spec.name}: {nbytes} bytes for shape {list(shape)} of {dtype} "
             f"(wants {count * dtype.itemsize})"
         )
-    return np.frombuffer(buf, dtype=dtype).reshape(shape)
+    return np.ndarray(shape, dtype, buf)  # one C call: a read-only view of the frame
