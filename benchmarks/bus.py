@@ -139,7 +139,7 @@ def raw_latency(tmp: Path, rate_hz: float, count: int) -> np.ndarray:
     return lat[20:]
 
 
-ROUNDS = 3
+ROUNDS = 5
 
 
 def pct(a: np.ndarray, p: float) -> float:
