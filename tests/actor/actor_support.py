@@ -13,33 +13,9 @@ from mocapgraph.kinematics.model import SkeletonModel
 from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 from mocapgraph.kinematics.synthetic_motion import MotionScript
 
+from graph_helpers import read_jsonl, wait_until  # noqa: F401  (re-exported to the actor tests)
+
 PIPELINE = Path(__file__).resolve().parents[2] / "graph_configs" / "actor_pipeline.yaml"
-
-
-def read_jsonl(path: Path, topic: str | None = None) -> list[dict]:
-    """Records of a topic_logger file (a half-written last line is skipped)."""
-    if not Path(path).exists():
-        return []
-    out = []
-    for line in Path(path).read_text().splitlines():
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        if topic is None or rec["topic"] == topic:
-            out.append(rec)
-    return out
-
-
-def wait_until(cond, timeout: float = 20.0, what: str = "condition", graph=None):
-    """Poll ``cond`` until it returns something truthy; AssertionError (with graph output) on timeout."""
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        v = cond()
-        if v:
-            return v
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}" + (f"; output:\n{graph.output}" if graph else ""))
 
 
 def statuses(path: Path, node: str | None = None) -> list[dict]:

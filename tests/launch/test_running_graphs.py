@@ -12,47 +12,10 @@ import numpy as np
 import pytest
 import zmq
 
-from mocapgraph.launch.manifest import fetch_manifest
+from graph_helpers import node_pids, pid_alive, read_jsonl, wait_until
 from mocapgraph.messages import MarkerFrame, encode
 from mocapgraph.messages.codec import topic_frame
 from mocapgraph.nodes.test_pattern import pattern_positions
-
-
-def read_jsonl(path: Path) -> list[dict]:
-    if not path.exists():
-        return []
-    out = []
-    for line in path.read_text().splitlines():
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
-            pass  # the last line may be half-written while the node runs
-    return out
-
-
-def wait_until(cond, timeout: float = 15.0, what: str = "condition") -> None:
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        if cond():
-            return
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-def pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:  # a zombie is dead for our purpose
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
-
-
-def node_pids(g) -> dict[str, int]:
-    return {n["name"]: n["pid"] for n in fetch_manifest(g.master)["nodes"]}
 
 
 PIPELINE = """\

@@ -19,41 +19,13 @@ from mocapgraph.launch.graph import load_graph
 from mocapgraph.launch.manifest import fetch_manifest
 from mocapgraph.nodes.registry import NODE_TYPES
 
+from graph_helpers import pid_alive, read_jsonl, wait_until
+
 CONFIGS = Path(__file__).resolve().parents[2] / "graph_configs"
 MARKER_LABS = ["lab_synthetic", "lab_c3d", "lab_trc", "lab_serial", "lab_udp", "lab_lsl"]
 SKELETON_LABS = ["kinect_playback", "bvh_playback"]
 READERS = ["synthetic_actor", "c3d_reader", "trc_reader", "serial_reader", "udp_reader", "lsl_reader",
            "kinect_reader", "bvh_player"]
-
-
-def read_jsonl(path: Path) -> list[dict]:
-    if not path.exists():
-        return []
-    out = []
-    for line in path.read_text().splitlines():
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
-            pass  # a line being written
-    return out
-
-
-def wait_until(cond, timeout: float = 15.0, what: str = "condition"):
-    t_end = time.monotonic() + timeout
-    while time.monotonic() < t_end:
-        v = cond()
-        if v:
-            return v
-        time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-def pid_alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
 
 
 @pytest.mark.parametrize("group", [MARKER_LABS, SKELETON_LABS])

@@ -1,0 +1,53 @@
+"""Helpers shared by the tests that run real graphs: topic_logger files, waiting, processes."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from mocapgraph.launch.manifest import fetch_manifest
+
+
+def read_jsonl(path: Path, topic: str | None = None) -> list[dict]:
+    """Records of a topic_logger file, optionally of one topic (a half-written last line is skipped)."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if topic is None or rec.get("topic") == topic:
+            out.append(rec)
+    return out
+
+
+def wait_until(cond: Callable[[], Any], timeout: float = 15.0, what: str = "condition", graph=None) -> Any:
+    """Poll ``cond`` until it returns something truthy (returned); AssertionError on time-out,
+    with the graph's output when one is given."""
+    t_end = time.monotonic() + timeout
+    last = None
+    while time.monotonic() < t_end:
+        last = cond()
+        if last:
+            return last
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what} (last: {last!r})"
+                         + (f"; output:\n{graph.output}" if graph is not None else ""))
+
+
+def pid_alive(pid: int) -> bool:
+    """True while ``pid`` runs (a zombie counts as dead)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def node_pids(graph) -> dict[str, int]:
+    """Node name -> pid of a launched graph, from its manifest."""
+    return {n["name"]: n["pid"] for n in fetch_manifest(graph.master)["nodes"]}
