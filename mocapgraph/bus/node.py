@@ -359,6 +359,8 @@ class Node:
         if not self._started:
             self._started = True
             self.on_start()
+            if self._control is not None:
+                self._control.send_multipart([b"started"])
 
     def _on_subscription(self) -> None:
         while True:

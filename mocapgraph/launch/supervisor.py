@@ -37,6 +37,7 @@ from .check import CheckedGraph, ResolvedNode, shutdown_order
 
 READY_TIMEOUT_S = 30.0
 STOP_TIMEOUT_S = 2.0
+START_ACK_TIMEOUT_S = 5.0
 MAX_BACKOFF_S = 10.0
 
 
@@ -63,6 +64,7 @@ class Child:
     wiring_file: Path
     proc: subprocess.Popen | None = None
     ready: bool = False
+    started: bool = False
     restarts: int = 0
     backoff_s: float = 0.5
     respawn_at: float | None = None
@@ -180,6 +182,7 @@ class Supervisor:
             env=env, preexec_fn=die_with_parent, start_new_session=True,
         )
         child.ready = False
+        child.started = False
         child.started_at = time.monotonic()
         t = threading.Thread(target=self._pump, args=(child.node.name, child.proc.stdout), daemon=True)
         t.start()
@@ -205,6 +208,8 @@ class Supervisor:
             if frames[0] == b"ready":
                 child.ready = True
                 readied.append(name)
+            elif frames[0] == b"started":
+                child.started = True
 
     def _serve_master(self) -> None:
         while True:
@@ -249,8 +254,16 @@ class Supervisor:
             if self._stop_requested:
                 raise LaunchError("interrupted during start-up")
             self.control.poll(10)
-        for name in self.children:
+        # Downstream first, each acknowledged before the next: a node is in its started state
+        # (calibration in auto mode, say) before any source upstream of it sends a frame.
+        for name in reversed(shutdown_order(self.graph)):
             self._send(name, b"start")
+            t_ack = time.monotonic() + START_ACK_TIMEOUT_S
+            while not self.children[name].started and time.monotonic() < t_ack:
+                if self.children[name].proc.poll() is not None:
+                    break
+                self.control.poll(5)
+                self._serve_control()
         self.ready_time_s = time.monotonic() - t0
         self.say(f"[launch] {len(self.children)} nodes ready in {self.ready_time_s:.2f} s "
                  f"(manifest at {self.master})")
