@@ -48,7 +48,7 @@ def logged_graph(lab: str, tmp_path: Path, *args: str) -> str:
     return f"""\
 include:
   - file: {CONFIGS / (lab + '.yaml')}
-    args: {{{', '.join(args)}}}
+    args: {{viewer: false, {', '.join(args)}}}
 nodes:
   - name: logger
     type: topic_logger
