@@ -14,7 +14,10 @@ class UserError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mocapgraph", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="mocapgraph",
+        description="Motion capture as a graph of processes: run graphs, inspect topics, bags, batch jobs.",
+        epilog="Start with: mocapgraph launch graph_configs/demo.yaml (then open http://127.0.0.1:8765/)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMAND_MODULES:
         import_module(f"{__name__}.{name}").register(sub)
