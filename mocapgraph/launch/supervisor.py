@@ -262,8 +262,9 @@ class Supervisor:
             while not self.children[name].started and time.monotonic() < t_ack:
                 if self.children[name].proc.poll() is not None:
                     break
-                self.control.poll(5)
+                zmq.select([self.control, self.master_sock], [], [], 0.005)
                 self._serve_control()
+                self._serve_master()  # a node's on_start may ask for the manifest (a recorder's metadata)
         self.ready_time_s = time.monotonic() - t0
         self.say(f"[launch] {len(self.children)} nodes ready in {self.ready_time_s:.2f} s "
                  f"(manifest at {self.master})")
