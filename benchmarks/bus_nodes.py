@@ -29,7 +29,7 @@ class BenchSender(Node):
         self.sent = 0
         self.msg = frame(self.n_markers, 0)
         if self.burst:
-            self.add_timer(0.2, self._burst)
+            self._burst_timer = self.add_timer(0.2, self._burst)
         elif self.rate_hz > 0:
             self.add_timer(1.0 / self.rate_hz, self._send, first_delay_s=0.2)
         else:
@@ -47,9 +47,15 @@ class BenchSender(Node):
             self._send()
 
     def _burst(self) -> None:
-        if self.sent == 0:
-            for _ in range(self.count):
-                self._send()
+        self.cancel_timer(self._burst_timer)
+        for _ in range(self.count - 1):
+            self._send()
+        # The last one once the queues drained: every loss before it shows as a sequence gap.
+        self._last_timer = self.add_timer(1.0, self._last, first_delay_s=0.3)
+
+    def _last(self) -> None:
+        self.cancel_timer(self._last_timer)
+        self._send()
 
     def on_back(self, msg: MarkerFrame) -> None:
         time.sleep(0.0002)  # let the receiver settle, so each sample is an idle-path latency

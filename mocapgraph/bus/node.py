@@ -48,6 +48,7 @@ _NOBLOCK = int(zmq.NOBLOCK)
 _POLLIN = int(zmq.POLLIN)
 _EVENTS = int(zmq.EVENTS)
 DIAGNOSTICS_PERIOD_S = 1.0
+SEND_QUEUE = 1000  # messages per subscriber held by a publisher before it drops (counted downstream)
 LOG_FORMAT = "%(levelname)s %(message)s"
 
 
@@ -291,7 +292,9 @@ class Node:
         w = self.wiring
         self._pub = self._ctx.socket(zmq.XPUB)
         self._pub.setsockopt(zmq.XPUB_VERBOSE, 1)
-        self._pub.setsockopt(zmq.SNDHWM, 0)  # never drop on our side; receivers' HWM decides
+        # Bounded per subscriber, so a stalled viewer cannot grow this process without limit; a
+        # subscriber with no receive limit (a recorder) drains into its own memory and loses nothing.
+        self._pub.setsockopt(zmq.SNDHWM, SEND_QUEUE)
         self._pub.setsockopt(zmq.LINGER, 500)
         if w.pub_endpoint:
             self._pub.bind(w.pub_endpoint)
