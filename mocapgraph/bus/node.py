@@ -517,9 +517,14 @@ class Node:
             if t not in self._timers:
                 continue  # cancelled by an earlier callback
             t.due += t.period
-            if t.due < now:  # fell behind (a slow callback): skip, do not burst
+            if t.due < now:  # fell behind: skip, do not burst
                 t.due = now + t.period
+            planned = t.due
             t.callback()
+            if t.due == planned:  # not rescheduled by the callback itself
+                after = time.monotonic()
+                if planned < after:  # the callback outlasted its period: skip what it overran
+                    t.due = after + t.period
             if self._stop:
                 return
 
