@@ -60,7 +60,7 @@ class Visualizer(Node):
     player_status = _frames("player_status", NodeStatus, "bag player state (position, duration)")
 
     calibration_command = Output("calibration_command", NodeCommand, "find_base_pose, capture_gym, process")
-    player_command = Output("player_command", NodeCommand, "play, pause, step, seek {t: seconds}")
+    player_command = Output("player_command", NodeCommand, "play, pause, step, seek {position_s: seconds} (the bag player's commands)")
 
     host = Param("127.0.0.1", "address the page is served on (loopback unless you mean otherwise)")
     port = Param(8765, "HTTP and WebSocket port; 0 picks a free one (printed at start)", minimum=0,

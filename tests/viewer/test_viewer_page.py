@@ -152,21 +152,21 @@ def test_buttons_command_calibration_and_player(stage):
 
         p.click('[data-player="play"]')
         page.wait('s.player === "playing"')
-        wait_until(lambda: json.loads(tap.of("player_status")[-1][1].data_json)["t"] > 0.3, what="playback to advance")
+        wait_until(lambda: json.loads(tap.of("player_status")[-1][1].data_json)["position_s"] > 0.3, what="playback to advance")
         p.click('[data-player="pause"]')
         page.wait('s.player === "paused"')
-        t0 = json.loads(tap.of("player_status")[-1][1].data_json)["t"]
+        t0 = json.loads(tap.of("player_status")[-1][1].data_json)["position_s"]
         p.click('[data-player="step"]')
-        wait_until(lambda: json.loads(tap.of("player_status")[-1][1].data_json)["t"] > t0, what="a step")
-        t1 = json.loads(tap.of("player_status")[-1][1].data_json)["t"]
+        wait_until(lambda: json.loads(tap.of("player_status")[-1][1].data_json)["position_s"] > t0, what="a step")
+        t1 = json.loads(tap.of("player_status")[-1][1].data_json)["position_s"]
         assert t1 - t0 == pytest.approx(1 / 120, abs=1e-6)
         p.evaluate("""() => { const s = document.getElementById('player-seek');
                               s.value = '12.5'; s.dispatchEvent(new Event('input'));
                               s.dispatchEvent(new Event('change')); }""")
-        wait_until(lambda: math.isclose(json.loads(tap.of("player_status")[-1][1].data_json)["t"], 12.5),
+        wait_until(lambda: math.isclose(json.loads(tap.of("player_status")[-1][1].data_json)["position_s"], 12.5),
                    what="seek to 12.5 s")
         seek = [m for _, m in tap.of("player_command") if m.command == "seek"]
-        assert json.loads(seek[-1].args_json) == {"t": 12.5} and seek[-1].target == "player"
+        assert json.loads(seek[-1].args_json) == {"position_s": 12.5} and seek[-1].target == "player"
         wait_until(lambda: p.locator("#player-time").inner_text().startswith("12.50 s"), what="time shown")
     finally:
         tap.close()

@@ -265,7 +265,7 @@ class CommandEcho(Node):
             elif cmd.command == "step":
                 self.state, self.t = "paused", min(self.duration_s, self.t + self.step_s)
             elif cmd.command == "seek":
-                self.t = float(np.clip(float(args.get("t", 0.0)), 0.0, self.duration_s))
+                self.t = float(np.clip(float(args.get("position_s", 0.0)), 0.0, self.duration_s))
             self.detail = f"{cmd.command} accepted"
         self.report()
 
@@ -296,7 +296,7 @@ class CommandEcho(Node):
                 data["joint_quality"] = {n: (2 if i % 5 else 1) for i, n in enumerate(JOINT_NAMES)}
         else:
             progress = self._position() / self.duration_s
-            data = {"t": self.t, "duration": self.duration_s}
+            data = {"position_s": self.t, "duration_s": self.duration_s}  # as the bag player reports
         self._ports["status"].publish(NodeStatus(node=self.name, state=self.state, detail=self.detail,
                                                  progress=progress, data_json=json.dumps(data)))
 

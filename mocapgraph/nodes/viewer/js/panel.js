@@ -41,7 +41,7 @@ export class Panel {
     seek.addEventListener("input", () => { this.seekDragging = true; $("player-time").textContent = `seek to ${fmt(Number(seek.value))} s`; });
     seek.addEventListener("change", () => {
       this.seekDragging = false;
-      this.send("player", "seek", { t: Number(seek.value) }, this.playerTarget, "Seek");
+      this.send("player", "seek", { position_s: Number(seek.value) }, this.playerTarget, "Seek");
     });
     for (const [id, key] of [["show-markers", "markers"], ["show-bones", "bones"], ["show-labels", "labels"], ["show-axes", "axes"]]) {
       $(id).addEventListener("change", (e) => { this.scene.show[key] = e.target.checked; });
