@@ -107,3 +107,34 @@ nodes:
     s = b.stats()
     assert s["markersDrawn"] in (11, 12) and s["errors"] == []
     assert a.errors() == [] and b.errors() == []
+
+
+def test_a_tab_left_in_the_background_catches_up_and_backs_nothing_up(launch_graph, open_page):
+    port = free_port()
+    g = launch_graph(f"""
+nodes:
+  - name: pattern
+    type: marker_test_pattern
+    params: {{rate_hz: 240.0, n_markers: 20}}
+  - name: viz
+    type: visualizer
+    params: {{port: {port}}}
+""")
+    g.wait_ready()
+    url = f"http://127.0.0.1:{port}/"
+    back, front = open_page(url), open_page(url)
+    back.wait("s.connected && s.framesDrawn > 3", timeout=15)
+    front.page.bring_to_front()
+    front.wait("s.connected && s.framesDrawn > 3", timeout=15)
+    front.page.wait_for_timeout(3000)  # the first tab sits in the background meanwhile
+    back.page.bring_to_front()
+    before = back.stats()["framesDrawn"]
+    back.wait(f"s.framesDrawn > {before} + 10", timeout=15)
+    # Credit-based sending: the server never queued more than its window for either tab.
+    import urllib.request
+
+    with urllib.request.urlopen(f"{url}stats", timeout=5) as r:
+        clients = json.loads(r.read())["clients"]
+    assert len(clients) == 2 and all(c["bundles"] > 0 for c in clients)
+    assert all(c["bundles"] - c["acks"] <= 2 for c in clients), clients  # window of 2 unacknowledged
+    assert back.errors() == [] and front.errors() == []
