@@ -22,6 +22,7 @@ calibrated now and one loaded from the file later solve identically.
 from __future__ import annotations
 
 import json
+from collections import deque
 import time
 import warnings
 from pathlib import Path
@@ -47,6 +48,9 @@ PROCESSING = "processing"
 CALIBRATED = "calibrated"
 ERROR = "error"
 COMMANDS = ("find_base_pose", "capture_gym", "process", "reset", "save", "load")
+
+
+EARLY_FRAMES = 64  # frames held while the latched layout is still on its way
 
 
 class CalibrationNode(Node):
@@ -83,6 +87,7 @@ class CalibrationNode(Node):
         self.stream: MarkerLayout | None = None
         self.model: SkeletonModel | None = None
         self._auto_running = False
+        self._early: deque = deque(maxlen=EARLY_FRAMES)
         self._reset_capture()
         if self.layout:
             try:
@@ -147,7 +152,11 @@ class CalibrationNode(Node):
     # ----- layout -------------------------------------------------------------------------------
     def on_marker_layout(self, msg: MarkerLayout) -> None:
         self.stream = msg
-        self._bind()
+        if self._bind():
+            early, self._early = list(self._early), deque(maxlen=EARLY_FRAMES)
+            for frame, ns in early:
+                if self.state in (FINDING, CAPTURING):
+                    self._take(frame, ns)
         if self.model is not None and self.definition is not None and self.where is not None:
             try:
                 self.model.check_layout(self.definition.name, self.definition.marker_labels,
@@ -181,8 +190,18 @@ class CalibrationNode(Node):
 
     # ----- frames -------------------------------------------------------------------------------
     def on_markers(self, frame: MarkerFrame) -> None:
-        if self.state not in (FINDING, CAPTURING) or self.where is None:
+        if self.state not in (FINDING, CAPTURING):
             return
+        ns = self.markers.envelope.capture_ns
+        if self.where is None:
+            # The latched layout travels on its own socket and may land just after the first
+            # frames: hold a few, so that frame 0 can still be the base pose.
+            if self.stream is None:
+                self._early.append((frame, ns))
+            return
+        self._take(frame, ns)
+
+    def _take(self, frame: MarkerFrame, ns: int) -> None:
         pos = frame.positions
         if pos.shape[0] != len(self.stream.labels):
             return  # a frame that does not fit the layout is never a base pose or a gym sample
@@ -191,7 +210,6 @@ class CalibrationNode(Node):
         if frame.valid.shape == (pos.shape[0],):
             ok &= frame.valid[self.where]
         x[~ok] = np.nan
-        ns = self.markers.envelope.capture_ns
         if self._t_first is None:
             self._t_first, self._ns0 = 0.0, ns
         t = (ns - self._ns0) * 1e-9
