@@ -186,18 +186,25 @@ def _parse_text(line: bytes) -> tuple[WireFrame | None, str]:
     return WireFrame(frame, t_us * 1000, xyz.reshape(n, 3) / 1000.0, "text"), ""
 
 
-class TextDecoder:
-    """Streaming decoder for the text protocol; ``feed`` never raises on bad input."""
+class _StreamDecoder:
+    """Buffer and counters shared by the decoders."""
 
     def __init__(self) -> None:
         self._buf = bytearray()
         self.stats = DecoderStats()
 
+    def _take(self, data: bytes) -> DecoderStats:
+        self.stats.bytes_in += len(data)
+        self._buf += data
+        return self.stats
+
+
+class TextDecoder(_StreamDecoder):
+    """Streaming decoder for the text protocol; ``feed`` never raises on bad input."""
+
     def feed(self, data: bytes) -> list[WireFrame]:
         """Add bytes; return the frames whose lines are now complete."""
-        st = self.stats
-        st.bytes_in += len(data)
-        self._buf += data
+        st = self._take(data)
         out: list[WireFrame] = []
         while True:
             nl = self._buf.find(b"\n")
@@ -256,18 +263,12 @@ class TextDecoder:
 # ---------------------------------------------------------------------------------------
 # binary decoder
 # ---------------------------------------------------------------------------------------
-class BinaryDecoder:
+class BinaryDecoder(_StreamDecoder):
     """Streaming decoder for the binary protocol; ``feed`` never raises on bad input."""
-
-    def __init__(self) -> None:
-        self._buf = bytearray()
-        self.stats = DecoderStats()
 
     def feed(self, data: bytes) -> list[WireFrame]:
         """Add bytes (any chunking, or one UDP datagram); return completed frames."""
-        st = self.stats
-        st.bytes_in += len(data)
-        self._buf += data
+        st = self._take(data)
         out: list[WireFrame] = []
         buf = self._buf
         while True:
