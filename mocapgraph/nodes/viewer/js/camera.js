@@ -13,7 +13,8 @@ export const PRESETS = {
 export class OrbitCamera {
   constructor(canvas) {
     this.canvas = canvas;
-    this.goal = { az: PRESETS.perspective.az, el: PRESETS.perspective.el, dist: 8.5, target: [-0.4, 0, 0.9] };
+    this.home = { dist: 8.5, target: [-0.4, 0, 0.9] };
+    this.goal = { az: PRESETS.perspective.az, el: PRESETS.perspective.el, dist: this.home.dist, target: [...this.home.target] };
     this.cur = { ...this.goal, target: [...this.goal.target] };
     this.fovy = 45 * Math.PI / 180;
     this.drag = null;
@@ -76,6 +77,7 @@ export class OrbitCamera {
     this.goal.az = p.az;
     this.goal.el = p.el;
     if (bounds) this.fit(bounds);
+    else if (name === "perspective") { this.goal.dist = this.home.dist; this.goal.target = [...this.home.target]; }
     // Turn the short way round.
     while (this.goal.az - this.cur.az > Math.PI) this.cur.az += 2 * Math.PI;
     while (this.cur.az - this.goal.az > Math.PI) this.cur.az -= 2 * Math.PI;
