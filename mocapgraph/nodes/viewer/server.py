@@ -241,16 +241,24 @@ class ViewerServer:
         credit = asyncio.Event()
         credit.set()
         await ws.send(json.dumps({"type": "hello", "client": cid, "session": self.started_ns, **self.hello}))
-        reader = asyncio.create_task(self._read(ws, client, credit))
+        # A closed socket ends the reader; a sender waiting for credit would never notice on its own.
+        tasks = [asyncio.create_task(self._read(ws, client, credit)),
+                 asyncio.create_task(self._send_loop(ws, client, credit))]
         try:
-            await self._send_loop(ws, client, credit)
-        except ConnectionClosed:
-            pass
+            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         finally:
-            reader.cancel()
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
             self.clients.pop(cid, None)
 
     async def _read(self, ws: ServerConnection, client: ClientStats, credit: asyncio.Event) -> None:
+        try:
+            await self._read_messages(ws, client, credit)
+        except ConnectionClosed:
+            pass
+
+    async def _read_messages(self, ws: ServerConnection, client: ClientStats, credit: asyncio.Event) -> None:
         async for text in ws:
             if text == "a":  # the page drew a bundle
                 client.acks += 1
@@ -281,6 +289,12 @@ class ViewerServer:
         return {"type": "command_result", "id": req.get("id"), "ok": True}
 
     async def _send_loop(self, ws: ServerConnection, client: ClientStats, credit: asyncio.Event) -> None:
+        try:
+            await self._send_bundles(ws, client, credit)
+        except ConnectionClosed:
+            pass
+
+    async def _send_bundles(self, ws: ServerConnection, client: ClientStats, credit: asyncio.Event) -> None:
         seen: dict[str, int] = {}
         while True:
             while client.credit <= 0:

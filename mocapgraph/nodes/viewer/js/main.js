@@ -102,6 +102,7 @@ function frame(now) {
     stats.connected = link.connected;
     stats.connects = link.connects;
     stats.session = link.session;
+    stats.client = link.hello ? link.hello.client : null;
     stats.bundles = link.bundles;
     stats.records = link.records;
     stats.bytes = link.bytes;

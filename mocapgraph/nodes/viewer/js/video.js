@@ -23,8 +23,20 @@ export class VideoPanel {
     const v = this.video;
     v.addEventListener("loadedmetadata", () => {
       this.aspect = v.videoWidth && v.videoHeight ? v.videoWidth / v.videoHeight : 16 / 9;
-      els.seek.max = String(v.duration || 0);
+      if (v.duration === Infinity) {
+        // Recorded WebM often has no duration: seeking past the end makes the browser find it.
+        this.probing = true;
+        v.currentTime = 1e101;
+      }
       this.fresh = true;
+      this.sync();
+    });
+    v.addEventListener("durationchange", () => {
+      if (this.probing && Number.isFinite(v.duration)) {
+        this.probing = false;
+        v.currentTime = 0;
+      }
+      els.seek.max = String(Number.isFinite(v.duration) ? v.duration : 0);
       this.sync();
     });
     for (const ev of ["play", "pause", "ended", "volumechange", "seeked", "timeupdate"]) {
@@ -108,7 +120,7 @@ export class VideoPanel {
 
   stats() {
     const v = this.video;
-    return { loaded: !!v.src, playing: !v.paused && !v.ended, currentTime: v.currentTime, duration: v.duration || 0,
+    return { loaded: !!v.src, ready: !!v.src && !this.probing && Number.isFinite(v.duration) && v.readyState >= 2, playing: !v.paused && !v.ended, currentTime: v.currentTime, duration: v.duration || 0,
       loop: v.loop, muted: v.muted, volume: v.volume, framesUploaded: this.framesUploaded, width: v.videoWidth,
       height: v.videoHeight };
   }
