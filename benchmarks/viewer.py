@@ -1,25 +1,35 @@
 """Viewer benchmark: a 240 Hz, 60-marker graph feeding the visualizer, drawn in headless Chromium.
 
-Prints frames drawn per second in the page, WebSocket bundles (messages) per second delivered
-and the records they carried, and the bus-side cost of the visualizer node as CPU % of one core
-(target under 15 %), beside the same node with no browser attached (its idle cost).
+Prints frames drawn per second by the page, WebSocket bundles per second delivered (page and
+server side), and the bus-side cost of the visualizer node in CPU % of one core, with no browser
+and with one browser connected (target under 15 %). Also compares the wire encodings (binary
+bundle vs JSON of ``to_dict``) for one marker frame.
 
-Usage: python benchmarks/viewer.py [--seconds 10]  (needs Debian's chromium and playwright)
+    .venv/bin/python benchmarks/viewer.py [--seconds 10] [--rate 240] [--markers 60]
+
+Needs Debian's chromium (/usr/bin/chromium) and Playwright for Python.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import signal
 import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+import urllib.request
+import uuid
 from pathlib import Path
 
+import numpy as np
+
 CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
 
 
 def free_port() -> int:
@@ -28,77 +38,125 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a process, from /proc."""
-    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def main() -> None:
+def cpu_percent(pid: int, seconds: float) -> float:
+    c0, t0 = cpu_seconds(pid), time.monotonic()
+    time.sleep(seconds)
+    return 100 * (cpu_seconds(pid) - c0) / (time.monotonic() - t0)
+
+
+def encoding_figures(n_markers: int) -> None:
+    from mocapgraph.messages import Envelope, MarkerFrame
+    from mocapgraph.nodes.viewer.wire import build_bundle, encode_record
+
+    rng = np.random.default_rng(0)
+    pos = rng.normal(size=(n_markers, 3))
+    pos[::11] = np.nan
+    msg = MarkerFrame(frame_number=1, rate_hz=240.0, positions=pos, valid=np.isfinite(pos[:, 0]),
+                      residual=np.full(n_markers, 0.001, np.float32))
+    env = Envelope("markers", "MarkerFrame", 1, 1, time.time_ns(), time.time_ns(), "pattern", False)
+    reps = 2000
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        binary = build_bundle([encode_record("markers", "k", env, msg)], 0.0)
+    t_bin = (time.perf_counter() - t0) / reps
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        text = json.dumps(msg.to_dict()).encode()  # NaN is not even valid JSON for a browser
+    t_json = (time.perf_counter() - t0) / reps
+    print(f"wire, one {n_markers}-marker frame: binary bundle {len(binary)} B in {t_bin * 1e6:.0f} us; "
+          f"JSON of to_dict {len(text)} B in {t_json * 1e6:.0f} us")
+
+
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=10.0)
-    a = ap.parse_args()
-    from playwright.sync_api import sync_playwright
+    ap.add_argument("--seconds", type=float, default=10.0, help="measuring time per phase, s")
+    ap.add_argument("--rate", type=float, default=240.0, help="marker rate, Hz")
+    ap.add_argument("--markers", type=int, default=60, help="markers per frame")
+    args = ap.parse_args()
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        print("needs Playwright for Python (pip install playwright)", file=sys.stderr)
+        return 2
+    if not Path(CHROMIUM).exists():
+        print(f"needs Debian's chromium at {CHROMIUM}", file=sys.stderr)
+        return 2
 
-    from mocapgraph.launch.manifest import fetch_manifest
-
-    tmp = Path(tempfile.mkdtemp())
+    encoding_figures(args.markers)
+    tmp = Path(tempfile.mkdtemp(prefix="viewer-bench-"))
     port = free_port()
-    graph = tmp / "viewer_bench.yaml"
+    graph = tmp / "graph.yaml"
     graph.write_text(f"""
 nodes:
   - name: pattern
     type: marker_test_pattern
-    params: {{rate_hz: 240.0, n_markers: 60, missing_every: 10}}
+    params: {{rate_hz: {args.rate}, n_markers: {args.markers}, missing_every: 10}}
   - name: viz
     type: visualizer
     params: {{port: {port}}}
 """)
-    master = f"ipc://{tmp / 'master'}"
-    env = dict(os.environ, MOCAPGRAPH_MASTER=master)
-    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    env = dict(os.environ, MOCAPGRAPH_MASTER=f"ipc://{tmp / ('master-' + uuid.uuid4().hex[:6])}", PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)], env=env, cwd=tmp,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(iter(proc.stdout.readline, "")), daemon=True).start()
     try:
-        for _ in range(200):
-            try:
-                m = fetch_manifest(master, 0.2)
-                if all(n["pid"] for n in m["nodes"]):
-                    break
-            except Exception:  # noqa: BLE001 - not up yet
-                time.sleep(0.05)
-        time.sleep(1.5)
-        viz = next(n["pid"] for n in m["nodes"] if n["name"] == "viz")
-        c0, t0 = cpu_s(viz), time.monotonic()
-        time.sleep(a.seconds / 2)
-        idle = (cpu_s(viz) - c0) / (time.monotonic() - t0) * 100
-        print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}; graph: 240 Hz, 60 markers")
-        print(f"visualizer node, no browser:   {idle:5.1f} % of one core (receiving 240 msg/s + diagnostics)")
+        t_end = time.monotonic() + 30
+        while not any("nodes ready" in x for x in lines):
+            if time.monotonic() > t_end or proc.poll() is not None:
+                print("".join(lines), file=sys.stderr)
+                return 1
+            time.sleep(0.05)
+        from mocapgraph.launch.manifest import fetch_manifest
+
+        pid = next(n["pid"] for n in fetch_manifest(env["MOCAPGRAPH_MASTER"])["nodes"] if n["name"] == "viz")
+        time.sleep(1.0)
+        idle = cpu_percent(pid, args.seconds)
+        print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}; graph: {args.markers} markers at "
+              f"{args.rate:.0f} Hz; visualizer node pid {pid}")
+        print(f"visualizer CPU, no browser:  {idle:5.1f} % of one core")
+
         with sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
-            page = browser.new_page(viewport={"width": 1280, "height": 760})
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1280, "height": 720})
             page.goto(f"http://127.0.0.1:{port}/")
-            page.wait_for_function("() => window.mocapgraphStats && window.mocapgraphStats.framesDrawn > 10",
+            page.wait_for_function("() => window.mocapgraphStats && window.mocapgraphStats.markersDrawn > 0",
                                    timeout=20000)
-            s0 = page.evaluate("() => ({...window.mocapgraphStats})")
-            c0, t0 = cpu_s(viz), time.monotonic()
-            time.sleep(a.seconds)
-            s1 = page.evaluate("() => ({...window.mocapgraphStats})")
-            dt = time.monotonic() - t0
-            busy = (cpu_s(viz) - c0) / dt * 100
+            time.sleep(2.0)
+
+            def sample():
+                s = page.evaluate("() => ({f: mocapgraphStats.framesDrawn, b: mocapgraphStats.bundles, "
+                                  "r: mocapgraphStats.records})")
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/stats") as r:
+                    c = json.loads(r.read())["clients"][0]
+                return s["f"], s["b"], s["r"], c["bundles"], c["bytes"], time.monotonic()
+
+            f0, b0, r0, sb0, by0, t0 = sample()
+            busy = cpu_percent(pid, args.seconds)
+            f1, b1, r1, sb1, by1, t1 = sample()
+            dt = t1 - t0
+            renderer = page.evaluate("mocapgraphStats.webgl")
             browser.close()
-        fps = (s1["framesDrawn"] - s0["framesDrawn"]) / dt
-        bundles = (s1["bundles"] - s0["bundles"]) / dt
-        records = (s1["records"] - s0["records"]) / dt
-        mbps = (s1["bytes"] - s0["bytes"]) / dt / 1e6
-        print(f"headless Chromium (SwiftShader): {fps:5.1f} frames drawn/s")
-        print(f"WebSocket: {bundles:5.1f} bundles/s delivered ({records:.0f} records/s, {mbps:.2f} MB/s; "
-              f"the node sends the newest state at the browser's pace, at most 60/s)")
-        print(f"visualizer node with the page:  {busy:5.1f} % of one core (target < 15 %): "
+        print(f"visualizer CPU, one browser: {busy:5.1f} % of one core (target < 15 %): "
               f"{'OK' if busy < 15 else 'OVER'}")
+        print(f"page frames drawn: {(f1 - f0) / dt:6.1f} /s  ({renderer})")
+        print(f"WebSocket bundles: {(b1 - b0) / dt:6.1f} /s received by the page, {(sb1 - sb0) / dt:6.1f} /s sent, "
+              f"{(r1 - r0) / dt:.0f} records/s, {(by1 - by0) / dt / 1024:6.1f} KiB/s (newest state at the browser's "
+              "pace, at most max_rate_hz)")
+        return 0
     finally:
-        proc.send_signal(2)
-        proc.wait(20)
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGINT)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
