@@ -11,7 +11,7 @@ import urllib.request
 
 import numpy as np
 import pytest
-from viewer_support import TESTING, BusTap, free_port, viewer_stats, wait_until
+from viewer_support import TESTING, BusTap, free_port, run_async, viewer_stats, wait_until
 
 from mocapgraph.messages import ActorPose, Diagnostics, Envelope, MarkerFrame, NodeStatus
 from mocapgraph.nodes.viewer.wire import BundleError, build_bundle, decode_bundle, encode_record
@@ -124,7 +124,7 @@ def test_a_browser_that_does_not_ack_gets_no_backlog(launch_graph):
             newest = [r for r in more[0] if r["topic"] == "markers"][0]["fields"]["frame_number"]
             assert newest > frames[-1]
 
-    asyncio.run(run())
+    run_async(run)
 
 
 def test_commands_are_checked_and_published(launch_graph):
@@ -155,7 +155,7 @@ def test_commands_are_checked_and_published(launch_graph):
 
     try:
         wait_until(lambda: tap.of("calibration_status"), what="calibration status on the bus")
-        replies = asyncio.run(run())
+        replies = run_async(run)
         assert "no command 'explode'" in replies[0]["error"] and not replies[0]["ok"]
         assert "unknown channel" in replies[1]["error"]
         assert "args must be an object" in replies[2]["error"]

@@ -156,3 +156,24 @@ class BusTap:
         self._stop = True
         self._thread.join(2)
         self.sock.close(0)
+
+
+def run_async(coro_factory: Callable[[], Any]) -> Any:
+    """Run a coroutine in a thread of its own (Playwright's sync API holds this thread's event loop)."""
+    import asyncio
+    import threading
+
+    box: dict[str, Any] = {}
+
+    def target() -> None:
+        try:
+            box["value"] = asyncio.run(coro_factory())
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the caller
+            box["error"] = exc
+
+    t = threading.Thread(target=target, daemon=True)
+    t.start()
+    t.join(60)
+    if "error" in box:
+        raise box["error"]
+    return box.get("value")
