@@ -68,6 +68,8 @@ class Visualizer(Node):
     max_rate_hz = Param(60.0, "most bundles per second sent to one browser, Hz", minimum=1.0)
     window = Param(2, "bundles a browser may have unacknowledged before sending pauses", minimum=1)
     extra_topics = Param([], "further topics to list on the page (any type; unknown types are not drawn)")
+    reference_topics = Param(["ground_truth"], "topics drawn as a neutral reference (e.g. a synthetic actor's "
+                             "ground truth) instead of by quality")
     message_modules = Param([], "modules to import so that their message types decode (plugins)")
     open_browser = Param(False, "open the page in the default browser at start")
     title = Param("mocapgraph", "page title")
@@ -104,6 +106,7 @@ class Visualizer(Node):
         topics = {name: {"topic": p.topic, "type": p.decl.type_name, "latched": p.decl.latched}
                   for name, p in self._ports.items() if isinstance(p, InputPort)}
         hello = {"node": self.name, "title": self.title, "topics": topics,
+                 "reference_topics": list(self.reference_topics),
                  "commands": {ch: list(cmds) for ch, cmds in COMMANDS.items()},
                  "command_topics": {"calibration": self.calibration_command.topic,
                                     "player": self.player_command.topic}}

@@ -71,6 +71,11 @@ def test_stage_draws_what_the_graph_sends(stage, tmp_path):
     assert s["streams"]["actor_pose|bob|bob"]["bones"] == 15
     assert s["streams"]["character_pose|carol|carol"]["bones"] == 15
 
+    # A reference topic (ground truth) is drawn apart from the actors, as a neutral ghost.
+    truth = s["streams"]["ground_truth|truth|truth"]
+    assert truth["reference"] and truth["points"] == 16 and "quality" not in truth
+    assert s["referenceJointsDrawn"] == 16
+
     # A type the page does not know is listed, not drawn.
     assert s["topics"]["force_plates"]["type"] == "ForcePlateSample"
     assert not any(v["topic"] == "force_plates" for v in s["streams"].values())

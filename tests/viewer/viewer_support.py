@@ -41,6 +41,10 @@ nodes:
   - name: carol
     type: {TESTING}:StagePerformer
     params: {{actor: carol, rate_hz: 60.0, publish: [character], center: [-1.0, 1.0], radius: 0.8, phase: 4.0}}
+  - name: truth
+    type: {TESTING}:StagePerformer
+    params: {{actor: truth, rate_hz: 60.0, publish: [actor], center: [0.4, -0.6], radius: 2.0, phase: 2.0}}
+    remap: {{actor_pose: ground_truth, skeleton_model: truth_model}}
   - name: calib
     type: {TESTING}:CommandEcho
     params: {{role: calibration, gym_s: {gym_s}}}
@@ -51,7 +55,7 @@ nodes:
     type: {TESTING}:ForcePlateSource
   - name: viz
     type: visualizer
-    params: {{port: {port}, extra_topics: [force_plates], message_modules: [{TESTING}]}}
+    params: {{port: {port}, extra_topics: [force_plates, ground_truth], message_modules: [{TESTING}]}}
 """
 
 

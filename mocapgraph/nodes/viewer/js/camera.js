@@ -13,7 +13,7 @@ export const PRESETS = {
 export class OrbitCamera {
   constructor(canvas) {
     this.canvas = canvas;
-    this.home = { dist: 8.5, target: [-0.4, 0, 0.9] };
+    this.home = { dist: 7.2, target: [-0.5, 0, 0.85] };
     this.goal = { az: PRESETS.perspective.az, el: PRESETS.perspective.el, dist: this.home.dist, target: [...this.home.target] };
     this.cur = { ...this.goal, target: [...this.goal.target] };
     this.fovy = 45 * Math.PI / 180;

@@ -30,7 +30,10 @@ const scene = new SceneBuilder();
 const wsUrl = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`;
 let panel = null;
 const link = new Link(wsUrl, store, {
-  onStatus: () => panel && panel.connection(),
+  onStatus: () => {
+    if (link.hello) scene.referenceTopics = new Set(link.hello.reference_topics || []);
+    if (panel) panel.connection();
+  },
   onCommandResult: (msg, label) => panel && panel.commandResult(msg, label),
 });
 const video = new VideoPanel(renderer, {
@@ -67,6 +70,7 @@ function drawLabels(labels, viewProj) {
       let div = labelPool[used];
       if (!div) { div = document.createElement("div"); div.className = "label"; box.append(div); labelPool.push(div); }
       div.textContent = l.text;
+      div.classList.toggle("reference", !!l.reference);
       div.style.transform = `translate(${p[0].toFixed(1)}px, ${p[1].toFixed(1)}px) translate(-50%, -100%)`;
       div.hidden = false;
       used++;

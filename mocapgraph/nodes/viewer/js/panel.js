@@ -123,7 +123,7 @@ export class Panel {
         const box = el("input", { type: "checkbox", "data-key": key });
         box.checked = !this.scene.hidden.has(key);
         const row = el("label", { class: "actor", "data-key": key }, box,
-          el("span", { class: "name", text: r.name }), el("span", { class: "type", text: r.type }),
+          el("span", { class: "name", text: r.name }), el("span", { class: "type", text: r.reference ? `${r.type} · reference` : r.type }),
           el("span", { class: "summary" }));
         list.append(row);
       }

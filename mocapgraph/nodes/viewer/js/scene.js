@@ -10,6 +10,7 @@ export const MISSING = [1.0, 0.33, 0.33];
 const MARKER_SEEN = [0.55, 1.0, 0.62];
 const CHARACTER = [[0.64, 0.52, 1.0], [0.35, 0.72, 1.0], [1.0, 0.55, 0.85]];
 const BODY_UNTRACKED = [0.58, 0.63, 0.72];
+const REFERENCE = [0.86, 0.89, 0.96];
 
 // Types drawn on the stage, and the types that feed the drawing or the panel without being drawn.
 export const DRAWN_TYPES = new Set(["MarkerFrame", "ActorPose", "SkeletonPose", "CharacterPose", "PhysicsState"]);
@@ -30,6 +31,7 @@ export class SceneBuilder {
     this.batches = { sphere: new Batch(), cylinder: new Batch(), box: new Batch() };
     this.hidden = new Set(); // stream keys switched off in the panel
     this.show = { markers: true, bones: true, labels: true, axes: true };
+    this.referenceTopics = new Set(); // drawn as a thin neutral ghost (ground truth), not by quality
   }
 
   sphere(p, r, c, dim = 1) {
@@ -55,7 +57,8 @@ export class SceneBuilder {
   build(store, nowMs, stage) {
     for (const b of Object.values(this.batches)) b.clear();
     const out = { streams: {}, labels: [], totals: { markersDrawn: 0, markersTotal: 0, jointsDrawn: 0, bonesDrawn: 0,
-      skeletonJointsDrawn: 0, characterJointsDrawn: 0, bodiesDrawn: 0, actorsDrawn: 0 }, bounds: null };
+      skeletonJointsDrawn: 0, characterJointsDrawn: 0, referenceJointsDrawn: 0, bodiesDrawn: 0, actorsDrawn: 0 },
+      bounds: null };
     this.bounds = [Infinity, Infinity, Infinity, -Infinity, -Infinity, -Infinity];
     this._stage(stage);
     for (const s of store.streams.values()) {
@@ -63,10 +66,13 @@ export class SceneBuilder {
       const visible = !this.hidden.has(s.key);
       const dim = nowMs - s.receivedMs > STALE_MS ? 0.4 : 1;
       const rec = { topic: s.topic, type: s.type, name: streamName(s), visible, points: 0, bones: 0,
-        frame: s.fields.frame_number ?? null, seq: s.seq, stale: dim < 1 };
+        frame: s.fields.frame_number ?? null, seq: s.seq, stale: dim < 1, reference: this.referenceTopics.has(s.topic) };
       out.streams[s.key] = rec;
       if (!visible) continue;
       if (s.type === "MarkerFrame") this._markers(s, rec, dim, out);
+      else if (rec.reference && s.arrays.joint_positions) this._skeleton(s, rec, dim, out,
+        companion(store, s, s.type === "ActorPose" ? "SkeletonModel" : s.type === "SkeletonPose" ? "SkeletonInfo" : "CharacterInfo"),
+        null, 0.02, "referenceJointsDrawn", REFERENCE);
       else if (s.type === "ActorPose") this._skeleton(s, rec, dim, out, companion(store, s, "SkeletonModel"),
         s.arrays.joint_quality.data, 0.032, "jointsDrawn");
       else if (s.type === "SkeletonPose") this._skeleton(s, rec, dim, out, companion(store, s, "SkeletonInfo"),
@@ -117,13 +123,13 @@ export class SceneBuilder {
     out.totals.markersDrawn += rec.points;
   }
 
-  _skeleton(s, rec, dim, out, info, quality, radius, total) {
+  _skeleton(s, rec, dim, out, info, quality, radius, total, colour = null) {
     const pos = s.arrays.joint_positions.data;
     const n = s.arrays.joint_positions.shape[0];
     rec.total = n;
     const parent = info && info.arrays.joint_parent && info.arrays.joint_parent.shape[0] === n
       ? info.arrays.joint_parent.data : null;
-    const tint = quality ? null : CHARACTER[hash(s.key) % CHARACTER.length];
+    const tint = colour || (quality ? null : CHARACTER[hash(s.key) % CHARACTER.length]);
     let top = null;
     const counts = [0, 0, 0];
     for (let i = 0; i < n; i++) {
@@ -141,7 +147,7 @@ export class SceneBuilder {
           const a = [pos[3 * j], pos[3 * j + 1], pos[3 * j + 2]];
           const qb = quality ? Math.min(q, quality[j]) : 2;
           const c = tint || qualityColor(qb);
-          this.bone(a, p, radius * 0.42, [c[0] * 0.8, c[1] * 0.8, c[2] * 0.8], dim);
+          this.bone(a, p, radius * (colour ? 0.3 : 0.42), [c[0] * 0.8, c[1] * 0.8, c[2] * 0.8], dim);
           rec.bones++;
         }
       }
@@ -149,7 +155,10 @@ export class SceneBuilder {
     if (quality) rec.quality = { good: counts[2], estimated: counts[1], missing: counts[0] };
     out.totals[total] += rec.points;
     out.totals.actorsDrawn++;
-    if (top) out.labels.push({ key: s.key, text: rec.name + (rec.stale ? " (stale)" : ""), pos: [top[0], top[1], top[2] + 0.28] });
+    // A reference's label sits higher, so that it never covers the label of the actor it shadows.
+    const lift = rec.reference ? 0.5 : 0.28;
+    const text = rec.name + (rec.reference ? " · reference" : "") + (rec.stale ? " (stale)" : "");
+    if (top) out.labels.push({ key: s.key, text, pos: [top[0], top[1], top[2] + lift], reference: rec.reference });
   }
 
   _bodies(s, rec, dim, out, scene) {
