@@ -207,3 +207,14 @@ def test_a_taken_port_is_a_one_line_error(launch_graph):
         assert f"127.0.0.1:{port}" in line and "in use" in line
         assert g.proc.wait(20) != 0
     assert "Traceback" not in g.output
+
+
+@pytest.mark.parametrize("name", ["viewer_stage.yaml", "viewer_test_pattern.yaml"])
+def test_example_graphs_pass_the_graph_check(name):
+    from pathlib import Path
+
+    from mocapgraph.launch.check import check_graph
+    from mocapgraph.launch.graph import load_graph
+
+    graph = check_graph(load_graph(Path(__file__).resolve().parents[2] / "graph_configs" / "examples" / name))
+    assert "viewer" in [n.name for n in graph.nodes]
