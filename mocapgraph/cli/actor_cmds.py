@@ -1,6 +1,6 @@
 """``mocapgraph calibrate`` and ``mocapgraph solve``: the actor pipeline on files, batch.
 
-The same code as the live nodes: label matching (:mod:`mocapgraph.nodes.model_messages`),
+The same code as the live nodes: label matching (:mod:`mocapgraph.adapters.model_messages`),
 :func:`~mocapgraph.kinematics.calibration.calibrate`, :class:`~mocapgraph.kinematics.solver.FrameSolver`
 (batch ``solve`` runs the very temporal stage ``step`` runs live) and the ActorPose conversion.
 
@@ -102,7 +102,7 @@ def _definition(layout: str):
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate, layout_markers
     from ..kinematics.model import save_model
-    from ..nodes.model_messages import quality_table
+    from ..adapters.model_messages import quality_table
 
     definition = _definition(args.layout)
     frames = args.frames or []
@@ -153,7 +153,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def cmd_solve(args: argparse.Namespace) -> int:
     from ..kinematics.model import ModelFileError, load_model
     from ..kinematics.solver import FrameSolver
-    from ..nodes.model_messages import marker_index
+    from ..adapters.model_messages import marker_index
 
     out = Path(args.output)
     if out.suffix.lower() not in OUTPUT_KINDS:
@@ -212,7 +212,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
 def _place(model, inp: MarkerInput, allow_missing: bool) -> tuple[np.ndarray, list[str]]:
     """Model marker -> input column (-1 absent); UserError for another layout or absent markers."""
     from ..kinematics.model import ModelFileError
-    from ..nodes.model_messages import ModelLabels, marker_index
+    from ..adapters.model_messages import ModelLabels, marker_index
 
     try:
         return marker_index(model, inp.layout_name, inp.labels, source=inp.path.name), []
@@ -242,7 +242,7 @@ def _write_csv(out: Path, model, res, numbers: np.ndarray, times: np.ndarray) ->
 def _write_bag(out: Path, model, res, numbers: np.ndarray, times: np.ndarray, actor: str, inp: MarkerInput) -> None:
     from ..bag.errors import BagError
     from ..bag.writer import BagWriter, base_metadata
-    from ..nodes.model_messages import model_to_message, pose_message
+    from ..adapters.model_messages import model_to_message, pose_message
 
     stamps = np.round(times * 1e9).astype(np.int64)
     try:

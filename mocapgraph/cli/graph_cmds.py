@@ -9,7 +9,7 @@ from typing import Any
 
 from ..launch.check import CheckedGraph, check_graph, load_node_class
 from ..launch.graph import load_graph
-from ..launch.yaml_source import GraphError, parse_value
+from ..formats.yaml_source import GraphError, parse_value
 from ..nodes.registry import NODE_TYPES
 from . import UserError
 

@@ -16,7 +16,7 @@ from ..bus.ports import Interface
 from ..messages.registry import UnknownTypeError, all_types, lookup
 from ..nodes.registry import NODE_TYPES, resolve
 from .graph import GraphSpec, NodeSpec, did_you_mean
-from .yaml_source import GraphError
+from ..formats.yaml_source import GraphError
 
 
 @dataclass

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
+from ..formats.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
 NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "doc", "if")
 TOP_KEYS = ("args", "include", "nodes", "external", "description")

@@ -37,7 +37,7 @@ from ..kinematics.model import ModelFileError, SkeletonModel, load_model, save_m
 from ..kinematics.skeleton import SkeletonDefinition
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
 from ..messages import SkeletonModel as ModelMsg
-from .model_messages import jsonable, model_to_message, quality_report
+from ..adapters.model_messages import jsonable, model_to_message, quality_report
 
 IDLE = "idle"
 FINDING = "finding_base_pose"

@@ -22,7 +22,7 @@ from ..kinematics.model import ModelFileError, SkeletonModel, load_model
 from ..kinematics.solver import FrameSolver
 from ..messages import ActorPose, MarkerFrame, MarkerLayout
 from ..messages import SkeletonModel as ModelMsg
-from .model_messages import marker_index, missing_pose, model_from_message, pose_message
+from ..adapters.model_messages import marker_index, missing_pose, model_from_message, pose_message
 
 FILTERS = ("", "one_euro", "constant_velocity")
 

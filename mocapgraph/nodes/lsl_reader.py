@@ -11,7 +11,7 @@ import pylsl
 from pylsl.util import InternalError, LostError, TimeoutError as LSLTimeoutError
 
 from ..bus import Param
-from .device_config import DeviceConfig, device_or_default
+from ..formats.device_file import DeviceConfig, device_or_default
 from .marker_source import LayoutMap, MarkerSourceNode
 from .source_base import INPUT_ERRORS, SourceError
 

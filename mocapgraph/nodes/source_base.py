@@ -24,7 +24,7 @@ from ..bus import Node, Output, Param
 from ..formats import FormatError
 from ..kinematics.layout import LayoutError
 from ..messages import Diagnostics, NodeStatus
-from .device_config import DeviceConfigError
+from ..formats.device_file import DeviceConfigError
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 STATUS_PERIOD_S = 1.0

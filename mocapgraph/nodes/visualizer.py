@@ -24,7 +24,7 @@ from ..bus.node import InputPort
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
                         NodeCommand, NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel,
                         SkeletonPose)
-from .viewer.server import COMMANDS, LatestStore, ViewerServer, ViewerStartError
+from ..viewer.server import COMMANDS, LatestStore, ViewerServer, ViewerStartError
 
 FRAME_QUEUE = 64  # messages a per-frame input's socket holds before dropping (counted as gaps)
 # The field naming a stream inside a topic, per type (several actors on one actor_pose topic).

@@ -13,7 +13,7 @@ from mocapgraph.kinematics.skeleton import SkeletonDefinition
 from mocapgraph.kinematics.solver import FrameSolver
 from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 from mocapgraph.messages import decode, encode
-from mocapgraph.nodes.model_messages import (ModelMismatchError, marker_index, model_from_message,
+from mocapgraph.adapters.model_messages import (ModelMismatchError, marker_index, model_from_message,
                                              model_to_message, owner_limbs, pose_message)
 
 

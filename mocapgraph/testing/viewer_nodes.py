@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ...bus import Input, Interface, Node, Output, Param
-from ...messages import (QUALITY_ESTIMATED, QUALITY_GOOD, QUALITY_MISSING, TRACK_INFERRED, TRACK_TRACKED,
+from ..bus import Input, Interface, Node, Output, Param
+from ..messages import (QUALITY_ESTIMATED, QUALITY_GOOD, QUALITY_MISSING, TRACK_INFERRED, TRACK_TRACKED,
                          ActorPose, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, Message, NodeCommand,
                          NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose, array)
 

@@ -33,7 +33,7 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
-from ...messages import Envelope, Message
+from ..messages import Envelope, Message
 from . import ASSET_DIR
 from .wire import EncodedRecord, build_bundle, encode_record
 

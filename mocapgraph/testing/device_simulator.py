@@ -18,7 +18,7 @@ import numpy as np
 
 from ..formats.wire_protocol import encode_binary, encode_text
 from ..kinematics.synthetic_actor import CaptureOptions, SyntheticActor
-from .device_config import DeviceConfig, device_or_default
+from ..formats.device_file import DeviceConfig, device_or_default
 
 
 @dataclass
