@@ -31,8 +31,8 @@ from typing import IO, Any
 
 import zmq
 
-from ..bus.node import DIAGNOSTICS_TOPIC, Wiring
-from ..bus.runtime import die_with_parent
+from ..bus.diagnostics import DIAGNOSTICS_TOPIC
+from ..bus.protocol import READY, START, STARTED, STOP, Wiring, die_with_parent
 from .check import CheckedGraph, ResolvedNode, shutdown_order
 
 READY_TIMEOUT_S = 30.0
@@ -205,10 +205,10 @@ class Supervisor:
             child = self.children.get(name)
             if child is None or not frames:
                 continue
-            if frames[0] == b"ready":
+            if frames[0] == READY:
                 child.ready = True
                 readied.append(name)
-            elif frames[0] == b"started":
+            elif frames[0] == STARTED:
                 child.started = True
 
     def _serve_master(self) -> None:
@@ -257,7 +257,7 @@ class Supervisor:
         # Downstream first, each acknowledged before the next: a node is in its started state
         # (calibration in auto mode, say) before any source upstream of it sends a frame.
         for name in reversed(shutdown_order(self.graph)):
-            self._send(name, b"start")
+            self._send(name, START)
             t_ack = time.monotonic() + START_ACK_TIMEOUT_S
             while not self.children[name].started and time.monotonic() < t_ack:
                 if self.children[name].proc.poll() is not None:
@@ -272,7 +272,7 @@ class Supervisor:
     def _watch(self) -> None:
         now = time.monotonic()
         for name in self._serve_control():
-            self._send(name, b"start")  # a respawned node joins the running graph
+            self._send(name, START)  # a respawned node joins the running graph
         for c in self.children.values():
             if c.finished or c.proc is None:
                 if c.respawn_at is not None and now >= c.respawn_at:
@@ -319,7 +319,7 @@ class Supervisor:
             c.respawn_at = None
             if c.proc is None or c.proc.poll() is not None:
                 continue
-            self._send(name, b"stop")
+            self._send(name, STOP)
             if not _wait(c.proc, STOP_TIMEOUT_S / 2):
                 c.proc.terminate()
                 if not _wait(c.proc, STOP_TIMEOUT_S / 2):

@@ -284,9 +284,7 @@ class CalibrationNode(Node):
     def _begin_process(self) -> None:
         self._set(PROCESSING, f"calibrating from base pose + {len(self.gym)} gym frames")
         # Run on the next loop turn: the "processing" status leaves before the work blocks.
-        timer: list = []
-        timer.append(self.add_timer(3600.0, lambda: (self.cancel_timer(timer[0]), self._process()),
-                                    first_delay_s=0.0))
+        self.call_later(0.0, self._process)
 
     def _process(self) -> None:
         self._auto_running = False
