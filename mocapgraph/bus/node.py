@@ -225,7 +225,6 @@ class Node:
                     self._pub.send_multipart(port.last_frames)
         self.announce_ready()
 
-    # ----- the launcher handshake -------------------------------------------------------------
     def announce_ready(self) -> None:
         """Tell the launcher we are ready once every expected subscriber has subscribed
         (without a launcher: start now)."""
@@ -270,7 +269,6 @@ class Node:
             self.log.error("launcher is gone; stopping")
             self.request_stop()
 
-    # ----- running ----------------------------------------------------------------------------
     def spin_once(self, timeout_s: float) -> None:
         """Serve sockets and timers for at most ``timeout_s`` seconds."""
         self._loop.spin_once(timeout_s)
