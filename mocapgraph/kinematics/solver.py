@@ -232,9 +232,3 @@ class FrameSolver:
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter = make_filter(self._filter_spec[0], self._J, **self._filter_spec[1])
         self._frame = 0
-
-
-def solve_markers(model: SkeletonModel, markers: np.ndarray, rate_hz: float | None = None,
-                  max_gap_s: float = 0.1, **kw: object) -> SolverResult:
-    """Batch convenience: a fresh FrameSolver over a whole trial float[T,M,3]."""
-    return FrameSolver(model, rate_hz=rate_hz, max_gap_s=max_gap_s, **kw).solve(markers)  # type: ignore[arg-type]

@@ -13,7 +13,7 @@ import networkx as nx
 
 from ..bus.node import DIAGNOSTICS_TOPIC, Node, NodeConfigError
 from ..bus.ports import Interface
-from ..messages.registry import UnknownTypeError, all_types, lookup
+from ..messages.registry import all_types
 from ..nodes.registry import NODE_TYPES, resolve
 from .graph import GraphSpec, NodeSpec, did_you_mean
 from ..formats.yaml_source import GraphError
@@ -170,11 +170,3 @@ def shutdown_order(graph: CheckedGraph) -> list[str]:
     for c in nx.topological_sort(cond):
         order.extend(sorted(cond.nodes[c]["members"]))
     return order
-
-
-def message_type_exists(name: str) -> bool:
-    try:
-        lookup(name)
-        return True
-    except UnknownTypeError:
-        return False

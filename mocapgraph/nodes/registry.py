@@ -26,11 +26,6 @@ NODE_TYPES: dict[str, str] = {
 }
 
 
-def register_node_type(name: str, import_path: str) -> None:
-    """Add a node type (plugins call this before loading a graph)."""
-    NODE_TYPES[name] = import_path
-
-
 def resolve(type_name: str) -> str:
     """``module:Class`` for a registry name or an import path; KeyError when unknown."""
     if ":" in type_name:
