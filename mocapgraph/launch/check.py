@@ -51,6 +51,8 @@ class CheckedGraph:
                 out[topic] = n.iface.outputs[port].type_name
         for ext in self.spec.external:
             out[ext.topic] = ext.type
+        for exp in self.spec.expects:
+            out.setdefault(exp.topic, exp.type)
         out[DIAGNOSTICS_TOPIC] = "Diagnostics"
         return out
 
@@ -127,6 +129,11 @@ def check_graph(spec: GraphSpec) -> CheckedGraph:
             raise GraphError(ext.file, ext.line, f"external[{ext.topic}].type",
                              f"unknown message type{did_you_mean(ext.type, list(types))}")
         publishers.setdefault(ext.topic, []).append((f"external:{ext.endpoint}", ext.type))
+    for exp in spec.expects:
+        if exp.type not in types:
+            raise GraphError(exp.file, exp.line, f"expects[{exp.topic}].type",
+                             f"unknown message type{did_you_mean(exp.type, list(types))}")
+        publishers.setdefault(exp.topic, []).append(("the includer", exp.type))
     flow = nx.DiGraph()
     for rn in resolved:
         flow.add_node(("node", rn.name))
