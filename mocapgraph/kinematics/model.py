@@ -10,22 +10,15 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field
-from enum import IntEnum
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from ..messages.quality import Quality  # noqa: F401  (the one definition; re-exported for the math)
+
 MODEL_FORMAT = "mocapgraph.skeleton_model"
 MODEL_VERSION = 1
-
-
-class Quality(IntEnum):
-    """Per joint / limb quality code carried as int8 next to NaN-able values."""
-
-    MISSING = 0    # no value (NaN)
-    ESTIMATED = 1  # from fewer limbs than usual, a poor fit, or predicted over a short gap
-    GOOD = 2       # measured from every attached limb
 
 
 class ModelFileError(ValueError):
