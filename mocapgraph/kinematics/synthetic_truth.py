@@ -4,12 +4,12 @@ from __future__ import annotations
 import numpy as np
 
 from .calibration import _joint_points
-from .model import JointQuality, SkeletonModel
+from .model import JointQuality, ActorModel
 from .rigid import gather_limb_markers
 from .synthetic_actor import SyntheticCapture
 
 
-def exact_model(cap: SyntheticCapture, layout_name: str) -> SkeletonModel:
+def exact_model(cap: SyntheticCapture, layout_name: str) -> ActorModel:
     """The session's true skeleton as a model the frame solver takes (metres, base-pose frame).
 
     Base markers, joint offsets and base joint centres are the capture's own; bone lengths are
@@ -25,7 +25,7 @@ def exact_model(cap: SyntheticCapture, layout_name: str) -> SkeletonModel:
     bone[has] = np.linalg.norm(base[has] - base[parent[has]], axis=1)
     hinge = np.asarray(sk.joint_hinge, dtype=bool)
     axes = np.where(hinge[:, None], cap.joint_dof_axes[:, 0, :], np.nan) if J else np.zeros((0, 3))
-    return SkeletonModel(
+    return ActorModel(
         layout=layout_name, marker_labels=tuple(sk.marker_labels), limb_names=tuple(sk.limb_names),
         limb_parent=np.asarray(sk.limb_parent, dtype=np.int64), limb_markers=idx,
         joint_names=tuple(sk.joint_names), joint_limbs=np.asarray(sk.joint_limbs, dtype=np.int64).reshape(J, 2),

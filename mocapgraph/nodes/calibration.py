@@ -33,10 +33,10 @@ import numpy as np
 from ..bus import Input, Node, Output, Param
 from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate
 from ..kinematics.layout import LayoutError, layout_path
-from ..kinematics.model import ModelFileError, SkeletonModel, load_model, save_model
+from ..kinematics.model import ActorModel, ModelFileError, load_model, save_model
 from ..kinematics.skeleton import SkeletonDefinition
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
-from ..messages import SkeletonModel as ModelMsg
+from ..messages import SkeletonModel
 from ..adapters.model_messages import jsonable, model_to_message, quality_report
 
 IDLE = "idle"
@@ -62,7 +62,7 @@ class CalibrationNode(Node):
     calibration_command = Input("calibration_command", NodeCommand,
                                 "find_base_pose, capture_gym {seconds, rate_hz}, process, reset, "
                                 "save {path}, load {path}; target '' or this node", required=False)
-    skeleton_model = Output("skeleton_model", ModelMsg, "latched calibrated model")
+    skeleton_model = Output("skeleton_model", SkeletonModel, "latched calibrated model")
     calibration_status = Output("calibration_status", NodeStatus,
                                 "state, progress, per-joint quality (data_json)", latched=True)
 
@@ -85,7 +85,7 @@ class CalibrationNode(Node):
         self._layout_error = ""
         self.where: np.ndarray | None = None      # layout marker -> stream index
         self.stream: MarkerLayout | None = None
-        self.model: SkeletonModel | None = None
+        self.model: ActorModel | None = None
         self._auto_running = False
         self._early: deque = deque(maxlen=EARLY_FRAMES)
         self._reset_capture()
@@ -300,7 +300,7 @@ class CalibrationNode(Node):
                 return
         # The published model is the file form (rounded as saved), so a later run that loads the
         # file interprets the session exactly as this one does.
-        model = SkeletonModel.from_dict(json.loads(json.dumps(model.to_dict())), source="calibration")
+        model = ActorModel.from_dict(json.loads(json.dumps(model.to_dict())), source="calibration")
         saved = ""
         if self.model_file:
             try:
@@ -311,7 +311,7 @@ class CalibrationNode(Node):
         self._publish_model(model, "calibration", saved,
                             [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)])
 
-    def _publish_model(self, model: SkeletonModel, origin: str, path: str, warns: list[str]) -> None:
+    def _publish_model(self, model: ActorModel, origin: str, path: str, warns: list[str]) -> None:
         self.model = model
         ml = self.definition.marker_limb if (self.definition is not None
                                              and self.definition.name == model.layout) else None
