@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
 from ..kinematics.model import ActorModel, JointQuality, ModelFileError
-from ..kinematics.skeleton import SkeletonDefinition
+from ..kinematics.labels import missing_labels, place_labels
 from ..kinematics.solver import SolverResult
 from ..messages import ActorPose, SkeletonModel
 
@@ -140,23 +139,6 @@ def model_from_message(msg: SkeletonModel, source: str = "skeleton_model message
 
 
 # ----- labels ------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ModelLabels:
-    """A model's layout name and marker labels, usable wherever a SkeletonDefinition's label
-    matching is wanted (``layout_markers``, :func:`marker_index`)."""
-
-    name: str
-    marker_labels: tuple[str, ...]
-
-    @property
-    def n_markers(self) -> int:
-        return len(self.marker_labels)
-
-    def match_labels(self, labels: list[str]) -> tuple[np.ndarray, list[str]]:
-        # Same rules as the layout (case, Vicon "Subject:" prefix), from one implementation.
-        return SkeletonDefinition.match_labels(self, labels)  # type: ignore[arg-type]
-
-
 def marker_index(model: ActorModel, stream_layout: str, stream_labels: Sequence[str],
                  source: str = "marker stream") -> np.ndarray:
     """int64[M]: for each model marker its index in the stream's labels.
@@ -165,8 +147,8 @@ def marker_index(model: ActorModel, stream_layout: str, stream_labels: Sequence[
     layouts named when they differ, the missing labels otherwise. A stream from another layout
     that still carries every model marker by label is accepted (the caller may note it).
     """
-    where, _ = ModelLabels(model.layout, tuple(model.marker_labels)).match_labels(list(stream_labels))
-    missing = [model.marker_labels[m] for m in np.flatnonzero(where < 0)]
+    where, _ = place_labels(model.marker_labels, list(stream_labels))
+    missing = missing_labels(model.marker_labels, where)
     if missing:
         if stream_layout and stream_layout != model.layout:
             raise ModelMismatchError(

@@ -212,13 +212,14 @@ def cmd_solve(args: argparse.Namespace) -> int:
 def _place(model, inp: MarkerInput, allow_missing: bool) -> tuple[np.ndarray, list[str]]:
     """Model marker -> input column (-1 absent); UserError for another layout or absent markers."""
     from ..kinematics.model import ModelFileError
-    from ..adapters.model_messages import ModelLabels, marker_index
+    from ..adapters.model_messages import marker_index
+    from ..kinematics.labels import missing_labels, place_labels
 
     try:
         return marker_index(model, inp.layout_name, inp.labels, source=inp.path.name), []
     except ModelFileError as exc:
-        where, _ = ModelLabels(model.layout, tuple(model.marker_labels)).match_labels(inp.labels)
-        missing = [model.marker_labels[m] for m in np.flatnonzero(where < 0)]
+        where, _ = place_labels(model.marker_labels, inp.labels)
+        missing = missing_labels(model.marker_labels, where)
         if not allow_missing or not (where >= 0).any():
             raise UserError(f"{exc}" + ("" if allow_missing else "; --allow-missing solves without them")) from None
         return where, missing

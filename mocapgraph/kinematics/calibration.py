@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mocapgraph.kinematics.labels import missing_labels, place_labels
 from mocapgraph.kinematics.model import JointQuality, ActorModel
 from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
 
@@ -49,8 +50,8 @@ def layout_markers(
     capture lacks raise CalibrationError naming them, or become NaN with ``allow_missing``.
     """
     positions = np.asarray(positions, dtype=float)
-    where, _ = definition.match_labels(list(labels))
-    missing = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+    where, _ = place_labels(definition.marker_labels, list(labels))
+    missing = missing_labels(definition.marker_labels, where)
     if missing and not allow_missing:
         raise CalibrationError(
             f"{source}: layout '{definition.name}' names markers the capture lacks: {', '.join(missing)}")

@@ -33,6 +33,7 @@ import numpy as np
 from ..bus import Input, Node, Output, Param
 from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate
 from ..kinematics.layout import LayoutError, layout_path
+from ..kinematics.labels import missing_labels, place_labels
 from ..kinematics.model import ActorModel, ModelFileError, load_model, save_model
 from ..kinematics.skeleton import SkeletonDefinition
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
@@ -177,8 +178,8 @@ class CalibrationNode(Node):
             except LayoutError as exc:
                 self._error(f"layout '{self.stream.name}' of the marker stream: {exc}")
                 return False
-        where, _ = self.definition.match_labels(list(self.stream.labels))
-        missing = [self.definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+        where, _ = place_labels(self.definition.marker_labels, list(self.stream.labels))
+        missing = missing_labels(self.definition.marker_labels, where)
         if missing:
             self.where = None
             self._error(f"layout '{self.definition.name}' names markers the marker stream "
