@@ -14,7 +14,7 @@ from typing import Sequence
 
 from ..messages import Envelope, decode_envelope
 from ..messages.codec import DecodeError
-from ..messages.sequence import DUPLICATE, RESTART, sequence_gap
+from ..messages.sequence import ANOMALY, DUPLICATE, RESTART, sequence_gap
 from .writer import BagWriter
 
 FLUSH_PERIOD_S = 0.25
@@ -50,9 +50,9 @@ class Recorder:
         if lost == DUPLICATE:
             self.duplicates += 1
             return False
-        if lost == RESTART:
+        if lost in (RESTART, ANOMALY):
             self.restarts += 1
-        elif lost:
+        elif lost > 0:
             self.lost[env.topic] = self.lost.get(env.topic, 0) + lost
             self.writer.set_losses(self.lost)
         self._last_seq[key] = env.seq

@@ -20,6 +20,7 @@ _SNDMORE = int(zmq.SNDMORE)
 _NOBLOCK = int(zmq.NOBLOCK)
 _POLLIN = int(zmq.POLLIN)
 _EVENTS = int(zmq.EVENTS)
+UNEXPECTED_LOG_S = 5.0  # at most one line per this many seconds about frames from unexpected senders
 BATCH = 256  # messages taken from one input per loop turn, so one busy input cannot starve the others
 
 
@@ -72,13 +73,14 @@ class OutputPort:
 class InputPort:
     """A bound input: its SUB socket, the latest message and envelope, per-edge statistics."""
 
-    def __init__(self, node: "Node", decl: Input, topic: str) -> None:
+    def __init__(self, node: "Node", decl: Input, topic: str, senders: list[str] | None = None) -> None:
         self.node = node
         self.decl = decl
         self.topic = topic
         self.latest: Message | None = None
         self.envelope: Envelope | None = None
-        self.stats = InputStats()
+        self.stats = InputStats(senders)
+        self._unexpected_logged = -UNEXPECTED_LOG_S
         self.socket: zmq.Socket | None = None
         self.handler: Callable[..., Any] | None = None
 
@@ -119,6 +121,9 @@ class InputPort:
             if env.topic != self.topic:
                 continue
             edge = self.stats.edge(env.topic, env.sender)
+            if edge is None:
+                self._unexpected(env.sender)
+                continue
             if not edge.accept(env.seq, env.publish_ns, now):
                 continue
             if self.decl.raw:
@@ -150,6 +155,14 @@ class InputPort:
         self.envelope = env
         if self.handler is not None:
             self.handler(msg)
+
+    def _unexpected(self, sender: str) -> None:
+        n = self.stats.unexpected
+        now = time.monotonic()
+        if n <= 3 or now - self._unexpected_logged >= UNEXPECTED_LOG_S:  # logged, but never a flood
+            self._unexpected_logged = now
+            self.node.log.warning("input %s: %d frame(s) from senders the wiring does not name (latest %r) "
+                                  "rejected", self.decl.name, n, sender[:64])
 
     def _reject(self, exc: Exception) -> None:
         n = self.stats.rejected

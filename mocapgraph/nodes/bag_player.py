@@ -28,6 +28,8 @@ class BagPlayer(Node):
     """
 
     summary = "replay an MCAP bag with its recorded timing (pause, step, seek, rate, loop)"
+    #: its frames carry the recorded senders' names, not its own (the wiring allows unnamed senders)
+    relays_senders = True
     file = Param("", "the .mcap bag to play")
     rate = Param(1.0, "playback speed factor", minimum=1e-3)
     loop = Param(False, "start over at the end")
