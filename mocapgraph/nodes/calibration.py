@@ -362,10 +362,10 @@ class CalibrationNode(Node):
             try:
                 seconds = float(args.get("seconds", self.gym_seconds))
                 rate = float(args.get("rate_hz", self.gym_rate_hz))
-                if not (seconds > 0 and rate >= 0):
+                if not (0 < seconds <= 3600 and 0 <= rate <= 10_000):  # inf/1e308 would capture forever
                     raise ValueError
             except (TypeError, ValueError):
-                self._note(f"capture_gym: seconds must be > 0 and rate_hz >= 0, got {args}")
+                self._note(f"capture_gym: seconds must be in (0, 3600] and rate_hz in [0, 10000], got {str(args)[:80]}")
                 return
             self._begin_capture(seconds, rate)
         elif name == "process":

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from viewer_support import BusTap, free_port, image_stats, save_artifact, stage_graph, wait_until
+from viewer_support import BusTap, free_port, image_stats, save_artifact, stage_graph, viewer_url, wait_until
 
 
 def finite_rows(a: np.ndarray) -> int:
@@ -20,7 +20,7 @@ def stage(launch_graph, open_page):
     port = free_port()
     g = launch_graph(stage_graph(port))
     g.wait_ready()
-    page = open_page(f"http://127.0.0.1:{port}/")
+    page = open_page(viewer_url(g))
     page.wait("s.connected && s.framesDrawn > 5 && s.actorsDrawn >= 4", timeout=15)
     return g, page, port
 

@@ -9,7 +9,7 @@ import numpy as np
 from graph_helpers import wait_until
 from mocapgraph.bag.writer import BagWriter
 from mocapgraph.messages import MarkerFrame, MarkerLayout
-from viewer_support import BusTap, free_port
+from viewer_support import BusTap, free_port, viewer_stats, viewer_url
 
 
 def small_bag(path, n: int = 240, rate: float = 120.0) -> None:
@@ -49,7 +49,7 @@ nodes:
     g.wait_ready()
     tap = BusTap(g.master, ["calibration_status", "player_status"])
     try:
-        page = open_page(f"http://127.0.0.1:{port}/")
+        page = open_page(viewer_url(g))
         page.wait('s.connected && s.calibration === "idle"', timeout=15)
         page.page.click('[data-calib="find_base_pose"]')
         wait_until(lambda: any(m.state == "base_pose_found" for _, m in tap.of("calibration_status")),
@@ -88,7 +88,7 @@ nodes:
 """
     g = launch_graph(graph)
     g.wait_ready()
-    url = f"http://127.0.0.1:{port}/"
+    url = viewer_url(g)
     a, b = open_page(url), open_page(url)
     for p in (a, b):
         p.wait("s.connected && s.markersTotal === 12 && s.framesDrawn > 3", timeout=15)
@@ -121,7 +121,7 @@ nodes:
     params: {{port: {port}}}
 """)
     g.wait_ready()
-    url = f"http://127.0.0.1:{port}/"
+    url = viewer_url(g)
     back, front = open_page(url), open_page(url)
     back.wait("s.connected && s.framesDrawn > 3", timeout=15)
     front.page.bring_to_front()
@@ -131,10 +131,7 @@ nodes:
     before = back.stats()["framesDrawn"]
     back.wait(f"s.framesDrawn > {before} + 10", timeout=15)
     # Credit-based sending: the server never queued more than its window for either tab.
-    import urllib.request
-
-    with urllib.request.urlopen(f"{url}stats", timeout=5) as r:
-        clients = json.loads(r.read())["clients"]
+    clients = viewer_stats(url)["clients"]
     assert len(clients) == 2 and all(c["bundles"] > 0 for c in clients)
     assert all(c["bundles"] - c["acks"] <= 2 for c in clients), clients  # window of 2 unacknowledged
     assert back.errors() == [] and front.errors() == []

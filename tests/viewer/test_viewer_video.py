@@ -4,7 +4,7 @@ from __future__ import annotations
 import base64
 
 import pytest
-from viewer_support import TESTING, free_port, image_stats, save_artifact, wait_until
+from viewer_support import TESTING, free_port, image_stats, save_artifact, viewer_url, wait_until
 
 # A 2 s WebM made by the browser's own encoder: a canvas turning from red to blue with a moving bar.
 MAKE_VIDEO = """async () => {
@@ -46,7 +46,7 @@ nodes:
     params: {{port: {port}}}
 """)
     g.wait_ready()
-    page = open_page(f"http://127.0.0.1:{port}/")
+    page = open_page(viewer_url(g))
     page.wait("s.connected && s.framesDrawn > 2", timeout=15)
     p = page.page
     assert p.locator("#video-play").is_disabled()  # nothing to play before a file is chosen
