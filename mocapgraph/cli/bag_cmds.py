@@ -387,7 +387,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
     try:
         with ProgressBar("recovering", unit="bytes") as bar:
-            rep = recover(args.file, args.output, progress=bar)
+            rep = recover(args.file, args.output, progress=bar, force=args.force)
     except BagError as exc:
         raise _fail(exc) from None
     print(rep.text())
@@ -452,4 +452,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = bs.add_parser("recover", help="save every whole chunk of a truncated or unfinished bag")
     p.add_argument("file")
     p.add_argument("-o", "--output", help="new bag (default <name>.recovered.mcap)")
+    p.add_argument("-f", "--force", action="store_true", help="overwrite an existing output file")
     p.set_defaults(func=cmd_recover)

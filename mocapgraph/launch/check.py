@@ -6,6 +6,11 @@ The data-flow graph is a networkx DiGraph whose vertices are nodes and topics
 """
 from __future__ import annotations
 
+import functools
+import ipaddress
+import os
+import socket
+import tempfile
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -89,6 +94,48 @@ def _blame_key(spec: NodeSpec, port: str, default_topic: str) -> str:
     return "remap" if port in spec.remap or default_topic in spec.remap else "type"
 
 
+#: longest ipc path the kernel takes (sun_path is 108 bytes with its NUL)
+IPC_PATH_MAX = 107
+_RUN_DIR_ROOM = len("/mocapgraph-4194304-abcdefgh/")  # tempfile.mkdtemp(prefix=f"mocapgraph-{pid}-")
+
+
+def ipc_path_problem(name: str) -> str:
+    """Why the launcher could not bind the ipc socket of node ``name`` here ('' when it can)."""
+    n = len(os.fsencode(tempfile.gettempdir())) + _RUN_DIR_ROOM + len(name.encode()) + len(".pub")
+    if n > IPC_PATH_MAX:
+        return (f"its socket path would be {n} bytes, more than the {IPC_PATH_MAX} the OS allows: "
+                f"set TMPDIR to a shorter directory (now {tempfile.gettempdir()[:60]!r}) or shorten the name")
+    return ""
+
+
+@functools.lru_cache(maxsize=256)
+def host_problem(host: str) -> str:
+    """Why a publisher cannot bind ``host`` ('' when it can): not an address or resolvable name,
+    or not an address of this machine."""
+    if not host or len(host) > 253 or any(c in host for c in "/ \0:") and not _is_ip(host):
+        return f"{host[:80]!r} is not an IP address or host name"
+    try:
+        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError):
+        return f"{host[:80]!r} is neither an IP address nor a name that resolves"
+    for family, _, _, _, addr in infos:
+        try:
+            with socket.socket(family, socket.SOCK_STREAM) as s:
+                s.bind((addr[0], 0))
+            return ""
+        except OSError:
+            continue
+    return f"{host[:80]!r} is not an address of this machine (nothing could bind it)"
+
+
+def _is_ip(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+        return True
+    except ValueError:
+        return False
+
+
 def check_graph(spec: GraphSpec) -> CheckedGraph:
     """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault."""
     seen: dict[str, NodeSpec] = {}
@@ -98,6 +145,13 @@ def check_graph(spec: GraphSpec) -> CheckedGraph:
             first = seen[ns.name]
             raise ns.error("name", f"duplicate node name (first at {first.file}:{first.line})")
         seen[ns.name] = ns
+        problem = ipc_path_problem(ns.name)
+        if problem:
+            raise ns.error("name", problem)
+        if ns.host:
+            problem = host_problem(ns.host)
+            if problem:
+                raise ns.error("host", problem)
         path, cls = load_node_class(ns.type, ns)
         try:
             iface = cls.interface(ns.params)

@@ -30,6 +30,7 @@ type (so numbers stay numbers).
 from __future__ import annotations
 
 import difflib
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +44,8 @@ EXPECTS_KEYS = ("topic", "type", "doc")
 INCLUDE_KEYS = ("file", "args", "if")
 EXTERNAL_KEYS = ("topic", "type", "endpoint")
 _SUBST = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
+#: node names become file names (wiring, sockets) and ZeroMQ identities: no '/', NUL, '..', spaces
+NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]{0,63}")
 
 
 @dataclass
@@ -156,6 +159,8 @@ def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> Gra
     path = Path(path).resolve()
     spec = GraphSpec(file=str(path))
     _load_into(spec, path, overrides or {}, stack=[], top=True)
+    if not spec.nodes:
+        raise GraphError(path, None, "nodes", "no node to run (every node is missing or switched off by if:)")
     return spec
 
 
@@ -191,8 +196,7 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
         raise GraphError(stack[-1], None, "include", f"include cycle: {chain}")
     doc = load_yaml_file(path)
     if doc is None:
-        doc = LinedDict()
-        doc.file, doc.line, doc.key_lines = str(path), 1, {}
+        raise GraphError(path, None, "", "empty file: a graph file has nodes: (or include:)")
     if not isinstance(doc, dict):
         raise GraphError(path, getattr(doc, "line", 1), "", "a graph file is a mapping with nodes:, args:, include:")
     _check_keys(doc, TOP_KEYS, "")
@@ -248,7 +252,11 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
         for key in ("name", "type"):
             if key not in raw:
                 raise GraphError(path, line, f"nodes[{raw.get('name', i)}]", f"needs a '{key}'")
-        name = str(_substitute(raw["name"], args, str(path), raw.line_of("name"), "name"))
+        name = _substitute(raw["name"], args, str(path), raw.line_of("name"), "name")
+        if not isinstance(name, str) or not NODE_NAME.fullmatch(name):
+            raise GraphError(path, raw.line_of("name"), f"nodes[{i}].name",
+                             f"{str(name)[:80]!r} is not a node name (letters, digits, '_' and '-', at most 64, "
+                             "starting with a letter or '_')")
         if not _condition(raw, args, str(path), f"nodes[{name}].if"):
             continue
         params = raw.get("params") or LinedDict()
@@ -271,7 +279,9 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
         for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str)):
             if key in raw:
                 value = _substitute(raw[key], args, str(path), raw.line_of(key), key)
-                if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
-                    raise node.error(key, f"wants {'a number' if key == 'respawn_delay' else kind.__name__}, got {value!r}")
+                if (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))
+                        or (key == "respawn_delay" and not (math.isfinite(value) and 0 <= value <= 3600))):
+                    raise node.error(key, f"wants {'a finite number of seconds in [0, 3600]' if key == 'respawn_delay' else kind.__name__}, "
+                                     f"got {value!r}")
                 setattr(node, key, float(value) if key == "respawn_delay" else value)
         spec.nodes.append(node)
