@@ -26,7 +26,7 @@ from collections import deque
 import time
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -36,6 +36,7 @@ from ..kinematics.layout import LayoutError, layout_path
 from ..kinematics.labels import missing_labels, place_labels
 from ..kinematics.model import ActorModel, ModelFileError, load_model, save_model
 from ..kinematics.skeleton import SkeletonDefinition
+from ..messages.commands import CALIBRATION_COMMANDS
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
 from ..messages import SkeletonModel
 from ..adapters.model_messages import jsonable, model_to_message, quality_report
@@ -48,7 +49,6 @@ CAPTURED = "gym_captured"
 PROCESSING = "processing"
 CALIBRATED = "calibrated"
 ERROR = "error"
-COMMANDS = ("find_base_pose", "capture_gym", "process", "reset", "save", "load")
 
 
 EARLY_FRAMES = 64  # frames held while the latched layout is still on its way
@@ -351,48 +351,62 @@ class CalibrationNode(Node):
         except ValueError as exc:
             self._note(f"command {cmd.command!r}: bad args_json ({exc})")
             return
-        name = cmd.command
+        handler = self._HANDLERS.get(cmd.command)
+        if handler is None:
+            self._note(f"unknown command {cmd.command!r} (expected one of {', '.join(CALIBRATION_COMMANDS)})")
+            return
         self._auto_running = False
-        if name == "find_base_pose":
-            self._begin_find()
-        elif name == "capture_gym":
-            if self.base is None:
-                self._note("capture_gym: no base pose yet (send find_base_pose first)")
-                return
-            try:
-                seconds = float(args.get("seconds", self.gym_seconds))
-                rate = float(args.get("rate_hz", self.gym_rate_hz))
-                if not (seconds > 0 and rate >= 0):
-                    raise ValueError
-            except (TypeError, ValueError):
-                self._note(f"capture_gym: seconds must be > 0 and rate_hz >= 0, got {args}")
-                return
-            self._begin_capture(seconds, rate)
-        elif name == "process":
-            if self.base is None or self.state in (FINDING, CAPTURING, PROCESSING):
-                self._note(f"process: nothing captured to process (state {self.state})")
-                return
-            self._begin_process()
-        elif name == "reset":
-            self._reset_capture()
-            self._set(IDLE, "reset")
-        elif name == "save":
-            path = str(args.get("path") or self.model_file)
-            if self.model is None or not path:
-                self._note("save: " + ("no model yet" if self.model is None else "no path given"))
-                return
-            try:
-                save_model(self.model, path)
-            except OSError as exc:
-                self._note(f"save: cannot write {path}: {exc.strerror or exc}")
-                return
-            self.data["model_file"] = path
-            self._note(f"saved to {path}", problem=False)
-        elif name == "load":
-            path = str(args.get("path") or self.model_file)
-            if not path:
-                self._note("load: no path given")
-                return
-            self._load(path)
-        else:
-            self._note(f"unknown command {name!r} (expected one of {', '.join(COMMANDS)})")
+        handler(self, args)
+
+    def _cmd_find_base_pose(self, args: dict[str, Any]) -> None:
+        self._begin_find()
+
+    def _cmd_capture_gym(self, args: dict[str, Any]) -> None:
+        if self.base is None:
+            self._note("capture_gym: no base pose yet (send find_base_pose first)")
+            return
+        try:
+            seconds = float(args.get("seconds", self.gym_seconds))
+            rate = float(args.get("rate_hz", self.gym_rate_hz))
+            if not (seconds > 0 and rate >= 0):
+                raise ValueError
+        except (TypeError, ValueError):
+            self._note(f"capture_gym: seconds must be > 0 and rate_hz >= 0, got {args}")
+            return
+        self._begin_capture(seconds, rate)
+
+    def _cmd_process(self, args: dict[str, Any]) -> None:
+        if self.base is None or self.state in (FINDING, CAPTURING, PROCESSING):
+            self._note(f"process: nothing captured to process (state {self.state})")
+            return
+        self._begin_process()
+
+    def _cmd_reset(self, args: dict[str, Any]) -> None:
+        self._reset_capture()
+        self._set(IDLE, "reset")
+
+    def _cmd_save(self, args: dict[str, Any]) -> None:
+        path = str(args.get("path") or self.model_file)
+        if self.model is None or not path:
+            self._note("save: " + ("no model yet" if self.model is None else "no path given"))
+            return
+        try:
+            save_model(self.model, path)
+        except OSError as exc:
+            self._note(f"save: cannot write {path}: {exc.strerror or exc}")
+            return
+        self.data["model_file"] = path
+        self._note(f"saved to {path}", problem=False)
+
+    def _cmd_load(self, args: dict[str, Any]) -> None:
+        path = str(args.get("path") or self.model_file)
+        if not path:
+            self._note("load: no path given")
+            return
+        self._load(path)
+
+    #: the command table (filled below the class): one handler per name in CALIBRATION_COMMANDS
+    _HANDLERS: dict[str, Callable[["CalibrationNode", dict[str, Any]], None]] = {}
+
+
+CalibrationNode._HANDLERS = {name: getattr(CalibrationNode, f"_cmd_{name}") for name in CALIBRATION_COMMANDS}
