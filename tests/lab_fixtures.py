@@ -81,8 +81,9 @@ def bvh_with_root_offset(path: Path, frames: int = 4, root_offset_y: float = 90.
     lines = ["HIERARCHY", "ROOT Hips", "{", f"  OFFSET 0 {root_offset_y:g} 0",
              "  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation"]
     for side, x in (("Left", 10.0), ("Right", -10.0)):
-        lines += [f"  JOINT {side}UpLeg", "  {", f"    OFFSET {x:g} 0 0", "    CHANNELS 3 Zrotation Xrotation Yrotation",
-                  f"    JOINT {side}Leg", "    {", "      OFFSET 0 -45 0", "      CHANNELS 3 Zrotation Xrotation Yrotation",
+        rot = "CHANNELS 3 Zrotation Xrotation Yrotation"
+        lines += [f"  JOINT {side}UpLeg", "  {", f"    OFFSET {x:g} 0 0", f"    {rot}",
+                  f"    JOINT {side}Leg", "    {", "      OFFSET 0 -45 0", f"      {rot}",
                   f"      JOINT {side}Foot", "      {", "        OFFSET 0 -40 0",
                   "        CHANNELS 3 Zrotation Xrotation Yrotation",
                   "        End Site", "        {", "          OFFSET 0 -5 12", "        }",

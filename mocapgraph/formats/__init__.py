@@ -50,5 +50,6 @@ def write_markers(path: str | Path, trial: MarkerTrial, **options) -> None:
 
 __all__ = ["BvhMotion", "FormatError", "KINECT_V1_JOINTS", "KINECT_V1_PARENTS",
            "KINECT_V2_JOINTS", "KINECT_V2_PARENTS", "MarkerTrial", "SkeletonTrial",
-           "bvh_to_skeleton", "c3d_segment_count", "read_bvh", "read_c3d", "read_c3d_segments", "read_kinect_csv", "read_markers",
+           "bvh_to_skeleton", "c3d_segment_count", "read_bvh", "read_c3d", "read_c3d_segments",
+           "read_kinect_csv", "read_markers",
            "read_trc", "write_bvh", "write_c3d", "write_markers", "write_trc"]
