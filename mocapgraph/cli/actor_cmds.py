@@ -144,8 +144,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name,
                                allow_missing=args.allow_missing)
         except CalibrationError as exc:
-            raise UserError(f"{exc}; --allow-missing calibrates without them where another file has "
-                            "them") from None
+            raise UserError(str(exc)) from None  # --help tells of --allow-missing
         if frames:
             x = x[parse_frames(frames[i] if len(frames) > 1 else frames[0], len(x), inp.path.name)]
         seen = np.isfinite(x).all(-1)
