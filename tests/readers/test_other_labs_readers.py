@@ -201,3 +201,41 @@ def test_solve_csv_keeps_the_trial_start_time(arm, capsys, tmp_path) -> None:
     from mocapgraph.formats import read_trc
 
     assert read_trc(tmp_path / "o.trc").file_times_s[0] == pytest.approx(back.file_times_s[0], abs=1e-6)
+
+
+def test_c3d_reader_warns_of_a_renamed_duplicate_and_a_layout_leaves_it_unplaced(run_node, tmp_path,
+                                                                                 caplog) -> None:
+    truth = person_frames(6)
+    pts = np.concatenate([truth, truth[:, 1:2] + [0.0, 0.05, 0.0]], axis=1)      # two "PELV"
+    layout = tmp_path / "person.yaml"
+    layout.write_text(textwrap.dedent("""\
+        name: person
+        limbs:
+          - name: body
+            markers: [HEAD, PELV, LFOOT]
+          - name: right
+            parent: body
+            joint: {name: hip_r, type: ball}
+            markers: [RFOOT, PELV_2, HEAD_2]
+        """))
+    path = write_points_c3d(tmp_path / "dup.c3d", list(PERSON_LABELS) + ["PELV"], pts, y_screen="+Z")
+    caplog.set_level("INFO")
+    n = run_node("c3d_reader", {"file": str(path), "rate_scale": 0.0})
+    assert n.wait_exit(10) == 0
+    assert n.messages("marker_layout")[0].labels == ["HEAD", "PELV", "LFOOT", "RFOOT", "PELV_2"]
+    np.testing.assert_allclose(n.messages("markers")[0].positions[4], pts[0, 4], atol=1e-6)
+    warned = [r for r in caplog.records if r.levelname == "WARNING" and "duplicate label" in r.getMessage()]
+    assert len(warned) == 1 and "points 1 and 4 share it; point 4 renamed 'PELV_2'" in warned[0].getMessage()
+    # a layout naming only PELV gets the first one; the renamed one is reported unplaced, not merged
+    only = tmp_path / "only.yaml"
+    only.write_text(layout.read_text().replace("[RFOOT, PELV_2, HEAD_2]", "[RFOOT]\n    shared: [PELV, LFOOT]"))
+    m = run_node("c3d_reader", {"file": str(path), "rate_scale": 0.0, "layout": str(only)}, name="only")
+    assert m.wait_exit(10) == 0
+    lay = m.messages("marker_layout")[0]
+    assert lay.unplaced == ["PELV_2"]
+    np.testing.assert_allclose(m.messages("markers")[0].positions[lay.labels.index("PELV")], pts[0, 1], atol=1e-6)
+    # a layout may name the renamed one to use it
+    m = run_node("c3d_reader", {"file": str(path), "rate_scale": 0.0, "layout": str(layout)}, name="mapped")
+    assert m.wait_exit(10) == 0
+    lay = m.messages("marker_layout")[0]
+    np.testing.assert_allclose(m.messages("markers")[0].positions[lay.labels.index("PELV_2")], pts[0, 4], atol=1e-6)
