@@ -239,3 +239,36 @@ def test_c3d_reader_warns_of_a_renamed_duplicate_and_a_layout_leaves_it_unplaced
     assert m.wait_exit(10) == 0
     lay = m.messages("marker_layout")[0]
     np.testing.assert_allclose(m.messages("markers")[0].positions[lay.labels.index("PELV_2")], pts[0, 4], atol=1e-6)
+
+
+def test_segment_reader_feeds_the_skeleton_pipeline_as_a_launched_graph(launch_graph, tmp_path) -> None:
+    from pathlib import Path
+
+    from graph_helpers import read_jsonl, wait_until
+
+    T = 30
+    poses = np.tile(np.eye(4), (T, 2, 1, 1))
+    poses[:, :, :3, 3] = [[0.0, 0.0, 1.0], [0.0, 0.1, 0.5]]
+    path = write_points_c3d(tmp_path / "markerless.c3d", [], np.zeros((T, 0, 3)), rotations=poses,
+                            rotation_labels=["pelvis", "r_thigh"])
+    pipeline = Path(__file__).resolve().parents[2] / "graph_configs" / "skeleton_pipeline.yaml"
+    g = launch_graph(f"""\
+include:
+  - file: {pipeline}
+    args: {{session_log: {tmp_path / 's.jsonl'}, viewer: false}}
+nodes:
+  - name: reader
+    type: c3d_segment_reader
+    params: {{file: {path}, rate_scale: 4.0}}
+  - name: poses
+    type: topic_logger
+    params: {{path: {tmp_path / 'p.jsonl'}, topics: [skeleton_pose]}}
+""")
+    g.wait_ready(30)
+    done = wait_until(lambda: [r for r in read_jsonl(tmp_path / "s.jsonl", "reader_status")
+                               if r["msg"]["state"] == "finished"], what="finished", graph=g)
+    assert json.loads(done[-1]["msg"]["data_json"])["file"] == str(path.resolve())
+    info = read_jsonl(tmp_path / "s.jsonl", "skeleton_info")[0]["msg"]
+    assert info["joint_names"] == ["pelvis", "r_thigh"] and info["source"] == "c3d_segments"
+    wait_until(lambda: len(read_jsonl(tmp_path / "p.jsonl", "skeleton_pose")) == T, what="every pose", graph=g)
+    assert "Traceback" not in g.output
