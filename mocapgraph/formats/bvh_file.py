@@ -152,7 +152,8 @@ class BvhMotion:
         A = BVH_TO_WORLD
         pos = np.einsum("ij,tkj->tki", A * self.scale, pg)
         Rw = A @ Rg @ A.T
-        quat = Rotation.from_matrix(Rw.reshape(-1, 3, 3)).as_quat(scalar_first=True)
+        # products of rotation matrices: valid by construction, no SVD projection needed
+        quat = Rotation.from_matrix(Rw.reshape(-1, 3, 3), assume_valid=True).as_quat(scalar_first=True)
         return pos, quat.reshape(T, J, 4)
 
     def rest_values(self) -> np.ndarray:
