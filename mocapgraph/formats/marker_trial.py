@@ -87,14 +87,14 @@ class MarkerTrial:
     def file_times_s(self) -> np.ndarray:
         """float64 [T] seconds on the file's own clock: its time column when it has one (TRC
         ``Time``, kept in ``extra["time_s"]``), else frame ``first_frame`` at
-        ``(first_frame - 1) / rate_hz`` (C3D frame 1 is t = 0), so a trial that starts 0.23 s
-        into the capture says so."""
+        ``(first_frame - 1) / rate_hz`` (C3D frame 1 is t = 0; a 0-based first frame 0 is t = 0
+        too), so a trial that starts 0.23 s into the capture says so."""
         t = self.extra.get("time_s")
         if t is not None:
             t = np.asarray(t, dtype=np.float64)
             if t.shape == (self.n_frames,) and np.all(np.isfinite(t)):
                 return t
-        return (self.first_frame - 1 + np.arange(self.n_frames, dtype=np.float64)) / self.rate_hz
+        return (max(self.first_frame - 1, 0) + np.arange(self.n_frames, dtype=np.float64)) / self.rate_hz
 
     @property
     def timestamps_ns(self) -> np.ndarray:

@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from lab_fixtures import (PERSON_LABELS, RATE, bvh_with_root_offset, cut_data, kinect_csv, person_frames,
                           set_header_last_frame, write_points_c3d)
-from mocapgraph.formats import (FormatError, bvh_to_skeleton, read_bvh, read_c3d, read_c3d_segments,
-                                read_kinect_csv, read_trc, write_trc)
+from mocapgraph.formats import (FormatError, MarkerTrial, bvh_to_skeleton, read_bvh, read_c3d,
+                                read_c3d_segments, read_kinect_csv, read_trc, write_trc)
 from mocapgraph.formats.axes import optional_axis, parse_axis, up_option
 
 # world (x, y, z) of a Y-up file's point (x, y, z)_file is (x, -z, y): the file's +Y is up
@@ -122,6 +122,8 @@ def test_file_times_keep_the_start_time(tmp_path) -> None:
     c3d = read_c3d(write_points_c3d(tmp_path / "late.c3d", PERSON_LABELS, person_frames(5), y_screen="+Z",
                                     first_frame=24))
     np.testing.assert_allclose(c3d.file_times_s, (23 + np.arange(5)) / RATE)   # frame 1 = 0 s
+    zero_based = MarkerTrial(c3d.labels, c3d.positions, None, RATE, first_frame=0)
+    np.testing.assert_allclose(zero_based.file_times_s, np.arange(5) / RATE)    # never negative
     c3d.extra["time_s"] = 0.23 + np.arange(5) / RATE
     write_trc(tmp_path / "late.trc", c3d)
     trc = read_trc(tmp_path / "late.trc")

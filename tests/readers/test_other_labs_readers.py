@@ -197,6 +197,10 @@ def test_solve_csv_keeps_the_trial_start_time(arm, capsys, tmp_path) -> None:
     code, _, err = run(capsys, "solve", arm / "late.c3d", "--model", tmp_path / "m.json", "-o", tmp_path / "o.trc",
                        "--up", "z")
     assert code == 0
+    assert run(capsys, "bag", "convert", arm / "late.c3d", tmp_path / "late.mcap")[0] == 0
+    code, _, err = run(capsys, "solve", tmp_path / "late.mcap", "--model", tmp_path / "m.json", "-o",
+                       tmp_path / "b.csv", "--up", "y")
+    assert code == 2 and err.count("\n") == 1 and "--up y applies to C3D and TRC files; a bag is already" in err
     back = read_c3d(arm / "late.c3d")
     from mocapgraph.formats import read_trc
 
