@@ -21,9 +21,9 @@ class C3DSegmentReader(SkeletonFilePlayer):
     world), orientation = the segment's own axes in the world (wxyz), tracking state 2, or 0 with
     NaN where the file marks the pose invalid. The file gives no hierarchy, so every segment is a
     root and ``rest_offsets`` are the segments' median world positions. Frames are numbered as
-    the file does (C3D header frames) when the poses come at the point rate. Units and up axis as the
-    c3d_reader (``up_axis`` 'auto' = POINT:Y_SCREEN, else Z). A file without a ROTATION group is
-    reported in one line and the node exits with code 1.
+    the file does (C3D header frames) when the poses come at the point rate. Units and up axis
+    as the c3d_reader (``up_axis`` 'auto' = POINT:Y_SCREEN, else Z). A file without a ROTATION
+    group is reported in one line and the node exits with code 1.
     """
 
     summary = "replay a C3D's ROTATION group (segment poses: Theia3D, markerless) as SkeletonPose"
