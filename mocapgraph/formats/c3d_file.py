@@ -23,6 +23,9 @@ What the reader does to the data, every time saying so in ``trial.conversions``:
   naming both point indices (:mod:`mocapgraph.formats.labels` says why).
 * Frame count: the header's first/last frame, unless POINT:FRAMES disagrees and the data
   block holds POINT:FRAMES frames (ezc3d's rule; a note says which was used).
+* A ROTATION group (segment poses, markerless systems) is not markers: a note names it and
+  :mod:`mocapgraph.formats.c3d_segments` reads it; a file with no points at all is refused, saying
+  whether it holds segment poses instead.
 * Unlabelled points (``*NNN`` or empty labels) are left out unless ``include_unlabelled``.
   PhoeniX ``ChannelNNN`` names are kept as markers: those are active LEDs identified by the
   hardware, so the name is a stable identity, not an anonymous trajectory.
