@@ -99,9 +99,10 @@ def bvh_with_root_offset(path: Path, frames: int = 4, root_offset_y: float = 90.
 
 
 # ----- Kinect -----------------------------------------------------------------------------------
-def kinect_csv(path: Path, frames: int = 5, behind: tuple[tuple[int, int, int], ...] = ()) -> Path:
+def kinect_csv(path: Path, frames: int = 5, behind: tuple[tuple[int, int, int], ...] = (),
+               z_behind: float = -0.4) -> Path:
     """A Kinect v2 CSV (25 joints, 30 Hz, the person 2 m in front of the sensor); ``behind`` lists
-    (frame, joint, state) samples put behind the sensor (camera z = -0.4)."""
+    (frame, joint, state) samples put behind the sensor (camera z = ``z_behind``)."""
     rng = np.random.default_rng(3)
     base = np.column_stack([rng.uniform(-0.3, 0.3, 25), rng.uniform(-0.9, 0.7, 25), np.full(25, 2.0)])
     rows = []
@@ -110,7 +111,7 @@ def kinect_csv(path: Path, frames: int = 5, behind: tuple[tuple[int, int, int], 
         state = np.full(25, 2)
         for f, j, s in behind:
             if f == t:
-                xyz[j, 2] = -0.4
+                xyz[j, 2] = z_behind
                 state[j] = s
         fields = [str(1_000_000 + t * 333_333)]
         for j in range(25):

@@ -221,7 +221,10 @@ def test_kinect_samples_behind_the_sensor_are_not_tracked_and_counted(tmp_path) 
     for f, j, _ in behind:
         mask[f, j] = False
     assert (tr.tracking_state[mask] == 2).all() and np.isfinite(tr.positions[mask]).all()
-    assert any("3 joint samples lie behind the sensor (camera z < 0) in 2 frames (first on data line 2)" in n
+    assert any("3 joint samples lie behind the sensor (camera z <= 0) in 2 frames (first on data line 2)" in n
                for n in tr.notes)
+    # on the sensor itself: impossible when tracked, the SDK's "untracked" encoding when state 0
+    on = read_kinect_csv(kinect_csv(tmp_path / "on.csv", behind=((0, 1, 2), (2, 4, 0)), z_behind=0.0))
+    assert on.extra["behind_sensor"] == 1 and on.tracking_state[0, 1] == 0 and on.tracking_state[2, 4] == 0
     clean = read_kinect_csv(kinect_csv(tmp_path / "clean.csv"))
     assert clean.extra["behind_sensor"] == 0 and not any("behind" in n for n in clean.notes)
