@@ -46,6 +46,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
 from ..messages import Envelope, Message
+from ..messages.commands import VIEWER_COMMANDS
 from . import ASSET_DIR
 from .wire import EncodedRecord, build_bundle, encode_record
 
@@ -53,10 +54,7 @@ log = logging.getLogger(__name__)
 logging.getLogger("websockets").setLevel(logging.WARNING)  # not a line per page load
 
 #: commands the page may send, per channel (calibration node / bag player)
-COMMANDS: dict[str, tuple[str, ...]] = {
-    "calibration": ("find_base_pose", "capture_gym", "process"),
-    "player": ("play", "pause", "step", "seek"),
-}
+COMMANDS = VIEWER_COMMANDS  # what the page may send; the one list lives in messages/commands.py
 #: the arguments each command takes: name -> (kind, required); kinds: "seconds" (finite, >= 0)
 COMMAND_ARGS: dict[tuple[str, str], dict[str, tuple[str, bool]]] = {
     ("player", "seek"): {"position_s": ("seconds", True)},
