@@ -6,6 +6,7 @@ import stat
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 MAX_FILE_BYTES = 1 << 20  # no graph, layout or device file is near this; a bigger one is refused unread
@@ -91,6 +92,19 @@ def _expanded_size(root: yaml.Node) -> int:
     return sizes[id(root)]
 
 
+def _check_flow_depth(path: Path, text: str) -> None:
+    """Refuse bracket nesting beyond MAX_DEPTH before the YAML scanner walks it (it slows down with
+    depth). Brackets inside quoted strings count too: no real file has 64 of them open."""
+    data = np.frombuffer(text.encode(), np.uint8)
+    step = np.zeros(len(data), np.int32)
+    step[(data == ord("[")) | (data == ord("{"))] = 1
+    step[(data == ord("]")) | (data == ord("}"))] = -1
+    depth = np.cumsum(step)
+    if len(depth) and depth.max() > MAX_DEPTH:
+        at = int(np.argmax(depth > MAX_DEPTH))
+        raise GraphError(path, int((data[:at] == ord("\n")).sum()) + 1, "", f"nested deeper than {MAX_DEPTH} levels")
+
+
 def read_text_file(path: Path, what: str = "file") -> str:
     """The UTF-8 text of a regular file of at most MAX_FILE_BYTES; GraphError (one line) otherwise.
 
@@ -158,6 +172,7 @@ def load_yaml_file(path: str | Path) -> Any:
     become GraphError with the file (and line where there is one)."""
     path = Path(path)
     text = read_text_file(path)
+    _check_flow_depth(path, text)
     loader = _Loader(text)
     loader.name = str(path)
     try:
