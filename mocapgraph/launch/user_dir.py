@@ -11,6 +11,7 @@ import os
 import stat
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 
 class UnsafeDirError(RuntimeError):
@@ -36,9 +37,15 @@ def check_private_dir(path: Path) -> Path:
     return path
 
 
+def user_dir_path() -> Path:
+    """Where the per-user run directory is ($TMPDIR/mocapgraph-<uid>); nothing checked."""
+    return Path(tempfile.gettempdir()) / f"mocapgraph-{os.getuid()}"
+
+
 def user_dir(create: bool = True) -> Path:
-    """$TMPDIR/mocapgraph-<uid>, made 0700 when absent; UnsafeDirError when it is not safely ours."""
-    path = Path(tempfile.gettempdir()) / f"mocapgraph-{os.getuid()}"
+    """$TMPDIR/mocapgraph-<uid>, made 0700 when absent; UnsafeDirError when it is not safely ours
+    (FileNotFoundError when absent and not ``create``)."""
+    path = user_dir_path()
     if create:
         try:
             os.mkdir(path, 0o700)
@@ -47,7 +54,7 @@ def user_dir(create: bool = True) -> Path:
     return check_private_dir(path)
 
 
-def secret_file(name: str, make: "callable") -> str:
+def secret_file(name: str, make: Callable[[], str]) -> str:
     """The text of ``name`` in the user dir, written 0600 by ``make()`` when absent."""
     path = user_dir() / name
     try:
