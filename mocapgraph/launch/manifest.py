@@ -78,6 +78,8 @@ class NodeEntry:
     outputs: dict[str, str]
     restarts: int = 0
     running: bool = True
+    #: no diagnostics for STALL_S (launch/liveness.py): stopped or stuck
+    stalled: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)

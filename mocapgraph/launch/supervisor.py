@@ -34,6 +34,9 @@ import zmq
 from ..bus.diagnostics import DIAGNOSTICS_TOPIC
 from ..bus.protocol import READY, START, STARTED, STOP, Wiring, die_with_parent
 from .check import CheckedGraph, ResolvedNode, shutdown_order
+from ..messages import DecodeError, decode_envelope
+from ..messages.codec import topic_frame
+from .liveness import STALL_S, Liveness
 from .manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
 from .wiring_plan import plan_wiring
 
@@ -80,6 +83,8 @@ class Supervisor:
         self.out = out or sys.stdout
         self._out_lock = threading.Lock()
         self.run_dir = Path(tempfile.mkdtemp(prefix=f"mocapgraph-{os.getpid()}-"))
+        self.liveness = Liveness()
+        self.diag: zmq.Socket | None = None
         self.ctx = zmq.Context.instance()
         self.control_ep = f"ipc://{self.run_dir / 'control'}"
         self.children: dict[str, Child] = {}
@@ -120,7 +125,8 @@ class Supervisor:
             m.add_publisher(DIAGNOSTICS_TOPIC, "Diagnostics", n, e)
         m.nodes = [NodeEntry(c.node.name, c.node.spec.type, c.node.class_path, c.proc.pid if c.proc else None,
                              self.endpoints[c.node.name], c.node.params, c.node.inputs, c.node.outputs,
-                             c.restarts, bool(c.proc and c.proc.poll() is None)) for c in self.children.values()]
+                             c.restarts, bool(c.proc and c.proc.poll() is None),
+                             stalled=self.liveness.is_stalled(c.node.name)) for c in self.children.values()]
         return m
 
     # ----- logging --------------------------------------------------------------------------
@@ -215,11 +221,46 @@ class Supervisor:
                 self._serve_control()
                 self._serve_master()  # a node's on_start may ask for the manifest (a recorder's metadata)
         self.ready_time_s = time.monotonic() - t0
+        self._watch_diagnostics()
         self.say(f"[launch] {len(self.children)} nodes ready in {self.ready_time_s:.2f} s "
                  f"(manifest at {self.master})")
 
+    def _watch_diagnostics(self) -> None:
+        """Subscribe to every node's diagnostics: their silence is how a stopped node shows."""
+        self.diag = self.ctx.socket(zmq.SUB)
+        self.diag.setsockopt(zmq.LINGER, 0)
+        self.diag.setsockopt(zmq.RCVHWM, 1000)
+        self.diag.setsockopt(zmq.SUBSCRIBE, topic_frame(DIAGNOSTICS_TOPIC))
+        for ep in self.endpoints.values():
+            self.diag.connect(ep)
+        now = time.monotonic()
+        for name in self.children:
+            self.liveness.watch(name, now)
+
+    def _check_liveness(self, now: float) -> None:
+        if self.diag is None:
+            return
+        while True:
+            try:
+                frames = self.diag.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            try:
+                sender = decode_envelope(frames).sender
+            except DecodeError:
+                continue
+            if sender in self.children:
+                silent = self.liveness.heard(sender, now)
+                if silent is not None:
+                    self.say(f"[launch] node {sender} is responding again after {silent:.1f} s of silence")
+        running = [n for n, c in self.children.items() if c.proc is not None and c.proc.poll() is None]
+        for name, silent in self.liveness.newly_stalled(now, running):
+            self.say(f"[launch] node {name} stalled: no diagnostics for {silent:.1f} s "
+                     f"(pid {self.children[name].proc.pid}; stopped, or stuck in a handler?)")
+
     def _watch(self) -> None:
         now = time.monotonic()
+        self._check_liveness(now)
         for name in self._serve_control():
             self._send(name, START)  # a respawned node joins the running graph
         for c in self.children.values():
@@ -230,6 +271,7 @@ class Supervisor:
                     c.restarts += 1
                     self.say(f"[launch] respawning {c.node.name} (restart {c.restarts})")
                     self._spawn(c)
+                    self.liveness.watch(c.node.name, now + STALL_S)  # start-up time is not silence
                 continue
             code = c.proc.poll()
             if code is None:
@@ -254,7 +296,7 @@ class Supervisor:
             if all(c.finished and c.respawn_at is None for c in self.children.values()):
                 self.say("[launch] every node has finished")
                 break
-            zmq.select([self.control, self.master_sock], [], [], 0.05)
+            zmq.select([self.control, self.master_sock] + ([self.diag] if self.diag is not None else []), [], [], 0.05)
         return self._exit_code
 
     def request_stop(self) -> None:
@@ -281,6 +323,8 @@ class Supervisor:
         self.say(f"[launch] stopped in {self.stop_time_s:.2f} s")
         if hasattr(self, "control"):
             self.control.close(0)
+        if self.diag is not None:
+            self.diag.close(0)
         if hasattr(self, "master_server"):
             self.master_server.close()
         shutil.rmtree(self.run_dir, ignore_errors=True)

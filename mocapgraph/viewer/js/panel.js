@@ -2,6 +2,8 @@
 
 import { DRAWN_TYPES, SUPPORT_TYPES, GOOD, ESTIMATED, MISSING } from "./scene.js";
 
+const STALL_MS = 3000;  // launch/liveness.py STALL_S
+
 const $ = (id) => document.getElementById(id);
 const css = (c) => `rgb(${c.map((v) => Math.round(v * 255)).join(",")})`;
 const fmt = (x, d = 1) => (Number.isFinite(x) ? x.toFixed(d) : "–");
@@ -208,6 +210,18 @@ export class Panel {
       if (!r) { r = { topic, type: "", rate: NaN, latency: NaN, drops: 0, edges: 0 }; rows.set(topic, r); }
       return r;
     };
+    // A node whose diagnostics (1 Hz) stopped for 3 s is stalled: stopped, or stuck in a handler.
+    const stalled = [];
+    for (const d of this.store.ofType("Diagnostics")) {
+      if (nowMs - d.receivedMs > STALL_MS) stalled.push(d.fields.node || d.sender);
+    }
+    stalled.sort();
+    const note = $("stalled-nodes");
+    if (note) {
+      note.hidden = stalled.length === 0;
+      note.textContent = stalled.length ? `stalled (no diagnostics for 3 s): ${stalled.join(", ")}` : "";
+    }
+    if (window.mocapgraphStats) window.mocapgraphStats.stalled = stalled;
     for (const d of this.store.ofType("Diagnostics")) {
       const f = d.fields, a = d.arrays;
       f.edge_topics.forEach((topic, i) => {
