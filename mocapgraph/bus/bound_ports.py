@@ -9,6 +9,7 @@ import zmq
 from ..messages import DecodeError, Envelope, Message, decode_envelope, decode_payload, encode
 from ..messages.codec import topic_frame
 from ..messages.registry import UnknownTypeError, lookup
+from .curve import CurveKeys, make_client
 from .ports import Input, Output
 from .stats import InputStats
 
@@ -84,9 +85,12 @@ class InputPort:
         self.socket: zmq.Socket | None = None
         self.handler: Callable[..., Any] | None = None
 
-    def open(self, ctx: zmq.Context, endpoints: list[str]) -> zmq.Socket:
-        """Create the SUB socket (queue depth from the declaration) connected to ``endpoints``."""
+    def open(self, ctx: zmq.Context, endpoints: list[str], curve: "CurveKeys | None" = None) -> zmq.Socket:
+        """Create the SUB socket (queue depth from the declaration) connected to ``endpoints``
+        (as a CurveZMQ client when the graph has keys)."""
         sock = ctx.socket(zmq.SUB)
+        if curve is not None:
+            make_client(sock, curve)
         sock.setsockopt(zmq.RCVHWM, 0 if self.decl.queue <= 0 else self.decl.queue)
         sock.setsockopt(zmq.RECONNECT_IVL, 20)
         sock.setsockopt(zmq.RECONNECT_IVL_MAX, 500)

@@ -38,6 +38,7 @@ import zmq
 from ..messages import Diagnostics, Message
 from ..messages.codec import topic_frame
 from .bound_ports import InputPort, OutputPort
+from .curve import CurveKeys, make_server, start_authenticator, stop_authenticators
 from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, EdgeRecord, build_diagnostics,
                           input_edge_records)
 from .loop import EventLoop, Timer
@@ -178,7 +179,11 @@ class Node:
     def setup(self) -> None:
         """Bind, connect and subscribe according to the wiring."""
         w = self.wiring
+        self._curve = CurveKeys.load(w.curve["key"], w.curve["authorized"]) if w.curve else None
         self._pub = pub = self._ctx.socket(zmq.XPUB)
+        if self._curve is not None:
+            start_authenticator(self._ctx, self._curve)
+            make_server(pub, self._curve)
         pub.setsockopt(zmq.XPUB_VERBOSE, 1)
         # Bounded per subscriber, so a stalled viewer cannot grow this process without limit; a
         # subscriber with no receive limit (a recorder) drains into its own memory and loses nothing.
@@ -199,7 +204,7 @@ class Node:
             port = InputPort(self, decl, spec.get("topic", decl.topic), spec.get("senders"))
             self._ports[name] = port
             port.handler = self.input_handler(name)
-            self._loop.watch(port.open(self._ctx, spec.get("endpoints", [])), port.on_readable)
+            self._loop.watch(port.open(self._ctx, spec.get("endpoints", []), self._curve), port.on_readable)
         if w.control:
             self._launcher = LauncherLink(self._ctx, w.control, self.name)
             self._loop.watch(self._launcher.socket, self._on_control)
@@ -339,6 +344,8 @@ class Node:
             self._launcher.close()
         if self._pub is not None:
             self._pub.close()
+        if self._curve is not None:
+            stop_authenticators()
 
 
 def install_signal_handlers(node: Node) -> None:

@@ -129,6 +129,17 @@ def host_problem(host: str) -> str:
     return f"{host[:80]!r} is not an address of this machine (nothing could bind it)"
 
 
+def _loopback(host: str) -> bool:
+    """True when every address ``host`` stands for is a loopback one."""
+    if host == "localhost":
+        return True
+    try:
+        addrs = {a[4][0] for a in socket.getaddrinfo(host, None)}
+        return all(ipaddress.ip_address(a.split("%")[0]).is_loopback for a in addrs)
+    except (OSError, ValueError):
+        return False
+
+
 def _is_ip(host: str) -> bool:
     try:
         ipaddress.ip_address(host)
@@ -167,6 +178,10 @@ def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
             problem = host_problem(ns.host)
             if problem:
                 raise ns.error("host", problem)
+            if not _loopback(ns.host) and not (spec.security.curve or spec.security.insecure):
+                raise ns.error("host", f"{ns.host} is reachable from other machines: give the graph a security: "
+                               "section (key:, authorized:; see 'mocapgraph keys generate') for CurveZMQ, "
+                               "or security: {insecure: true} to publish plaintext knowingly")
         path, cls = load_node_class(ns.type, ns)
         try:
             iface = cls.interface(ns.params)

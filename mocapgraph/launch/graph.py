@@ -39,7 +39,8 @@ from typing import Any
 from ..formats.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
 NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "doc", "if")
-TOP_KEYS = ("args", "include", "nodes", "external", "expects", "description")
+TOP_KEYS = ("args", "include", "nodes", "external", "expects", "description", "security")
+SECURITY_KEYS = ("key", "authorized", "insecure")
 EXPECTS_KEYS = ("topic", "type", "doc")
 INCLUDE_KEYS = ("file", "args", "if")
 EXTERNAL_KEYS = ("topic", "type", "endpoint")
@@ -97,6 +98,21 @@ class ExpectedTopic:
 
 
 @dataclass
+class SecuritySpec:
+    """The top file's ``security:``: CurveZMQ key pair and authorised public keys, or plaintext by choice."""
+
+    key: str = ""  # the graph's .key_secret file (mocapgraph keys generate)
+    authorized: str = ""  # folder of public keys (*.key) allowed to subscribe
+    insecure: bool = False  # plaintext tcp beyond loopback, knowingly
+    file: str = ""
+    line: int = 0
+
+    @property
+    def curve(self) -> bool:
+        return bool(self.key)
+
+
+@dataclass
 class GraphSpec:
     """A whole resolved graph: nodes from the file and everything it includes."""
 
@@ -106,6 +122,7 @@ class GraphSpec:
     expects: list[ExpectedTopic] = field(default_factory=list)
     args: dict[str, Any] = field(default_factory=dict)
     description: str = ""
+    security: SecuritySpec = field(default_factory=SecuritySpec)
 
 
 def did_you_mean(word: str, choices: list[str] | tuple[str, ...]) -> str:
@@ -152,6 +169,33 @@ def _condition(d: LinedDict, args: dict[str, Any], file: str, key: str) -> bool:
     if not isinstance(value, bool):
         raise GraphError(file, d.line_of("if"), key, f"wants true or false, got {value!r}")
     return value
+
+
+def _security(doc: LinedDict, path: Path, args: dict[str, Any]) -> SecuritySpec:
+    sec = doc["security"]
+    line = doc.line_of("security")
+    if not isinstance(sec, dict):
+        raise GraphError(path, line, "security", "must be a mapping {key:, authorized:} or {insecure: true}")
+    _check_keys(sec, SECURITY_KEYS, "security.")
+    sec = _substitute(sec, args, str(path), line, "security")
+    out = SecuritySpec(file=str(path), line=line)
+    insecure = sec.get("insecure", False)
+    if not isinstance(insecure, bool):
+        raise GraphError(path, line, "security.insecure", f"wants true or false, got {insecure!r}")
+    out.insecure = insecure
+    if "key" in sec or "authorized" in sec:
+        for key in ("key", "authorized"):
+            if not isinstance(sec.get(key), str) or not sec.get(key):
+                raise GraphError(path, line, f"security.{key}", "needs a path (both key: and authorized:)")
+        out.key = str((path.parent / sec["key"]).resolve())
+        out.authorized = str((path.parent / sec["authorized"]).resolve())
+        from ..bus.curve import CurveKeys, KeyError_
+
+        try:
+            CurveKeys.load(out.key, out.authorized)
+        except KeyError_ as exc:
+            raise GraphError(path, line, "security", str(exc)) from None
+    return out
 
 
 def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> GraphSpec:
@@ -204,6 +248,8 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
     if top:
         spec.args = dict(args)
         spec.description = str(doc.get("description", ""))
+        if "security" in doc:
+            spec.security = _security(doc, path, args)
     includes = doc.get("include") or []
     if not isinstance(includes, list):
         raise GraphError(path, doc.line_of("include"), "include", "must be a list of {file:, args:}")

@@ -95,6 +95,9 @@ class Manifest:
     launcher_pid: int = field(default_factory=os.getpid)
     nodes: list[NodeEntry] = field(default_factory=list)
     topics: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: {"key": .key_secret file, "authorized": folder} when the bus is CurveZMQ (paths, not keys:
+    #: the manifest is served to this user only, and the tools read the files themselves)
+    security: dict[str, str] = field(default_factory=dict)
 
     def _topic(self, topic: str, type_name: str) -> dict[str, Any]:
         return self.topics.setdefault(topic, {"type": type_name, "publishers": [], "subscribers": []})
@@ -107,7 +110,7 @@ class Manifest:
 
     def to_dict(self) -> dict[str, Any]:
         return {"graph": self.graph, "launcher_pid": self.launcher_pid,
-                "nodes": [n.to_dict() for n in self.nodes], "topics": self.topics}
+                "nodes": [n.to_dict() for n in self.nodes], "topics": self.topics, "security": self.security}
 
 
 def _answers(ctx: zmq.Context, endpoint: str, timeout_s: float) -> bytes | None:
@@ -218,6 +221,11 @@ def subscribe(manifest: dict[str, Any], topics: list[str], hwm: int = 0) -> zmq.
     s = ctx.socket(zmq.SUB)
     s.setsockopt(zmq.RCVHWM, hwm)
     s.setsockopt(zmq.LINGER, 0)
+    sec = manifest.get("security") or {}
+    if sec.get("key"):
+        from ..bus.curve import CurveKeys, make_client
+
+        make_client(s, CurveKeys.load(sec["key"], sec["authorized"]))
     endpoints: set[str] = set()
     for t in topics:
         entry = topic_entry(manifest, t)

@@ -36,6 +36,7 @@ from ..bus.protocol import READY, START, STARTED, STOP, Wiring, die_with_parent
 from .check import CheckedGraph, ResolvedNode, shutdown_order
 from ..messages import DecodeError, decode_envelope
 from ..messages.codec import topic_frame
+from ..bus.curve import CurveKeys, make_client
 from .liveness import STALL_S, Liveness
 from .manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
 from .wiring_plan import plan_wiring
@@ -112,6 +113,9 @@ class Supervisor:
         """Nodes, topics, types and endpoints of the running graph."""
         types = self.graph.topic_types()
         m = Manifest(graph=self.graph.spec.file)
+        sec = self.graph.spec.security
+        if sec.curve:
+            m.security = {"key": sec.key, "authorized": sec.authorized}
         for rn in self.graph.nodes:
             for port, t in rn.outputs.items():
                 m.add_publisher(t, types[t], rn.name, self.endpoints[rn.name], rn.iface.outputs[port].is_latched)
@@ -229,6 +233,9 @@ class Supervisor:
         """Subscribe to every node's diagnostics: their silence is how a stopped node shows."""
         self.diag = self.ctx.socket(zmq.SUB)
         self.diag.setsockopt(zmq.LINGER, 0)
+        sec = self.graph.spec.security
+        if sec.curve:
+            make_client(self.diag, CurveKeys.load(sec.key, sec.authorized))
         self.diag.setsockopt(zmq.RCVHWM, 1000)
         self.diag.setsockopt(zmq.SUBSCRIBE, topic_frame(DIAGNOSTICS_TOPIC))
         for ep in self.endpoints.values():

@@ -45,6 +45,8 @@ def plan_wiring(graph: CheckedGraph, endpoints: dict[str, str], control: str = "
             outputs={p: {"topic": t, "subscribers": subscribers.get(t, 0) - own.get(t, 0)}
                      for p, t in rn.outputs.items()},
             control=control,
+            curve=({"key": graph.spec.security.key, "authorized": graph.spec.security.authorized}
+                   if graph.spec.security.curve else {}),
             diagnostics_subscribers=subscribers.get(DIAGNOSTICS_TOPIC, 0) - min(1, own.get(DIAGNOSTICS_TOPIC, 0)),
         )
     return plan
