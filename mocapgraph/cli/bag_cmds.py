@@ -181,6 +181,13 @@ def cmd_play(args: argparse.Namespace) -> int:
     if unknown:
         raise UserError(f"--remap {unknown[0]}: the bag plays no topic {unknown[0]!r} "
                         f"(topics: {', '.join(n for n in iface.outputs if n != 'status')})")
+    if args.bind and args.bind.startswith("tcp://") and not args.insecure:
+        from ..launch.check import _loopback
+
+        host = args.bind[6:].rsplit(":", 1)[0].strip("[]")
+        if host in ("*", "") or not _loopback(host):
+            raise UserError(f"--bind {args.bind} is reachable from other machines and bag play has no keys: "
+                            "bind a loopback address, or pass --insecure to publish plaintext knowingly")
     outputs = {name: {"topic": remap.get(name, decl.topic), "subscribers": 0} for name, decl in iface.outputs.items()}
     wiring = Wiring(node="bag_play", pub_endpoint=args.bind or "", outputs=outputs)
     try:
@@ -425,6 +432,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--remap", nargs="+", metavar="OLD:=NEW", help="publish a topic under another name")
     p.add_argument("--paused", action="store_true", help="start paused (space resumes, s steps)")
     p.add_argument("--bind", help="publisher endpoint (default tcp://127.0.0.1:<free port>)")
+    p.add_argument("--insecure", action="store_true", help="allow --bind beyond loopback (plaintext, no keys)")
     p.add_argument("--no-wait", action="store_true", help="start at once instead of at the first subscriber")
     p.add_argument("--stay", action="store_true", help="keep running at the end (seek/restart from the keys)")
     p.add_argument("--realtime", action="store_true",

@@ -76,3 +76,17 @@ def test_publishing_beyond_loopback_needs_keys_or_insecure(tmp_path: Path, capsy
     graph.write_text(f"security: {{key: {tmp_path / 'none.key_secret'}, authorized: {tmp_path}}}\n" + node)
     assert main(["graph", "check", str(graph)]) == 2
     assert "cannot read key" in capsys.readouterr().err
+
+
+def test_bag_play_refuses_to_bind_beyond_loopback_without_insecure(tmp_path: Path, capsys) -> None:
+    import numpy as np
+
+    from mocapgraph.bag.writer import BagWriter
+    from mocapgraph.messages import MarkerFrame
+
+    bag = tmp_path / "b.mcap"
+    with BagWriter(str(bag)) as w:
+        w.write("markers", MarkerFrame(frame_number=0, rate_hz=1.0, positions=np.zeros((1, 3)),
+                                       valid=np.ones(1, bool), residual=np.zeros(1, np.float32)), seq=1, capture_ns=0)
+    assert main(["bag", "play", str(bag), "--bind", "tcp://0.0.0.0:0"]) == 2
+    assert "--insecure" in capsys.readouterr().err
