@@ -196,3 +196,41 @@ def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.nda
             out[:, two] = np.where(bad[..., None], np.nan, out[:, two])
         q[:, level] = out
     return q
+
+
+def kinect_tpose(names, parents) -> np.ndarray:
+    """A canonical T-pose [J, 3] (m, world) for Kinect v1/v2 joint names: a Kinect stream has no
+    rest pose of its own, so its derived rotations are identity in this pose (arms along ±Y, palms
+    down, legs straight down, facing +X). Proportions of standard_20 at 1.75 m."""
+    from .character import standard_20
+    s20 = standard_20(1.75)
+    p20, _ = s20.rest_pose()
+    v1 = {n: p20[i] for i, n in enumerate(s20.joint_names)}
+    alias = {"SpineBase": "HipCenter", "SpineMid": "Spine", "SpineShoulder": "ShoulderCenter"}
+    out = np.full((len(names), 3), np.nan)
+    for i, n in enumerate(names):
+        key = alias.get(n, n)
+        if key in v1:
+            out[i] = v1[key]
+    for i, n in enumerate(names):
+        if n == "Neck":
+            out[i] = v1["ShoulderCenter"] + 0.35 * (v1["Head"] - v1["ShoulderCenter"])
+        elif n.startswith("HandTip"):
+            side = n[len("HandTip"):]
+            out[i] = v1[f"Hand{side}"] + (0.0, 0.06 if side == "Left" else -0.06, 0.0)
+        elif n.startswith("Thumb"):
+            side = n[len("Thumb"):]
+            out[i] = v1[f"Hand{side}"] + (0.04, 0.0, 0.0)
+    missing = [names[i] for i in range(len(names)) if not np.isfinite(out[i]).all()]
+    if missing:
+        raise ValueError(f"no T-pose place for Kinect joints {', '.join(missing)}")
+    return out
+
+
+def kinect_source(names, parents, kind_hint: str = "") -> SourceSkeleton:
+    """A positions-only Kinect source with the canonical T-pose (:func:`kinect_tpose`) as its rest."""
+    rest = kinect_tpose(names, parents)
+    par = np.asarray(parents, dtype=np.int64)
+    offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+    return skeleton_source(names, par, offs, has_orientations=False,
+                           kind_hint=kind_hint or ("kinect_v2" if len(names) == 25 else "kinect_v1"))
