@@ -168,12 +168,13 @@ class Retargeter:
                 kids = [k for k in ch.children(j)]
                 nxt = [k for k in kids if k in sset]
                 rk = [k for k in kids if driven[k]]
-                if rk:
-                    end = rk[0]
-                    break
-                if not nxt:
-                    break
-                j = nxt[0]
+                if nxt:      # stay on the spread chain (a side branch, e.g. a clavicle, is not its end)
+                    j = nxt[0]
+                    continue
+                if rk:       # the chain's end: the rotate-mapped child continuing its direction
+                    up = ch.rest_offsets[j] / max(np.linalg.norm(ch.rest_offsets[j]), 1e-12)
+                    end = max(rk, key=lambda k: float(ch.rest_offsets[k] @ up) / max(np.linalg.norm(ch.rest_offsets[k]), 1e-12))
+                break
             if end < 0:
                 raise MappingError(f"{m.where(by[ch.joint_names[s]])}: joints.{ch.joint_names[s]}: a spread joint "
                                    "needs a rotate-mapped joint below it in the chain")
