@@ -385,6 +385,9 @@ class Retargeter:
         delta[:, self._rot_joint] = d_rot
         jq = np.full((F, J), QUALITY_GOOD, np.int8)
         jq[:, self._rot_joint] = rq[:, self._rot_src]
+        if len(self._follow_m):   # a bone aimed at held points is estimated too
+            fj = self._rot_joint[self._follow_m]
+            jq[:, fj] = np.minimum(jq[:, fj], np.minimum(pq[:, self._follow_a], pq[:, self._follow_b]))
         # 2. spread chains
         for c in self._chains:
             qs = matrix_to_quat(delta[:, c["start"]])
@@ -401,6 +404,9 @@ class Retargeter:
                     corr = quat_to_matrix(quat_between(vec, target))
                     delta[:, c["joints"]] = corr[:, None] @ delta[:, c["joints"]]
             jq[:, c["joints"]] = np.minimum(jq[:, [c["start"]]], jq[:, [c["end"]]])
+            if c["end_src"] >= 0 and c["pivot_src"] >= 0:
+                jq[:, c["joints"]] = np.minimum(jq[:, c["joints"]],
+                                                np.minimum(pq[:, [c["end_src"]]], pq[:, [c["pivot_src"]]]))
         # 3. inherit, 4. aims
         if self._aims:
             delta_all = delta[:, self._src_pre]
