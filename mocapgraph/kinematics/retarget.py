@@ -43,6 +43,7 @@ class RetargetOptions:
     follow_bones: bool = True      # a rotate joint with one mapped child points its bone along the source bone
     scale: float | None = None     # fixed root ratio (None: the mapping's, else the leg ratio)
     floor_z: float = 0.0
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)   # world shift of the character, m (beside the performer)
     contact_height_m: float = 0.03
     contact_speed_mps: float = 0.3
     release_s: float = 0.15
@@ -449,7 +450,7 @@ class Retargeter:
         """Root: horizontal source root times the ratio (A applied), height matched at the floor."""
         p = (self._root_A @ src_root[..., None])[..., 0] * self.ratio
         p[:, 2] = self._h_c + self.ratio * (src_root[:, 2] - self._h_s) + self.options.floor_z
-        return p
+        return p + np.asarray(self.options.offset, dtype=np.float64)
 
     def _positions(self, world: np.ndarray, root: np.ndarray) -> np.ndarray:
         ch = self.character
