@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .quaternion import quat_between, quat_to_matrix
+from .quaternion import cross, matrix_between, norm
 
 
 @dataclass
@@ -40,7 +40,7 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np
     [..., 3] is used where that plane is degenerate, a straight leg). Targets out of reach are
     approached along the hip-target line."""
     to = target - hip
-    dist = np.linalg.norm(to, axis=-1, keepdims=True)
+    dist = norm(to, True)
     u = to / np.maximum(dist, 1e-12)
     d = np.clip(dist, np.abs(l1 - l2)[..., None] + 1e-6, (l1 + l2)[..., None] - 1e-6)
     cos_a = np.clip((l1[..., None] ** 2 + d ** 2 - l2[..., None] ** 2) / (2 * l1[..., None] * d), -1.0, 1.0)
@@ -48,14 +48,14 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np
     k = knee - hip
     perp = k - np.sum(k * u, axis=-1, keepdims=True) * u
     pole_perp = pole - np.sum(pole * u, axis=-1, keepdims=True) * u
-    n = np.linalg.norm(perp, axis=-1, keepdims=True)
+    n = norm(perp, True)
     v = np.where(n > 1e-6 * l1[..., None], perp, pole_perp)
-    v = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+    v = v / np.maximum(norm(v, True), 1e-12)
     knee_new = hip + l1[..., None] * (cos_a * u + sin_a * v)
     reach = hip + d * u
-    s1 = quat_to_matrix(quat_between(k, knee_new - hip))
+    s1 = matrix_between(k, knee_new - hip)
     ankle_after = knee_new + (s1 @ (ankle - knee)[..., None])[..., 0]
-    s2 = quat_to_matrix(quat_between(ankle_after - knee_new, reach - knee_new))
+    s2 = matrix_between(ankle_after - knee_new, reach - knee_new)
     return s1, s2, reach
 
 
@@ -122,6 +122,24 @@ def _window_speeds(state: PlantState, t: np.ndarray, xy: np.ndarray, window_s: f
     ``window_s`` (at least two; the state's history included): noise averages out, the lag is half
     the window. 0 where fewer than two finite samples (a first frame is judged by its height)."""
     H = len(state.history_t)
+    if len(t) == 1 and H >= 1:   # the live case: one least-squares line through the short window
+        T = np.append(np.asarray(state.history_t, dtype=np.float64), t[0])
+        X = np.concatenate([np.asarray(state.history_xy, dtype=np.float64).reshape(H, 2, 2), xy])
+        keep = T >= T[-1] - window_s - 1e-12
+        keep[-2:] = True
+        T, X = T[keep], X[keep]
+        state.history_t, state.history_xy = T.tolist(), list(X)
+        ok = np.isfinite(X).all(axis=2)                                  # [N, 2]
+        tc = T - T[-1]
+        w = ok.astype(np.float64)
+        n = w.sum(0)
+        tm = (w * tc[:, None]).sum(0) / np.maximum(n, 1)
+        d = np.where(ok, tc[:, None] - tm, 0.0)
+        Xz = np.where(ok[..., None], X, 0.0)
+        xm = Xz.sum(0) / np.maximum(n, 1)[:, None]
+        den = (d * d).sum(0)
+        v = (d[..., None] * (Xz - xm)).sum(0) / np.where(den > 1e-18, den, 1.0)[:, None]
+        return np.where((n >= 2) & (den > 1e-18), norm(v), 0.0)[None]
     T = np.concatenate([np.asarray(state.history_t, dtype=np.float64), t])
     X = np.concatenate([np.asarray(state.history_xy, dtype=np.float64).reshape(H, 2, 2), xy]) if H else xy
     F = len(t)
@@ -146,7 +164,7 @@ def _window_speeds(state: PlantState, t: np.ndarray, xy: np.ndarray, window_s: f
     den = n * stt - st * st                                              # [F, 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         v = (n[..., None] * stx - st[..., None] * sx) / den[..., None]
-    speed = np.where((n >= 2) & (den > 1e-18), np.linalg.norm(v, axis=-1), 0.0)
+    speed = np.where((n >= 2) & (den > 1e-18), norm(v), 0.0)
     # keep the window's samples for the next call
     keep = T >= T[-1] - window_s - 1e-12 if len(T) else np.zeros(0, bool)
     keep[max(len(T) - 2, 0):] = True

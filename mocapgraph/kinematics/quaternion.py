@@ -10,24 +10,57 @@ from __future__ import annotations
 import numpy as np
 
 
+# m = I + 2 * (linear map of the 16 products q_a q_b) for a unit q: one outer product and one
+# matrix product instead of two dozen element-wise operations (this sits on every live frame)
+_Q2M = np.zeros((16, 9))
+_TERMS = {  # element (row-major index) -> [(a, b, coefficient)] over q = (w, x, y, z)
+    0: [(2, 2, -1), (3, 3, -1)], 1: [(1, 2, 1), (0, 3, -1)], 2: [(1, 3, 1), (0, 2, 1)],
+    3: [(1, 2, 1), (0, 3, 1)], 4: [(1, 1, -1), (3, 3, -1)], 5: [(2, 3, 1), (0, 1, -1)],
+    6: [(1, 3, 1), (0, 2, -1)], 7: [(2, 3, 1), (0, 1, 1)], 8: [(1, 1, -1), (2, 2, -1)],
+}
+for _e, _terms in _TERMS.items():
+    for _a, _b, _c in _terms:
+        _Q2M[4 * _a + _b, _e] += 2.0 * _c
+_EYE9 = np.eye(3).reshape(9)
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices [..., 3, 3] of quaternions [..., 4] (wxyz; normalised here)."""
     q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-    m = np.empty(q.shape[:-1] + (3, 3))
-    m[..., 0, 0] = 1 - 2 * (yy + zz)
-    m[..., 0, 1] = 2 * (xy - wz)
-    m[..., 0, 2] = 2 * (xz + wy)
-    m[..., 1, 0] = 2 * (xy + wz)
-    m[..., 1, 1] = 1 - 2 * (xx + zz)
-    m[..., 1, 2] = 2 * (yz - wx)
-    m[..., 2, 0] = 2 * (xz - wy)
-    m[..., 2, 1] = 2 * (yz + wx)
-    m[..., 2, 2] = 1 - 2 * (xx + yy)
-    return m
+    n2 = np.sum(q * q, axis=-1, keepdims=True)
+    outer = (q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,)) / n2
+    return (outer @ _Q2M + _EYE9).reshape(q.shape[:-1] + (3, 3))
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (broadcasting); np.cross costs several times more on tiny arrays."""
+    a1, a2, a3 = a[..., 0], a[..., 1], a[..., 2]
+    b1, b2, b3 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1], axis=-1)
+
+
+def norm(v: np.ndarray, keepdims: bool = False) -> np.ndarray:
+    """Euclidean length over the last axis (np.linalg.norm without its overhead)."""
+    return np.sqrt(np.sum(v * v, axis=-1, keepdims=keepdims))
+
+
+def matrix_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotation matrices [..., 3, 3] taking directions a onto b (Rodrigues; the
+    antiparallel case through :func:`quat_between`)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a = a / norm(a, True)
+    b = b / norm(b, True)
+    v = cross(a, b)
+    c = np.sum(a * b, axis=-1)
+    if np.any(c < -1.0 + 1e-9):
+        return quat_to_matrix(quat_between(a, b))
+    k = 1.0 / (1.0 + c)
+    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+    m = np.stack([1 - k * (vy * vy + vz * vz), k * vx * vy - vz, k * vx * vz + vy,
+                  k * vx * vy + vz, 1 - k * (vx * vx + vz * vz), k * vy * vz - vx,
+                  k * vx * vz - vy, k * vy * vz + vx, 1 - k * (vx * vx + vy * vy)], axis=-1)
+    return m.reshape(a.shape[:-1] + (3, 3))
 
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
@@ -82,18 +115,18 @@ def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
-    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    a = a / norm(a, True)
+    b = b / norm(b, True)
     w = 1.0 + np.sum(a * b, axis=-1)
-    xyz = np.cross(a, b)
+    xyz = cross(a, b)
     flip = w < 1e-9
     if np.any(flip):
         # a perpendicular axis: a x X, or a x Y when a is along X
-        alt = np.cross(a, np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+        alt = cross(a, np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
         xyz = np.where(flip[..., None], alt, xyz)
         w = np.where(flip, 0.0, w)
     q = np.concatenate([w[..., None], xyz], axis=-1)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return q / norm(q, True)
 
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -101,8 +134,8 @@ def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)
     u = q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + q[..., :1] * t + np.cross(u, t)
+    t = 2.0 * cross(u, v)
+    return v + q[..., :1] * t + cross(u, t)
 
 
 def quat_power(q: np.ndarray, f) -> np.ndarray:
