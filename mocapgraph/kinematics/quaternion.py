@@ -63,28 +63,26 @@ def matrix_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return m.reshape(a.shape[:-1] + (3, 3))
 
 
+# Shepperd: with k the largest of the four squared components, the quaternion times 2 s (s = 2|q_k|)
+# is row k of these picks from (s^2, m21-m12, m02-m20, m10-m01, m10+m01, m02+m20, m21+m12)
+_SHEPPERD = np.array([[0, 1, 2, 3], [1, 0, 4, 5], [2, 4, 0, 6], [3, 5, 6, 0]])
+_SQ = np.array([[1.0, 1.0, -1.0, -1.0], [1.0, -1.0, 1.0, -1.0], [1.0, -1.0, -1.0, 1.0]])  # diag -> 4 |q_k|^2 - 1
+
+
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     """wxyz quaternions [..., 4] with w >= 0 of rotation matrices [..., 3, 3] (Shepperd's method:
     each quaternion from the largest of its four squared components, so no precision is lost)."""
     m = np.asarray(m, dtype=np.float64)
     lead = m.shape[:-2]
-    flat = m.reshape(-1, 3, 3)
-    m00, m11, m22 = flat[:, 0, 0], flat[:, 1, 1], flat[:, 2, 2]
-    # 4 * squared components (w, x, y, z); pick the largest per matrix
-    sq = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], axis=1)
+    f = m.reshape(-1, 9)
+    sq = f[:, [0, 4, 8]] @ _SQ + 1.0                                    # [N, 4] = 4 q_k^2
     k = np.argmax(sq, axis=1)
-    s = np.sqrt(np.maximum(sq[np.arange(len(k)), k], 1e-300))  # = 4 * |component k| / 2 ... = 2|q_k|
-    d21, d02, d10 = flat[:, 2, 1] - flat[:, 1, 2], flat[:, 0, 2] - flat[:, 2, 0], flat[:, 1, 0] - flat[:, 0, 1]
-    a10, a02, a21 = flat[:, 1, 0] + flat[:, 0, 1], flat[:, 0, 2] + flat[:, 2, 0], flat[:, 2, 1] + flat[:, 1, 2]
-    # rows: the quaternion times 2s when component k is the largest
-    cand = np.stack([
-        np.stack([s * s, d21, d02, d10], axis=1),
-        np.stack([d21, s * s, a10, a02], axis=1),
-        np.stack([d02, a10, s * s, a21], axis=1),
-        np.stack([d10, a02, a21, s * s], axis=1),
-    ], axis=1)
-    q = cand[np.arange(len(k)), k] / (2.0 * s)[:, None]
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    rows = np.arange(len(k))
+    s = np.sqrt(np.maximum(sq[rows, k], 1e-300))                       # 2 |q_k|
+    v = np.stack([s * s, f[:, 7] - f[:, 5], f[:, 2] - f[:, 6], f[:, 3] - f[:, 1],
+                  f[:, 3] + f[:, 1], f[:, 2] + f[:, 6], f[:, 7] + f[:, 5]], axis=1)
+    q = v[rows[:, None], _SHEPPERD[k]] / (2.0 * s)[:, None]
+    q /= np.sqrt(np.sum(q * q, axis=1, keepdims=True))
     q *= np.where(q[:, :1] < 0, -1.0, 1.0)
     return q.reshape(lead + (4,))
 
