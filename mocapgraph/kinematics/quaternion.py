@@ -44,23 +44,27 @@ def norm(v: np.ndarray, keepdims: bool = False) -> np.ndarray:
     return np.sqrt(np.sum(v * v, axis=-1, keepdims=keepdims))
 
 
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+_SKEW = np.zeros((3, 9))   # v -> [v]x, row-major
+_SKEW[0, 5], _SKEW[0, 7], _SKEW[1, 2], _SKEW[1, 6], _SKEW[2, 1], _SKEW[2, 3] = -1, 1, 1, -1, -1, 1
+
+
 def matrix_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Shortest-arc rotation matrices [..., 3, 3] taking directions a onto b (Rodrigues; the
-    antiparallel case through :func:`quat_between`)."""
+    """Shortest-arc rotation matrices [..., 3, 3] taking directions a onto b: for unit vectors,
+    R = c I + [v]x + v v^T / (1 + c) with v = a x b, c = a . b (the antiparallel case through
+    :func:`quat_between`)."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     a = a / norm(a, True)
     b = b / norm(b, True)
-    v = cross(a, b)
-    c = np.sum(a * b, axis=-1)
+    v = np.einsum("ijk,...j,...k->...i", _EPS, a, b)
+    c = np.einsum("...i,...i->...", a, b)
     if np.any(c < -1.0 + 1e-9):
         return quat_to_matrix(quat_between(a, b))
-    k = 1.0 / (1.0 + c)
-    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
-    m = np.stack([1 - k * (vy * vy + vz * vz), k * vx * vy - vz, k * vx * vz + vy,
-                  k * vx * vy + vz, 1 - k * (vx * vx + vz * vz), k * vy * vz - vx,
-                  k * vx * vz - vy, k * vy * vz + vx, 1 - k * (vx * vx + vy * vy)], axis=-1)
-    return m.reshape(a.shape[:-1] + (3, 3))
+    outer = v[..., :, None] * (v / (1.0 + c)[..., None])[..., None, :]
+    return outer + (v @ _SKEW).reshape(v.shape[:-1] + (3, 3)) + c[..., None, None] * np.eye(3)
 
 
 # Shepperd: with k the largest of the four squared components, the quaternion times 2 s (s = 2|q_k|)
