@@ -177,6 +177,9 @@ class Retargeter:
                 if nxt:      # stay on the spread chain (a side branch, e.g. a clavicle, is not its end)
                     j = nxt[0]
                     continue
+                if not rk and len(kids) == 1 and by.get(ch.joint_names[kids[0]]) is None:
+                    j = kids[0]  # an unmapped joint inside the chain takes its share too
+                    continue
                 if rk:       # the chain's end: the rotate-mapped child continuing its direction
                     up = ch.rest_offsets[j] / max(np.linalg.norm(ch.rest_offsets[j]), 1e-12)
                     end = max(rk, key=lambda k: float(ch.rest_offsets[k] @ up) / max(np.linalg.norm(ch.rest_offsets[k]), 1e-12))
@@ -192,9 +195,13 @@ class Retargeter:
             # end point: the end joint if it has a source point, else its child with one
             endpt, endsrc = end, by.get(ch.joint_names[end])
             if endsrc is None or endsrc.position is None:
-                endpt = next((k for k in ch.children(end) if by.get(ch.joint_names[k]) is not None
-                              and by[ch.joint_names[k]].position is not None), -1)
-                endsrc = by.get(ch.joint_names[endpt]) if endpt >= 0 else None
+                # the end joint's child continuing the chain, if the source has a point there
+                kids = list(ch.children(end))
+                up = ch.rest_offsets[end] / max(np.linalg.norm(ch.rest_offsets[end]), 1e-12)
+                kid = max(kids, key=lambda k: float(ch.rest_offsets[k] @ up) / max(np.linalg.norm(ch.rest_offsets[k]), 1e-12),
+                          default=-1)
+                ek = by.get(ch.joint_names[kid]) if kid >= 0 else None
+                endpt, endsrc = (kid, ek) if ek is not None and ek.position is not None else (-1, None)
             piv_e = by.get(ch.joint_names[chain[0]])
             piv_src = piv_e.position if piv_e is not None and piv_e.position else by[ch.joint_names[start]].position
             ratio = np.nan

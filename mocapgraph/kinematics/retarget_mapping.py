@@ -158,6 +158,10 @@ def derive_mapping(ch: Character, src: SourceSkeleton, *, source_label: str = ""
         if s is None and role is None and name in src.point_names:
             s = name
         if s is None:
+            limb = OPTICAL_ROTATION_LIMB.get(role or "") if src.kind == "optical" and role == "chest" else None
+            if limb in src.rotation_names:   # a chest joint: the upper torso turns it, no point there, so
+                # the spine below it spreads from the pelvis up to it
+                entries.append(JointMap(name, "rotate", limb, None))
             continue
         if src.kind == "optical":
             limb = OPTICAL_ROTATION_LIMB.get(role or "", None)

@@ -162,3 +162,25 @@ def test_quaternion_helpers_against_scipy():
     # the swing does not turn about the axis: it leaves axis's own plane
     np.testing.assert_allclose(Rotation.from_quat(sw, scalar_first=True).as_rotvec() @ axis, 0, atol=1e-9)
     assert np.all(np.abs(twist_angle(tw, axis)) <= np.pi)
+
+
+def test_actor_onto_mixamo_spreads_the_spine_and_lands_its_end(actor):
+    """The automatic mapping onto Mixamo: Spine and Spine1 spread between the pelvis and the chest
+    (Spine2, turned by the upper torso), and the neck lands on the scaled source neck."""
+    from mocapgraph.formats.character_file import load_character
+    cap, src, pts, limbs = actor
+    mix = load_character("mixamo")
+    m = derive_mapping(mix, src)
+    assert m.entry("Spine").mode == "spread" and m.entry("Spine2").rotation == "upper_torso"
+    rt = Retargeter(mix, m, src, RetargetOptions())
+    out = rt.process(pts, None, limbs)
+    assert np.isfinite(out.local_rotations).all()
+    chain = rt._chains[0]
+    assert [mix.joint_names[j] for j in chain["joints"]] == ["Spine", "Spine1"]
+    p = out.joint_positions
+    want = chain["ratio"] * (pts[:, src.point("neck")] - pts[:, src.point("waist")])
+    got = p[:, mix.index("Neck")] - p[:, mix.index("Spine")]
+    err = np.linalg.norm(got - want, axis=-1)
+    print(f"\nactor onto Mixamo: neck end point vs the scaled source spine, mean {1000 * err.mean():.2f} mm, "
+          f"max {1000 * err.max():.2f} mm")
+    assert err.max() < 0.005
