@@ -28,7 +28,7 @@ from ..messages import (ActorPose, CharacterInfo, CharacterPose, NodeCommand, No
                         SkeletonModel, SkeletonPose)
 from ..formats.mapping_file import write_mapping
 
-COMMANDS = ("capture_rest_pose", "reset")
+from ..messages.commands import RETARGET_COMMANDS as COMMANDS
 
 
 class RetargeterNode(Node):
