@@ -159,8 +159,11 @@ def _check_files(ns: NodeSpec, iface: Interface, params: dict[str, Any]) -> None
             raise ns.error(f"params.{key}", str(exc)) from None
 
 
-def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
+def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None = None) -> CheckedGraph:
     """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault.
+
+    machine: the `--machine` this check is for: only its nodes' hosts must be addresses of this
+    machine (the others' must resolve); None checks every node as local.
 
     check_files: also check that input-file params name readable files (off for drawing a graph).
     """
@@ -174,7 +177,17 @@ def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
         problem = ipc_path_problem(ns.name)
         if problem:
             raise ns.error("name", problem)
-        if ns.host:
+        if machine is not None and not ns.machine:
+            raise ns.error("name", "launched with --machine, every node names its machine: (this one does not)")
+        if ns.host and machine is not None and ns.machine != machine:
+            try:
+                socket.getaddrinfo(ns.host, None)
+            except (socket.gaierror, UnicodeError):
+                raise ns.error("host", f"{ns.host[:80]!r} is neither an IP address nor a name that resolves") from None
+            if not _loopback(ns.host) and not (spec.security.curve or spec.security.insecure):
+                raise ns.error("host", f"{ns.host} is reachable from other machines: give the graph a security: "
+                               "section (key:, authorized:) or security: {insecure: true}")
+        elif ns.host:
             problem = host_problem(ns.host)
             if problem:
                 raise ns.error("host", problem)
@@ -246,6 +259,10 @@ def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
                     raise rn.spec.error(_blame_key(rn.spec, port, decl.topic),
                                         f"input {port!r} wants {decl.type_name} on {topic!r}, but {pub} publishes {t}")
             flow.add_edge(("topic", topic), ("node", rn.name), type=decl.type_name)
+    if machine is not None and not any(rn.spec.machine == machine for rn in resolved):
+        known = sorted({rn.spec.machine for rn in resolved if rn.spec.machine})
+        raise GraphError(spec.file, None, "machine", f"no node runs on machine {machine!r} "
+                         f"(machines: {', '.join(known) or 'none named'})")
     return CheckedGraph(spec, resolved, flow)
 
 

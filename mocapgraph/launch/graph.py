@@ -38,7 +38,8 @@ from typing import Any
 
 from ..formats.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
-NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "doc", "if")
+NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "port", "machine",
+             "doc", "if")
 TOP_KEYS = ("args", "include", "nodes", "external", "expects", "description", "security")
 SECURITY_KEYS = ("key", "authorized", "insecure")
 EXPECTS_KEYS = ("topic", "type", "doc")
@@ -61,6 +62,8 @@ class NodeSpec:
     respawn_delay: float = 0.5
     required: bool = False
     host: str = ""
+    port: int = 0  # fixed tcp port (needed by nodes that others on other machines connect to)
+    machine: str = ""  # which `launch --machine NAME` runs it ('' : every launch without --machine)
     file: str = ""
     line: int = 0
     key_lines: dict[str, int] = field(default_factory=dict)
@@ -322,12 +325,18 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
             key_lines=dict(raw.key_lines),
             param_lines=dict(getattr(params, "key_lines", {})),
         )
-        for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str)):
+        for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str),
+                          ("machine", str), ("port", int)):
             if key in raw:
                 value = _substitute(raw[key], args, str(path), raw.line_of(key), key)
                 if (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))
                         or (key == "respawn_delay" and not (math.isfinite(value) and 0 <= value <= 3600))):
                     raise node.error(key, f"wants {'a finite number of seconds in [0, 3600]' if key == 'respawn_delay' else kind.__name__}, "
                                      f"got {value!r}")
+                if key == "port" and not 1 <= value <= 65535:
+                    raise node.error(key, f"wants a tcp port in 1..65535, got {value!r}")
                 setattr(node, key, float(value) if key == "respawn_delay" else value)
+        if node.machine and not (node.host and node.port):
+            raise node.error("machine", "a node on a named machine needs host: (that machine's address) and port: "
+                             "so the other machines can connect to it")
         spec.nodes.append(node)

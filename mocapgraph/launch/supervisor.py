@@ -78,7 +78,9 @@ class LaunchError(RuntimeError):
 class Supervisor:
     """Starts, watches and stops the processes of a checked graph."""
 
-    def __init__(self, graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None) -> None:
+    def __init__(self, graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None,
+                 machine: str | None = None) -> None:
+        self.machine = machine
         self.graph = graph
         self.master = master or default_master()
         self.out = out or sys.stdout
@@ -94,8 +96,14 @@ class Supervisor:
         self._plan()
 
     # ----- planning -----------------------------------------------------------------------
+    def local(self, rn: ResolvedNode) -> bool:
+        """Whether this launcher runs ``rn`` (with --machine: the nodes of that machine only)."""
+        return self.machine is None or rn.spec.machine == self.machine
+
     def _endpoint(self, rn: ResolvedNode) -> str:
         host = rn.spec.host
+        if host and rn.spec.port:
+            return f"tcp://{host}:{rn.spec.port}"
         if host and host not in ("localhost",):
             return f"tcp://{host}:{_free_tcp_port(host)}"
         return f"ipc://{self.run_dir / (rn.name + '.pub')}"
@@ -104,6 +112,8 @@ class Supervisor:
         self.endpoints = {rn.name: self._endpoint(rn) for rn in self.graph.nodes}
         plan = plan_wiring(self.graph, self.endpoints, self.control_ep)
         for rn in self.graph.nodes:
+            if not self.local(rn):
+                continue  # runs on another machine; its endpoint is in the plan all the same
             wiring = plan[rn.name]
             wf = self.run_dir / f"{rn.name}.json"
             wf.write_text(json.dumps({"class": rn.class_path, "params": rn.params, "wiring": wiring.__dict__}))
@@ -215,7 +225,7 @@ class Supervisor:
             self.control.poll(10)
         # Downstream first, each acknowledged before the next: a node is in its started state
         # (calibration in auto mode, say) before any source upstream of it sends a frame.
-        for name in reversed(shutdown_order(self.graph)):
+        for name in reversed([n for n in shutdown_order(self.graph) if n in self.children]):
             self._send(name, START)
             t_ack = time.monotonic() + START_ACK_TIMEOUT_S
             while not self.children[name].started and time.monotonic() < t_ack:
@@ -312,7 +322,7 @@ class Supervisor:
     def shutdown(self) -> None:
         """Stop nodes upstream first; escalate to SIGTERM then SIGKILL for stragglers."""
         t0 = time.monotonic()
-        for name in shutdown_order(self.graph):
+        for name in [n for n in shutdown_order(self.graph) if n in self.children]:
             c = self.children[name]
             c.respawn_at = None
             if c.proc is None or c.proc.poll() is not None:
@@ -350,9 +360,11 @@ def _wait(proc: subprocess.Popen, timeout: float) -> bool:
         return False
 
 
-def run_graph(graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None) -> int:
-    """Launch, supervise and stop a graph; Ctrl-C / SIGTERM stop it in order. Exit code."""
-    sup = Supervisor(graph, master, out)
+def run_graph(graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None,
+              machine: str | None = None) -> int:
+    """Launch, supervise and stop a graph (with ``machine``: only that machine's nodes, connected to
+    the others'); Ctrl-C / SIGTERM stop it in order. Exit code."""
+    sup = Supervisor(graph, master, out, machine)
     hits = {"n": 0}
 
     def on_signal(signum: int, frame: Any) -> None:
