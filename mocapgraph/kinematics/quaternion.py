@@ -73,3 +73,64 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
     out = np.array(q, dtype=np.float64, copy=True)
     out[..., 1:] *= -1.0
     return out
+
+
+def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotations [..., 4] taking directions a onto b ([..., 3], any length).
+
+    Antiparallel pairs turn by pi about an axis perpendicular to a (any such axis is shortest).
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    w = 1.0 + np.sum(a * b, axis=-1)
+    xyz = np.cross(a, b)
+    flip = w < 1e-9
+    if np.any(flip):
+        # a perpendicular axis: a x X, or a x Y when a is along X
+        alt = np.cross(a, np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+        xyz = np.where(flip[..., None], alt, xyz)
+        w = np.where(flip, 0.0, w)
+    q = np.concatenate([w[..., None], xyz], axis=-1)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors v [..., 3] rotated by unit quaternions q [..., 4] (broadcasting)."""
+    q = np.asarray(q, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + q[..., :1] * t + np.cross(u, t)
+
+
+def quat_power(q: np.ndarray, f) -> np.ndarray:
+    """q^f: the rotation about q's axis by f times its angle (f broadcasts; shortest arc first)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    s = np.linalg.norm(q[..., 1:], axis=-1)
+    half = np.arctan2(s, q[..., 0]) * f
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = np.where(s[..., None] > 1e-15, q[..., 1:] / s[..., None], 0.0)
+    return np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis], axis=-1)
+
+
+def swing_twist(q: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Decompose q = swing * twist with twist about ``axis`` (unit, q's own frame) [..., 4] each."""
+    q = np.asarray(q, dtype=np.float64)
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+    proj = np.sum(q[..., 1:] * axis, axis=-1, keepdims=True) * axis
+    twist = np.concatenate([q[..., :1], np.broadcast_to(proj, q.shape[:-1] + (3,))], axis=-1)
+    n = np.linalg.norm(twist, axis=-1, keepdims=True)
+    twist = np.where(n > 1e-12, twist / np.where(n > 1e-12, n, 1.0), [1.0, 0.0, 0.0, 0.0])
+    swing = quat_multiply(q, quat_conjugate(twist))
+    return swing, twist
+
+
+def twist_angle(twist: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Signed angle (rad, in (-pi, pi]) of a twist quaternion about ``axis``."""
+    s = np.sum(np.asarray(twist)[..., 1:] * axis, axis=-1)
+    ang = 2.0 * np.arctan2(s, twist[..., 0])
+    return (ang + np.pi) % (2 * np.pi) - np.pi
