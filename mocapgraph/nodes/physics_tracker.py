@@ -69,6 +69,8 @@ class PhysicsTrackerNode(Node):
     characters = Param([], "character names to simulate, in world order; empty: every one that appears")
     stale_s = Param(0.25, "no frame for this long: keep simulating in wall time (stand and wait), s",
                     minimum=0.01)
+    max_lag_s = Param(0.05, "a frame published longer ago than this only updates the target (the node "
+                      "was behind: it catches up instead of queueing latency), s", minimum=0.0)
 
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
@@ -81,6 +83,7 @@ class PhysicsTrackerNode(Node):
         self.last_step_wall = time.monotonic()
         self.last_frame_wall = -np.inf
         self.frames = 0
+        self.skipped = 0
         self.step_ms: list[float] = []
         self.db: PostureDB | None = None
         self.stage_def = EMPTY_STAGE
@@ -173,11 +176,14 @@ class PhysicsTrackerNode(Node):
             w.set_target(k, c.positions, c.orientations, t)
         self.last_frame_wall = time.monotonic()
         if k == 0:
+            if time.time_ns() - env.publish_ns > self.max_lag_s * 1e9:
+                self.skipped += 1  # behind: take the target, step on a fresh frame
+                return
             dt = 1.0 / 120.0 if self.last_capture_ns is None else (env.capture_ns - self.last_capture_ns) * 1e-9
             self.last_capture_ns = env.capture_ns
             if not 0.0 < dt < 0.1:  # a replay looped or a gap: one nominal frame, never a leap
                 dt = 1.0 / 120.0
-            self._step(dt, env.capture_ns)
+            self._step(min(dt, 2.0 / 120.0), env.capture_ns)
 
     def _idle(self) -> None:
         if self.world is None:
@@ -206,7 +212,7 @@ class PhysicsTrackerNode(Node):
 
     def _publish_status(self) -> None:
         w = self.world
-        data = {"characters": self.order, "frames": self.frames}
+        data = {"characters": self.order, "frames": self.frames, "skipped_behind": self.skipped}
         if w is not None:
             err = w.tracking_error()
             data.update(max_force_n=w.max_applied_force, max_torque_nm=w.max_applied_torque,

@@ -76,7 +76,8 @@ class Frame:
 def normalise(frame: Frame, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Postures [N, J, 3] with root at the origin and heading zero; returns (normalised, yaw, origin, ok)."""
     yaw, origin, ok = frame.yaw_and_origin(pos)
-    c, s = np.cos(-np.nan_to_num(yaw)), np.sin(-np.nan_to_num(yaw))
+    y0 = np.where(np.isfinite(yaw), yaw, 0.0)
+    c, s = np.cos(-y0), np.sin(-y0)
     d = pos - origin[:, None]
     out = np.empty_like(d)
     out[..., 0] = c[:, None] * d[..., 0] - s[:, None] * d[..., 1]

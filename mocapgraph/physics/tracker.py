@@ -21,6 +21,32 @@ from ..kinematics.character import Character
 from .posture_db import PostureDB
 
 
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise Hamilton products of [N, 4] wxyz arrays (lean: the per-frame path)."""
+    aw, ax, ay, az = a.T
+    bw, bx, by, bz = b.T
+    out = np.empty_like(a)
+    out[:, 0] = aw * bw - ax * bx - ay * by - az * bz
+    out[:, 1] = aw * bx + ax * bw + ay * bz - az * by
+    out[:, 2] = aw * by - ax * bz + ay * bw + az * bx
+    out[:, 3] = aw * bz + ax * by - ay * bx + az * bw
+    return out
+
+
+def world_orientations(local: np.ndarray, rest: np.ndarray, parents: np.ndarray, levels) -> np.ndarray:
+    """World orientations [J, 4] (wxyz) of local rotations [J, 4]: W[j] = W[parent] rest[j] local[j],
+    by quaternion products one depth level at a time (the character's matrix FK costs 10x more)."""
+    joint = _qmul(rest, local)
+    world = np.empty_like(joint)
+    world[levels[0]] = joint[levels[0]]
+    for level in levels[1:]:
+        world[level] = _qmul(world[parents[level]], joint[level])
+    return world
+
+
 @dataclass
 class Conditioned:
     """What went into the world this frame."""
@@ -41,6 +67,7 @@ class TargetConditioner:
                              f"{character.name!r} ({character.n_joints} joints)")
         self.character = character
         self.db = db
+        self._levels = character._levels
         self.last: Conditioned | None = None
         self.filled_frames = 0
         self.held_frames = 0
@@ -67,12 +94,13 @@ class TargetConditioner:
             root = pos[ch.root] if np.isfinite(pos[ch.root]).all() else None
         orient = np.full((ch.n_joints, 4), np.nan)
         if root is not None:
-            # FK needs every rotation: a missing one turns with its parent (identity) and its
-            # orientation (and those below) are marked unknown
+            # a missing rotation turns with its parent (identity) and its orientation (and those
+            # below) are marked unknown
             chain_ok = ok_r.copy()
-            for level in ch._levels[1:]:
+            for level in self._levels[1:]:
                 chain_ok[level] &= chain_ok[ch.parents[level]]
-            _, world = ch.forward_kinematics(np.where(ok_r[:, None], rot, [1.0, 0, 0, 0]), root)
+            world = world_orientations(np.where(ok_r[:, None], rot, IDENTITY), ch.rest_rotations, ch.parents,
+                                       self._levels)
             orient = np.where(chain_ok[:, None], world, np.nan)
         out = Conditioned(np.where(np.isfinite(pos).all(1)[:, None], pos, np.nan), orient, filled, False, match)
         self.last = out
