@@ -24,11 +24,13 @@ class PlantState:
     anchor: np.ndarray           # [2, 2] planted ankle xy, m
     offset: np.ndarray           # [2, 2] target minus ankle xy at the last frame, m (fades after release)
     last_xy: np.ndarray          # [2, 2] ankle xy at the last frame (NaN: none yet)
+    history_t: list = None       # recent frame times, s (the speed window)
+    history_xy: list = None      # recent ankle xy [2, 2] per frame
     last_t: float = float("nan")
 
     @classmethod
     def fresh(cls) -> "PlantState":
-        return cls(np.zeros(2, bool), np.zeros((2, 2)), np.zeros((2, 2)), np.full((2, 2), np.nan))
+        return cls(np.zeros(2, bool), np.zeros((2, 2)), np.zeros((2, 2)), np.full((2, 2), np.nan), [], [])
 
 
 def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np.ndarray,
@@ -59,7 +61,7 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np
 
 def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarray, state: PlantState, *,
                   floor_z: float, height_m: float, speed_mps: float, release_s: float,
-                  toe_lift: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  toe_lift: np.ndarray | None = None, window_s: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     """Ankle targets [F, 2, 3] and contact flags [F, 2] for ankle positions [F, 2, 3] (NaN: no data).
 
     ``rest_height`` [2]: ankle height above the floor at rest. ``toe_lift`` [F, 2]: how far the toe
@@ -75,11 +77,22 @@ def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarra
         ok = np.isfinite(a).all(axis=1)
         t = float(times_s[f])
         dt = t - state.last_t if np.isfinite(state.last_t) else np.nan
-        speed = np.linalg.norm(a[:, :2] - state.last_xy, axis=1) / dt if dt and dt > 0 else np.full(2, np.inf)
-        low = a[:, 2] - min_z < height_m
-        c = ok & low & (speed < speed_mps)
+        # marker noise makes frame-to-frame speeds of a standing foot reach 0.5 m/s: the speed is the
+        # least-squares slope over the last ``window_s`` (noise averages out, lag is half the window),
+        # and a plant is kept with hysteresis (twice the speed, 1.5 times the height): no chatter
+        state.history_t.append(t)
+        state.history_xy.append(np.where(ok[:, None], a[:, :2], np.nan))
+        while len(state.history_t) > 2 and t - state.history_t[0] > window_s:
+            state.history_t.pop(0)
+            state.history_xy.pop(0)
+        speed = _slope_speed(np.array(state.history_t), np.array(state.history_xy))
+        h = a[:, 2] - min_z
+        enter = (h < height_m) & (speed < speed_mps)
+        stay = state.planted & (h < 1.5 * height_m) & (speed < 2.0 * speed_mps)
+        c = ok & (enter | stay)
         new = c & ~state.planted
-        state.anchor[new] = a[new, :2]
+        # a plant begins where the foot is drawn now (a fading offset included): no jump
+        state.anchor[new] = a[new, :2] + np.where(np.isfinite(dt), 1.0, 0.0) * state.offset[new]
         xy = a[:, :2].copy()
         xy[c] = state.anchor[c]
         # released: fade the last offset out over release_s
@@ -100,3 +113,22 @@ def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarra
         state.last_xy = np.where(ok[:, None], a[:, :2], state.last_xy)
         state.last_t = t
     return target, contact
+
+
+def _slope_speed(t: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Horizontal speed [2] (m/s) from a least-squares line through samples xy [N, 2, 2] at t [N];
+    0 with fewer than 2 finite samples (a first frame is judged by its height alone)."""
+    if len(t) < 2:
+        return np.zeros(2)
+    ok = np.isfinite(xy).all(axis=2)                       # [N, 2]
+    w = ok.astype(float)
+    n = w.sum(0)
+    tc = np.where(ok, t[:, None], 0.0)
+    tm = tc.sum(0) / np.maximum(n, 1)
+    dt = np.where(ok, t[:, None] - tm, 0.0)
+    x = np.where(ok[..., None], xy, 0.0)
+    xm = x.sum(0) / np.maximum(n, 1)[:, None]
+    num = (dt[..., None] * (x - xm)).sum(0)
+    den = (dt ** 2).sum(0)
+    v = num / np.where(den > 0, den, 1.0)[:, None]
+    return np.where((n >= 2) & (den > 0), np.linalg.norm(v, axis=1), 0.0)

@@ -44,7 +44,7 @@ class RetargetOptions:
     scale: float | None = None     # fixed root ratio (None: the mapping's, else the leg ratio)
     floor_z: float = 0.0
     contact_height_m: float = 0.03
-    contact_speed_mps: float = 0.25
+    contact_speed_mps: float = 0.3
     release_s: float = 0.15
 
 
@@ -67,6 +67,14 @@ class _State:
     pts: np.ndarray
     pts_seen: np.ndarray
     plant: PlantState = field(default_factory=PlantState.fresh)
+
+
+def rest_floor(rest_positions: np.ndarray) -> float:
+    """Floor height of a rest pose, m: 0 when the pose plausibly stands on z = 0 (lowest joint
+    between -5 cm and 20 cm, e.g. an ankle), else the lowest joint (a BVH rest pose hanging from a
+    root at the origin: its toes are the floor)."""
+    low = float(np.nanmin(rest_positions[:, 2]))
+    return 0.0 if -0.05 <= low <= 0.20 else low
 
 
 def _eye(n: int) -> np.ndarray:
@@ -160,12 +168,13 @@ class Retargeter:
                 kids = [k for k in ch.children(j)]
                 nxt = [k for k in kids if k in sset]
                 rk = [k for k in kids if driven[k]]
-                if rk:
-                    end = rk[0]
-                    break
-                if not nxt:
-                    break
-                j = nxt[0]
+                if nxt:      # stay on the spread chain (a side branch, e.g. a clavicle, is not its end)
+                    j = nxt[0]
+                    continue
+                if rk:       # the chain's end: the rotate-mapped child continuing its direction
+                    up = ch.rest_offsets[j] / max(np.linalg.norm(ch.rest_offsets[j]), 1e-12)
+                    end = max(rk, key=lambda k: float(ch.rest_offsets[k] @ up) / max(np.linalg.norm(ch.rest_offsets[k]), 1e-12))
+                break
             if end < 0:
                 raise MappingError(f"{m.where(by[ch.joint_names[s]])}: joints.{ch.joint_names[s]}: a spread joint "
                                    "needs a rotate-mapped joint below it in the chain")
@@ -231,8 +240,9 @@ class Retargeter:
         self._root = root
         self._root_src = src.point(re.position)
         self._root_A = quat_to_matrix(re.A)
-        self._h_c = cpos[root, 2] - cpos[:, 2].min()
-        self._h_s = src.rest_points[self._root_src, 2] - np.nanmin(src.rest_points[:, 2])
+        c_floor, s_floor = rest_floor(cpos), rest_floor(src.rest_points)
+        self._h_c = cpos[root, 2] - c_floor
+        self._h_s = src.rest_points[self._root_src, 2] - s_floor
         self.ratio = self._leg_ratio() if opt.root_scale else 1.0
         if opt.scale is not None:
             self.ratio = float(opt.scale)
@@ -270,8 +280,8 @@ class Retargeter:
                 self._legs = dict(below_knee=below_knee, hip=hip, knee=knee, ankle=ankle, toe=toe, sub=sub,
                                   l1=np.linalg.norm(cpos[knee] - cpos[hip], axis=1),
                                   l2=np.linalg.norm(cpos[ankle] - cpos[knee], axis=1),
-                                  rest_h=cpos[ankle, 2] - cpos[:, 2].min(),
-                                  toe_h=np.where(toe >= 0, cpos[np.maximum(toe, 0), 2] - cpos[:, 2].min(), np.nan))
+                                  rest_h=cpos[ankle, 2] - c_floor,
+                                  toe_h=np.where(toe >= 0, cpos[np.maximum(toe, 0), 2] - c_floor, np.nan))
         # --- positions-only sources
         self._plan = plan_point_rotations(src) if src.derived_rotations else None
         self.reset()
@@ -467,8 +477,10 @@ class Retargeter:
         toe_lift = None
         if (L["toe"] >= 0).all():
             toe_lift = (opt.floor_z + L["toe_h"]) - pos[:, L["toe"], 2]
+        # thresholds are for a performer-sized character: a bigger one moves (and jitters) faster
+        k = max(self.ratio, 1e-3)
         target, contact = plant_targets(ankle, L["rest_h"], t, self._state.plant, floor_z=opt.floor_z,
-                                        height_m=opt.contact_height_m, speed_mps=opt.contact_speed_mps,
+                                        height_m=opt.contact_height_m * k, speed_mps=opt.contact_speed_mps * k,
                                         release_s=opt.release_s, toe_lift=toe_lift)
         hip, knee = pos[:, L["hip"]], pos[:, L["knee"]]
         pole = (world[:, L["hip"]] @ np.array([1.0, 0.0, 0.0]))  # the thigh's forward axis

@@ -234,3 +234,20 @@ def kinect_source(names, parents, kind_hint: str = "") -> SourceSkeleton:
     offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
     return skeleton_source(names, par, offs, has_orientations=False,
                            kind_hint=kind_hint or ("kinect_v2" if len(names) == 25 else "kinect_v1"))
+
+
+def character_from_actor(joint_names, joint_parent, base_joints, name: str = "actor"):
+    """A character with an optical actor's skeleton: root ``pelvis`` (mid-hips) and the actor's
+    joints, rest offsets from the base pose (a T-pose), identity rest rotations."""
+    from .character import Character
+    src = optical_source(joint_names, joint_parent, np.zeros((len(joint_names), 2), int), ("lower_torso",), base_joints)
+    names = src.point_names
+    n = len(names)
+    parents = np.where(src.point_parents < 0, n - 1, src.point_parents)
+    parents[n - 1] = -1
+    order = [n - 1] + [j for j in _topological(parents) if j != n - 1]
+    remap = {old: new for new, old in enumerate(order)}
+    par = np.array([-1 if parents[o] < 0 else remap[int(parents[o])] for o in order])
+    rest = src.rest_points[order]
+    offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+    return Character(name, tuple(names[o] for o in order), par, offs, np.tile(IDENTITY, (n, 1)))

@@ -15,8 +15,8 @@ Commands on ``physics_command`` (NodeCommand, target '' or this node, args JSON)
 ``hold`` / ``drop`` (held objects), ``dodge {on: true}``, ``reach {character, joint, geom}``,
 ``release {character, joint}`` (a reach), ``reset`` (every character back onto its target).
 
-CharacterInfo carries no rest orientations: characters are built with identity rest rotations
-(true of standard_20 and of characters read from BVH).
+The simulated character's joints are flagged estimated (1) in its CharacterPose: the body's
+answer to a target, not a measurement.
 """
 from __future__ import annotations
 
@@ -113,13 +113,14 @@ class PhysicsTrackerNode(Node):
             return
         n = len(msg.joint_names)
         try:
-            ch = Character(name, tuple(msg.joint_names), msg.joint_parent.astype(np.int64), msg.rest_offsets,
-                           np.tile([1.0, 0, 0, 0], (n, 1)))
+            rest = msg.rest_rotations if msg.rest_rotations.shape == (n, 4) else np.tile([1.0, 0, 0, 0], (n, 1))
+            ch = Character(name, tuple(msg.joint_names), msg.joint_parent.astype(np.int64), msg.rest_offsets, rest)
         except CharacterError as exc:
             self.log.error("character %s refused: %s", name, exc)
             return
         old = self.chars.get(name)
-        if old is not None and old.joint_names == ch.joint_names and np.allclose(old.rest_offsets, ch.rest_offsets):
+        if old is not None and old.joint_names == ch.joint_names and np.allclose(old.rest_offsets, ch.rest_offsets) \
+                and np.allclose(old.rest_rotations, ch.rest_rotations):
             return
         self.chars[name] = ch
         if name not in self.order:
@@ -143,13 +144,16 @@ class PhysicsTrackerNode(Node):
                 self.log.warning("posture database joints do not match %s: no filling for it", ch.name)
             self.cond.append(TargetConditioner(ch, db))
         self.started_pose = [False] * len(chars)
+        # a simulated joint is estimated (1): the body's answer to its target, never a measurement
+        self._sim_quality = np.ones(max(c.n_joints for c in chars), dtype=np.int8)
         shapes, sizes = self.world.geom_shapes()
         self.physics_scene.publish(PhysicsScene(body_names=list(self.world.geom_names), shapes=list(shapes),
                                                 sizes=sizes))
         for ch in chars:
             self.sim_character_info.publish(CharacterInfo(character=ch.name + SUFFIX, joint_names=list(ch.joint_names),
                                                           joint_parent=ch.parents.astype(np.int32),
-                                                          rest_offsets=ch.rest_offsets))
+                                                          rest_offsets=ch.rest_offsets,
+                                                          rest_rotations=ch.rest_rotations))
         self.log.info("physics world: %s on stage %s (%d bodies, %d DOF, timestep %.4f s)",
                       ", ".join(self.order), self.stage_def.name, self.world.model.nbody, self.world.model.nv,
                       self.timestep)
@@ -166,7 +170,8 @@ class PhysicsTrackerNode(Node):
                              msg.character, msg.joint_positions.shape[0], ch.n_joints)
             return
         env = self.character_pose.envelope
-        c = self.cond[k].condition(msg.joint_positions, msg.local_rotations, msg.root_position)
+        q = msg.joint_quality if msg.joint_quality.shape == (ch.n_joints,) else None
+        c = self.cond[k].condition(msg.joint_positions, msg.local_rotations, msg.root_position, q)
         if not self.started_pose[k] and not c.held and np.isfinite(msg.local_rotations).all() \
                 and np.isfinite(msg.root_position).all():
             w.set_pose(k, msg.local_rotations, msg.root_position)
@@ -208,7 +213,8 @@ class PhysicsTrackerNode(Node):
             local, root = w.local_rotations(k)
             self.sim_character_pose.publish(CharacterPose(character=name + SUFFIX, frame_number=self.frames,
                                                           root_position=root, local_rotations=local,
-                                                          joint_positions=w.joint_positions(k)), capture_ns)
+                                                          joint_positions=w.joint_positions(k),
+                                                          joint_quality=self._sim_quality), capture_ns)
 
     def _publish_status(self) -> None:
         w = self.world

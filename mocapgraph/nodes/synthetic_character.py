@@ -6,7 +6,8 @@ on the character, no markers or calibration in between). Publishes the latched `
 and one ``character_pose`` per frame at ``rate_hz`` over [start_s, stop_s) of the session, looping.
 
 ``faults`` injects bad input the way a real stream breaks, each ``{kind, from_s, to_s, joints}``
-with times from the first frame: ``nan`` (the joints, or every joint, NaN), ``jump`` (everything
+with times from the first frame: ``nan`` (the joints, or every joint, NaN and quality 0; the
+retargeter itself never sends NaN, so this is the hostile case), ``jump`` (everything
 moved ``offset`` metres, default 1 m forward), ``stop`` (no frames at all).
 """
 from __future__ import annotations
@@ -54,7 +55,7 @@ class SyntheticCharacterNode(Node):
         ch = self.clip.character
         self.character_info.publish(CharacterInfo(character=self.character, joint_names=list(ch.joint_names),
                                                   joint_parent=ch.parents.astype(np.int32),
-                                                  rest_offsets=ch.rest_offsets))
+                                                  rest_offsets=ch.rest_offsets, rest_rotations=ch.rest_rotations))
         self.t0 = time.monotonic()
         self.add_timer(1.0 / self.rate_hz, self._tick)
 
@@ -74,6 +75,7 @@ class SyntheticCharacterNode(Node):
         pos = self.clip.positions[f] + self.off
         rot = self.clip.local_rotations[f]
         root = self.clip.root[f] + self.off
+        quality = np.full(self.clip.character.n_joints, 2, dtype=np.int8)
         for fault in self.faults:
             if not float(fault.get("from_s", 0)) <= t < float(fault.get("to_s", 1e18)):
                 continue
@@ -86,6 +88,7 @@ class SyntheticCharacterNode(Node):
                 pos, rot = pos.copy(), rot.copy()
                 pos[idx] = np.nan
                 rot[idx] = np.nan
+                quality[idx] = 0
                 if ch.root in idx:
                     root = np.full(3, np.nan)
             elif kind == "jump":
@@ -93,4 +96,5 @@ class SyntheticCharacterNode(Node):
                 pos, root = pos + d, root + d
         stamp = int(round(t * 1e9)) + 1
         self.character_pose.publish(CharacterPose(character=self.character, frame_number=i, root_position=root,
-                                                  local_rotations=rot, joint_positions=pos), stamp)
+                                                  local_rotations=rot, joint_positions=pos,
+                                                  joint_quality=quality), stamp)

@@ -2,7 +2,8 @@
 
 Per frame of a character (positions [J, 3] m, local rotations [J, 4] wxyz, root [3] m, world):
 
-* missing joints (non-finite rows) are filled from the posture database (P_e, Θ_e, section 5);
+* missing joints (non-finite rows, or quality below good) are filled from the posture database
+  (P_e, Θ_e, section 5);
   without a database they get no target (no force, no torque) rather than a guess;
 * a frame with nothing usable, or a stream that stops, keeps the last good target: the character
   stands and waits;
@@ -72,7 +73,10 @@ class TargetConditioner:
         self.filled_frames = 0
         self.held_frames = 0
 
-    def condition(self, positions: np.ndarray, local_rotations: np.ndarray, root: np.ndarray) -> Conditioned:
+    def condition(self, positions: np.ndarray, local_rotations: np.ndarray, root: np.ndarray,
+                  quality: np.ndarray | None = None) -> Conditioned:
+        """``quality`` [J] (0 missing, 1 estimated, 2 good): with a database, joints below 2 are
+        replaced by the match (a held value is what the database should beat)."""
         ch = self.character
         pos = np.asarray(positions, float).reshape(ch.n_joints, 3)
         rot = np.asarray(local_rotations, float).reshape(ch.n_joints, 4)
@@ -84,6 +88,14 @@ class TargetConditioner:
         ok_p = np.isfinite(pos).all(1)
         if not ok_p.any():
             return self._hold()
+        if quality is not None and self.db is not None:
+            unsure = np.asarray(quality) < 2
+            if unsure.all():
+                return self._hold()
+            pos = np.where(unsure[:, None], np.nan, pos)
+            rot = np.where(unsure[:, None], np.nan, rot)
+            ok_p &= ~unsure
+            bad_rot |= unsure
         filled = np.zeros(ch.n_joints, bool)
         match = -1
         if self.db is not None and ((~ok_p).any() or bad_rot.any()):
