@@ -65,7 +65,8 @@ class PhysicsTrackerNode(Node):
     virtual_joints = Param(True, "pin supporting feet to the floor (Shum & Ho 6.1)")
     dodge = Param(False, "raise the forearms around the head when a ball comes at it")
     posture_db = Param("", "posture database (.npz from mocapgraph posture-db build); empty: none")
-    stage = Param("", "stage YAML (graph_configs/stages/...); empty: the floor only")
+    stage = Param("", "stage YAML or shipped stage name (graph_configs/stages: claro_pole, balls, mace); "
+                  "empty: the floor only")
     characters = Param([], "character names to simulate, in world order; empty: every one that appears")
     stale_s = Param(0.25, "no frame for this long: keep simulating in wall time (stand and wait), s",
                     minimum=0.01)

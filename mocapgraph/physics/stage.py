@@ -104,9 +104,24 @@ class _Map:
         return self.values.get(key, default)
 
 
+STAGES_DIR = Path(__file__).resolve().parents[2] / "graph_configs" / "stages"
+
+
+def resolve_stage_path(name_or_path: str | Path) -> Path:
+    """A stage file as given, or a shipped stage by name (graph_configs/stages/NAME.yaml)."""
+    p = Path(name_or_path)
+    if p.exists() or p.suffix.lower() in (".yaml", ".yml"):
+        return p
+    shipped = STAGES_DIR / f"{name_or_path}.yaml"
+    if shipped.exists():
+        return shipped
+    known = sorted(x.stem for x in STAGES_DIR.glob("*.yaml"))
+    raise StageError(f"{name_or_path}: no such stage file or shipped stage (shipped: {', '.join(known)})")
+
+
 def load_stage(path: str | Path) -> Stage:
-    """Read a stage file (StageError naming file, line and key on any fault)."""
-    path = Path(path)
+    """Read a stage file or shipped stage (StageError naming file, line and key on any fault)."""
+    path = resolve_stage_path(path)
     try:
         text = path.read_text()
     except OSError as exc:
