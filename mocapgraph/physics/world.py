@@ -452,23 +452,25 @@ class PhysicsWorld:
         vel = np.where(np.isfinite(self.override) | np.isfinite(self.dodge_override), 0.0, self.v_t)
         has_t = np.isfinite(target).all(1)
         dt_frame = n * m.opt.timestep
+        mask = has_t[:, None].astype(np.float64)
         for i in range(n):
             mujoco.mj_step1(m, d)
             # targets move on between frames at their velocity (the input arrives per frame)
-            lead = (i + 1) * m.opt.timestep - dt_frame
-            p_t = target + vel * lead
+            p_t = target + vel * ((i + 1) * m.opt.timestep - dt_frame)
             p = self.point_positions()
             v = self.point_velocities(p)
-            f = joint_forces(g, p, v, p_t, vel, self.scale_pt)
-            f[~has_t] = 0.0
-            R = d.xmat[self.b_body].reshape(-1, 3, 3)
-            axis = (R @ self.b_axis[:, :, None])[:, :, 0]
-            tq = twist_torques(g, d.xquat[self.b_body], d.cvel[self.b_body, :3], axis, self.q_t, self.w_t,
-                               self.scale_body)
-            tq[~self.has_rot] = 0.0
-            arm = p - d.xipos[self.pt_body]
-            wrench = np.concatenate([f, cross(arm, f)], axis=1)
+            f = joint_forces(g, p, v, p_t, vel, self.scale_pt) * mask
+            if i == 0:
+                # Eq 2 once per frame, held over its substeps: gains per unit inertia keep
+                # Kd_rot * frame span well inside the stable range, and it halves the work
+                R = d.xmat[self.b_body].reshape(-1, 3, 3)
+                axis = (R @ self.b_axis[:, :, None])[:, :, 0]
+                tq = twist_torques(g, d.xquat[self.b_body], d.cvel[self.b_body, :3], axis, self.q_t, self.w_t,
+                                   self.scale_body) * self.has_rot[:, None]
+                self.max_applied_torque = max(self.max_applied_torque, float(np.sqrt((tq * tq).sum(1).max(initial=0.0))))
+            wrench = np.concatenate([f, cross(p - d.xipos[self.pt_body], f)], axis=1)
             if self._pushes:
+                arm = p - d.xipos[self.pt_body]
                 for push in self._pushes:
                     if d.time < push.until:
                         wrench[push.point, :3] += push.force
@@ -480,8 +482,7 @@ class PhysicsWorld:
             d.xfrc_applied[:] = xf
             mujoco.mj_step2(m, d)
             self.max_applied_force = max(self.max_applied_force, float(np.sqrt((f * f).sum(1).max(initial=0.0))))
-            self.max_applied_torque = max(self.max_applied_torque, float(np.sqrt((tq * tq).sum(1).max(initial=0.0))))
-            self.last_forces, self.last_torques = f, tq
+        self.last_forces, self.last_torques = f, tq
         self._pushes = [p for p in self._pushes if d.time < p.until]
         self.frames_stepped += 1
         if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()) or d.warning.number[
