@@ -148,3 +148,44 @@ def test_two_characters_in_one_world_are_both_tracked():
         err[i, 1] = np.linalg.norm(w.joint_positions(1) - clip.positions[j] - off, axis=1).mean()
     print(f"\ntwo characters: MPJPE {1000 * err[:, 0].mean():.1f} mm and {1000 * err[:, 1].mean():.1f} mm")
     assert (err.mean(0) <= 0.030).all()
+
+
+def test_reach_puts_the_hand_on_an_object():
+    ch = standard_20()
+    clip = synthetic_targets(22.0, 22.01)
+    # a fixed box in front of the right hand (the performer stands at the end of the walk, facing +X)
+    where = clip.root[0] + np.array([0.35, -0.30, 0.0])
+    where[2] = 1.1
+    st = Stage("reach", (replace(load_stage(STAGES / "mace.yaml").objects[1], pos=where, fixed=True),))
+    w = PhysicsWorld([ch], st)
+    w.set_pose(0, clip.local_rotations[0], clip.root[0])
+    hand = ch.index("HandRight")
+    for i in range(150):
+        w.set_target(0, clip.positions[0], clip.orientations[0], i * DT)
+        if i == 10:
+            point = w.reach(0, "HandRight", "stage/box1")
+        w.step(DT)
+    d = np.linalg.norm(w.joint_positions(0)[hand] - point)
+    print(f"\nreach: hand {1000 * d:.1f} mm from its point on the box surface")
+    assert d < 0.06   # the hand capsule (34 mm) rests on the surface
+    w.set_override(0, "HandRight", None)
+    for i in range(150, 300):
+        w.set_target(0, clip.positions[0], clip.orientations[0], i * DT)
+        w.step(DT)
+    assert np.linalg.norm(w.joint_positions(0)[hand] - clip.positions[0, hand]) < 0.04   # back on its own target
+
+
+def test_stage_file_errors_name_file_line_and_key(tmp_path):
+    from mocapgraph.physics.stage import StageError
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nobjects:\n  - {name: a, shape: box, size: [0.1, 0.1], pos: [0, 0, 1], mass: 1}\n")
+    with pytest.raises(StageError, match=r"bad.yaml:3: size: expected 3 numbers"):
+        load_stage(bad)
+    bad.write_text("name: x\nobjects:\n  - {name: a, shape: cone, size: [0.1]}\n")
+    with pytest.raises(StageError, match=r"bad.yaml:3: shape: 'cone' is not one of"):
+        load_stage(bad)
+    bad.write_text("name: x\nobjectz: []\n")
+    with pytest.raises(StageError, match=r"bad.yaml:2: objectz: unknown key"):
+        load_stage(bad)
+    with pytest.raises(StageError, match="shipped: balls, claro_pole, mace"):
+        load_stage("nosuch")

@@ -166,3 +166,17 @@ def test_point_velocities_match_mujoco_jacobians(clip):
 def test_absurd_gains_are_refused_or_bounded():
     with pytest.raises(ValueError, match="kp"):
         Gains(kp=float("nan")).check()
+
+
+def test_physics_mjcf_command_writes_a_model_mujoco_opens(tmp_path):
+    import subprocess
+    import sys
+    out = tmp_path / "body.xml"
+    r = subprocess.run([sys.executable, "-m", "mocapgraph", "physics", "mjcf", "standard_20", "-o", str(out),
+                        "--stage", "claro_pole"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    m = mujoco.MjModel.from_xml_path(str(out))
+    assert mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "stage/cube") >= 0
+    r = subprocess.run([sys.executable, "-m", "mocapgraph", "physics", "mjcf", "standard_20", "-o", str(out),
+                        "--stage", "nosuch"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "nosuch" in r.stderr and "Traceback" not in r.stderr
