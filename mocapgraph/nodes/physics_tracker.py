@@ -189,7 +189,8 @@ class PhysicsTrackerNode(Node):
             self.last_capture_ns = env.capture_ns
             if not 0.0 < dt < 0.1:  # a replay looped or a gap: one nominal frame, never a leap
                 dt = 1.0 / 120.0
-            self._step(min(dt, 2.0 / 120.0), env.capture_ns)
+            # after skipped frames, catch up on their time too (bounded: a starved node may lag)
+            self._step(min(dt, 4.0 / 120.0), env.capture_ns)
 
     def _idle(self) -> None:
         if self.world is None:
@@ -201,7 +202,12 @@ class PhysicsTrackerNode(Node):
     def _step(self, dt: float, capture_ns: int | None) -> None:
         w = self.world
         t0 = time.perf_counter()
+        resets = w.resets
         w.step(dt)
+        if w.resets != resets:
+            self.log.warning("the simulation went unstable (gains too high for the timestep?): every character "
+                             "is put back on its next target (%d resets)", w.resets)
+            self.started_pose = [False] * len(self.order)
         self.step_ms.append((time.perf_counter() - t0) * 1e3)
         if len(self.step_ms) > 1000:
             del self.step_ms[:500]

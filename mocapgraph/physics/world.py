@@ -265,12 +265,11 @@ class PhysicsWorld:
             v = (p - prev) / dt
             v = np.where((ok_p & np.isfinite(prev).all(1))[:, None], v, 0.0)
             self.v_t[sl] = clip_norm(v, self.params.max_target_speed)
+            # angular velocity of each target orientation: 2 vec(q q_prev^-1) / dt, small-angle
+            # form (exact to 0.1 % below 6 degrees a frame; faster turns are clipped anyway)
             prevq = self.q_t[bs]
-            e = quat_multiply(q, quat_conjugate(prevq))
-            e *= np.where(e[:, :1] < 0, -1.0, 1.0)
-            ang = 2.0 * np.arctan2(np.linalg.norm(e[:, 1:], axis=1), e[:, 0])
-            axis = e[:, 1:] / np.maximum(np.linalg.norm(e[:, 1:], axis=1, keepdims=True), 1e-12)
-            w = axis * (ang / dt)[:, None]
+            e = _qmul_conj(q, prevq)
+            w = 2.0 * np.where(e[:, :1] < 0, -e[:, 1:], e[:, 1:]) / dt
             w = np.where((ok_q & self.has_rot[bs])[:, None], w, 0.0)
             self.w_t[bs] = clip_norm(w, 20.0)
         else:
@@ -522,6 +521,18 @@ class PhysicsWorld:
                  mujoco.mjtGeom.mjGEOM_CAPSULE: "capsule", mujoco.mjtGeom.mjGEOM_CYLINDER: "cylinder"}
         shapes = tuple(names.get(int(t), "mesh") for t in self.model.geom_type[self.geom_ids])
         return shapes, self.model.geom_size[self.geom_ids].copy()
+
+
+def _qmul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a * conj(b) of [N, 4] wxyz arrays."""
+    aw, ax, ay, az = a.T
+    bw, bx, by, bz = b.T
+    out = np.empty_like(a)
+    out[:, 0] = aw * bw + ax * bx + ay * by + az * bz
+    out[:, 1] = -aw * bx + ax * bw - ay * bz + az * by
+    out[:, 2] = -aw * by + ax * bz + ay * bw - az * bx
+    out[:, 3] = -aw * bz - ax * by + ay * bx + az * bw
+    return out
 
 
 def lift_above_floor(p: np.ndarray, parents: np.ndarray, min_z: np.ndarray) -> np.ndarray:
