@@ -84,6 +84,16 @@ def many(clip, n: int, frames: int) -> float:
     return 1e3 * (time.process_time() - t0) / frames
 
 
+def numpy_op_us() -> float:
+    """In-run baseline: CPU us of one small numpy operation (a [20, 3] add), ~0.5-1 us on an idle
+    core; the tracker's per-frame cost is mostly a few hundred of these."""
+    a, b = np.ones((20, 3)), np.ones((20, 3))
+    t0 = time.process_time()
+    for _ in range(20000):
+        a + b
+    return 1e6 * (time.process_time() - t0) / 20000
+
+
 def mj_step_us(clip) -> float:
     w = PhysicsWorld([clip.character])
     w.set_pose(0, clip.local_rotations[0], clip.root[0])
@@ -173,6 +183,8 @@ def main() -> None:
     load = os.getloadavg()[0]
     print(f"machine: load average {load:.2f} on {os.cpu_count()} cores; times are this process's CPU time "
           "(the machine is shared: wall time would count other people's work)")
+    op = numpy_op_us()
+    print(f"in-run baseline: one small numpy operation costs {op:.2f} us of CPU here")
     r = one_character(clip, db, opts.frames)
     total = r["cond"] + r["sim"]
     print(f"one character, 120 Hz, database of {len(db)} postures ({db.search}), a hand filled every frame:")
