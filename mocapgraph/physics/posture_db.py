@@ -140,6 +140,7 @@ class PostureDB:
         self._basis = self.components[:k]
         self._reduced = (self.positions.reshape(len(self.positions), -1) - self.mean) @ self._basis.T
         self._sqnorm = (self._reduced * self._reduced).sum(1)
+        self._reduced_t = np.ascontiguousarray(self._reduced.T)
         self._tree = cKDTree(self._reduced)
 
     def __len__(self) -> int:
@@ -156,8 +157,9 @@ class PostureDB:
         how = how or self.search
         if how == "kdtree":
             return self._tree.query(reduced, k=1)[1]
-        if len(reduced) == 1:  # the live case: one matrix-vector product, no temporaries of N x N
-            return np.array([np.argmin(self._sqnorm - 2.0 * (self._reduced @ reduced[0]))])
+        if len(reduced) == 1:  # the live case: one vector-matrix product over a k x N copy (2x faster
+            # than N x k: contiguous along the postures)
+            return np.array([np.argmin(self._sqnorm - 2.0 * (reduced[0] @ self._reduced_t))])
         d = self._sqnorm[None] - 2.0 * reduced @ self._reduced.T
         return np.argmin(d, axis=1)
 
