@@ -23,11 +23,6 @@ import numpy as np
 
 from . import UserError
 
-SYNTHETIC_CLIPS = {"base": (0.0, 1.0), "gym": (1.0, 17.0), "walk": (17.0, 22.0), "reach": (22.0, 25.0),
-                   "turn": (25.0, 27.5), "walk_back": (27.5, 32.5), "kick": (32.5, 35.0),
-                   "turn_back": (35.0, 37.5)}
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("physics", help="the physical character: write its MuJoCo model")
     ps = p.add_subparsers(dest="physics_command", required=True, metavar="SUBCOMMAND")
@@ -81,35 +76,11 @@ def cmd_mjcf(args: argparse.Namespace) -> int:
 
 def synthetic_clip(spec: str, character):
     """Positions and local rotations of ``synthetic:walk,reach@SEED`` for ``standard_20``-named joints."""
-    from ..physics.synthetic_targets import synthetic_targets
-    body = spec.split(":", 1)[1]
-    seed = 0
-    if "@" in body:
-        body, s = body.rsplit("@", 1)
-        try:
-            seed = int(s)
-        except ValueError:
-            raise UserError(f"{spec}: seed {s!r} is not an integer") from None
-    pos, rot, names = [], [], []
-    for part in filter(None, body.split(",")):
-        if part in SYNTHETIC_CLIPS:
-            a, b = SYNTHETIC_CLIPS[part]
-        else:
-            try:
-                a, b = (float(x) for x in part.split("-"))
-            except ValueError:
-                raise UserError(f"{spec}: {part!r} is neither a clip ({', '.join(SYNTHETIC_CLIPS)}) "
-                                "nor START-STOP seconds") from None
-        try:
-            clip = synthetic_targets(a, b, seed=seed, character=character)
-        except KeyError as exc:
-            raise UserError(f"{spec}: the synthetic actor drives standard_20 joint names only ({exc})") from None
-        pos.append(clip.positions)
-        rot.append(clip.local_rotations)
-        names.append(part)
-    if not pos:
-        raise UserError(f"{spec}: no clip named")
-    return np.concatenate(pos), np.concatenate(rot)
+    from ..physics.synthetic_targets import synthetic_postures
+    try:
+        return synthetic_postures(spec, character)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
 
 
 def bag_clip(path: str, character, topic: str | None):

@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
-from ..kinematics.character import Character, CharacterError
+from ..kinematics.character import Character, CharacterError, standard_20
 from ..messages import CharacterInfo, CharacterPose, NodeCommand, NodeStatus, PhysicsScene, PhysicsState
 from ..physics.controller import Gains
 from ..physics.posture_db import PostureDB, PostureDBError
@@ -64,7 +64,8 @@ class PhysicsTrackerNode(Node):
     body_mass = Param(70.0, "mass of each character, kg", minimum=1.0)
     virtual_joints = Param(True, "pin supporting feet to the floor (Shum & Ho 6.1)")
     dodge = Param(False, "raise the forearms around the head when a ball comes at it")
-    posture_db = Param("", "posture database (.npz from mocapgraph posture-db build); empty: none")
+    posture_db = Param("", "posture database (.npz from mocapgraph posture-db build), or synthetic:CLIPS to "
+                       "build one at start (e.g. synthetic:gym,reach,turn,kick); empty: none")
     stage = Param("", "stage YAML or shipped stage name (graph_configs/stages: claro_pole, balls, mace); "
                   "empty: the floor only")
     characters = Param([], "character names to simulate, in world order; empty: every one that appears")
@@ -94,11 +95,17 @@ class PhysicsTrackerNode(Node):
                                             virtual_joints=self.virtual_joints, dodge=self.dodge,
                                             gravity_compensation=self.gravity_compensation)
         try:
-            if self.posture_db:
+            if self.posture_db.startswith("synthetic:"):
+                from ..physics.synthetic_targets import synthetic_postures
+                pos, rot = synthetic_postures(self.posture_db)
+                ch = standard_20()
+                self.db = PostureDB.build(ch.joint_names, ch.parents, pos, rot, sources=(self.posture_db,))
+                self.db.choose_search()
+            elif self.posture_db:
                 self.db = PostureDB.load(self.posture_db)
             if self.stage:
                 self.stage_def = load_stage(self.stage)
-        except (PostureDBError, StageError) as exc:
+        except (PostureDBError, StageError, ValueError) as exc:
             self.failed = str(exc)
 
     def on_start(self) -> None:

@@ -88,3 +88,40 @@ def synthetic_targets(start_s: float, stop_s: float, rate: float = 120.0, *, see
         x = (1 - w) * geo.proximal[s] + w * geo.distal[s]
         truth[:, j] = (R[:, s] @ x) + T[:, s]
     return TargetClip(ch, frames / rate, local, root, pos, orient, truth)
+
+
+SYNTHETIC_CLIPS = {"base": (0.0, 1.0), "gym": (1.0, 17.0), "walk": (17.0, 22.0), "reach": (22.0, 25.0),
+                   "turn": (25.0, 27.5), "walk_back": (27.5, 32.5), "kick": (32.5, 35.0),
+                   "turn_back": (35.0, 37.5)}
+
+
+def synthetic_postures(spec: str, character: Character | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Positions [N, J, 3] and local rotations [N, J, 4] of ``synthetic:NAME[,NAME...][@SEED]``
+    (clip names of :data:`SYNTHETIC_CLIPS` or ``START-STOP`` seconds); ValueError naming the fault."""
+    body = spec.split(":", 1)[1] if spec.startswith("synthetic:") else spec
+    seed = 0
+    if "@" in body:
+        body, s = body.rsplit("@", 1)
+        try:
+            seed = int(s)
+        except ValueError:
+            raise ValueError(f"{spec}: seed {s!r} is not an integer") from None
+    pos, rot = [], []
+    for part in filter(None, body.split(",")):
+        if part in SYNTHETIC_CLIPS:
+            a, b = SYNTHETIC_CLIPS[part]
+        else:
+            try:
+                a, b = (float(x) for x in part.split("-"))
+            except ValueError:
+                raise ValueError(f"{spec}: {part!r} is neither a clip ({', '.join(SYNTHETIC_CLIPS)}) "
+                                 "nor START-STOP seconds") from None
+        try:
+            clip = synthetic_targets(a, b, seed=seed, character=character)
+        except KeyError as exc:
+            raise ValueError(f"{spec}: the synthetic performer drives standard_20 joint names only ({exc})") from None
+        pos.append(clip.positions)
+        rot.append(clip.local_rotations)
+    if not pos:
+        raise ValueError(f"{spec}: no clip named")
+    return np.concatenate(pos), np.concatenate(rot)
