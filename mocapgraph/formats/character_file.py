@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..kinematics.character import Character, CharacterError, standard_20
-from ..launch.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
+from .yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 from .bvh_file import BVH_TO_WORLD, BvhMotion, read_bvh
 from .errors import FormatError
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..kinematics.retarget_mapping import MODES, JointMap, Mapping, MappingError
-from ..launch.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
+from .yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
 MAPPINGS_DIR = Path(__file__).resolve().parents[2] / "graph_configs" / "mappings"
 _ENTRY_KEYS = ("mode", "rotation", "position", "A", "R", "D", "roll")

@@ -28,6 +28,7 @@ import numpy as np
 from ..bus import Input, Node, Output, Param
 from ..kinematics.character import Character, CharacterError, standard_20
 from ..messages import CharacterInfo, CharacterPose, NodeCommand, NodeStatus, PhysicsScene, PhysicsState
+from ..messages.commands import PHYSICS_COMMANDS
 from ..physics.controller import Gains
 from ..physics.posture_db import PostureDB, PostureDBError
 from ..physics.stage import EMPTY_STAGE, StageError, load_stage
@@ -43,8 +44,7 @@ class PhysicsTrackerNode(Node):
     summary = "MuJoCo characters tracking CharacterPose streams on a stage -> PhysicsState, CharacterPose"
     character_info = Input("character_info", CharacterInfo, "latched skeleton of each character", latched=True)
     character_pose = Input("character_pose", CharacterPose, "target poses, one stream per character")
-    physics_command = Input("physics_command", NodeCommand, "push, shoot, hold, drop, dodge, reach, release, reset",
-                            required=False)
+    physics_command = Input("physics_command", NodeCommand, ", ".join(PHYSICS_COMMANDS), required=False)
     physics_scene = Output("physics_scene", PhysicsScene, "latched: every body's shape and size")
     physics_state = Output("physics_state", PhysicsState, "every body's pose and tracking error, each step")
     sim_character_pose = Output("sim_character_pose", CharacterPose, "each simulated character (NAME/physical)")
@@ -259,6 +259,8 @@ class PhysicsTrackerNode(Node):
             if not 0 <= k < len(self.order):
                 raise ValueError(f"character {k}: the world has {len(self.order)}")
             c = cmd.command
+            if c not in PHYSICS_COMMANDS:
+                raise ValueError(f"unknown command (known: {', '.join(PHYSICS_COMMANDS)})")
             if c == "push":
                 w.push(k, args.get("joint", "ShoulderCenter"), np.asarray(args["force"], float),
                        float(args.get("duration_s", 0.1)))
@@ -279,7 +281,5 @@ class PhysicsTrackerNode(Node):
                 w.set_override(k, args["joint"], None)
             elif c == "reset":
                 self.started_pose = [False] * len(self.order)
-            else:
-                raise ValueError("unknown command (push, shoot, hold, drop, dodge, reach, release, reset)")
         except (KeyError, ValueError, TypeError) as exc:
             self.log.warning("physics command %r refused: %s", cmd.command, exc)

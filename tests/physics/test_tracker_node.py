@@ -82,3 +82,35 @@ nodes:
     assert st["finite"] and st["max_force_n"] <= st["force_bound_n"] + 1e-6
     assert st["max_torque_nm"] <= st["torque_bound_nm"] + 1e-6
     assert all(np.isfinite(p).all() for p in _poses(log, "sim_character_pose").values())
+
+
+def test_commands_push_and_shoot_through_the_bus(launch_graph, tmp_path):
+    """NodeCommands from another process: a ball shot at the head leaves its parking place and a
+    push moves the character; a bad command is refused in one line and changes nothing."""
+    log = tmp_path / "log.jsonl"
+    g = launch_graph(f"""\
+nodes:
+  - name: src
+    type: synthetic_character
+    params: {{start_s: 22.0, stop_s: 22.05, rate_hz: 120.0}}
+  - name: tracker
+    type: physics_tracker
+    params: {{stage: balls}}
+  - name: cmd
+    type: physics_support:CommandScript
+    params: {{script: [{{at_s: 1.0, command: shoot, args: {{joint: Head}}}},
+                       {{at_s: 1.5, command: push, args: {{joint: ShoulderCenter, force: [0, 300, 0], duration_s: 0.2}}}},
+                       {{at_s: 1.6, command: fly, args: {{}}}}]}}
+  - name: log
+    type: topic_logger
+    params: {{path: "{log}", topics: [physics_state, physics_scene, sim_character_pose]}}
+""")
+    g.wait_ready()
+    g.wait_for("fly", timeout=60)
+    wait_until(lambda: len(read_jsonl(log, "physics_state")) > 200, timeout=60, what="states", graph=g)
+    g.stop()
+    names = read_jsonl(log, "physics_scene")[-1]["msg"]["body_names"]
+    ball = names.index("stage/ball0")
+    xs = [r["msg"]["positions"][ball][0] for r in read_jsonl(log, "physics_state")]
+    assert max(xs) > 50 and min(xs) < 10          # parked far away, then shot towards the character
+    assert "unknown command" in g.output and "fly" in g.output
