@@ -33,7 +33,11 @@ def source_from_skeleton_info(names, parents, rest_offsets, *, has_orientations:
     """A skeleton stream's source: Kinect names without orientations use the Kinect T-pose."""
     rig = rig_of(names)
     if not has_orientations and rig in ("kinect_v1", "kinect_v2"):
-        return kinect_source(list(names), np.asarray(parents), kind_hint=rig)
+        # a Kinect has no rest pose: the canonical T-pose's directions, the stream's bone lengths
+        # (its SkeletonInfo gives observed ones)
+        lengths = np.linalg.norm(np.asarray(rest_offsets, dtype=np.float64), axis=1)
+        lengths[np.asarray(parents) < 0] = np.nan
+        return kinect_source(list(names), np.asarray(parents), kind_hint=rig, bone_lengths=lengths)
     hint = "bvh" if has_orientations else "skeleton"
     return skeleton_source(list(names), np.asarray(parents), np.asarray(rest_offsets),
                            has_orientations=has_orientations, kind_hint=hint)

@@ -23,8 +23,8 @@ import numpy as np
 
 from .character import Character
 from .foot_planting import PlantState, plant_targets, two_bone_ik
-from .quaternion import (matrix_to_quat, quat_between, quat_conjugate, quat_multiply, quat_power, quat_rotate,
-                         quat_to_matrix, swing_twist, twist_angle)
+from .quaternion import (matrix_between, matrix_to_quat, norm, quat_conjugate, quat_multiply, quat_power,
+                         quat_rotate, quat_to_matrix, swing_twist, twist_angle)
 from .retarget_mapping import Mapping, MappingError, check_mapping
 from .retarget_source import SourceSkeleton, plan_point_rotations, rotations_from_points
 
@@ -43,6 +43,7 @@ class RetargetOptions:
     follow_bones: bool = True      # a rotate joint with one mapped child points its bone along the source bone
     scale: float | None = None     # fixed root ratio (None: the mapping's, else the leg ratio)
     floor_z: float = 0.0
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)   # world shift of the character, m (beside the performer)
     contact_height_m: float = 0.03
     contact_speed_mps: float = 0.3
     release_s: float = 0.15
@@ -84,6 +85,11 @@ def _eye(n: int) -> np.ndarray:
 def _ffill(x: np.ndarray, ok: np.ndarray, last: np.ndarray, seen: np.ndarray):
     """Hold the last good value per column: (filled [F, N, ...], quality [F, N], new last, new seen)."""
     F = x.shape[0]
+    if F == 1:   # the live case, without the index machinery
+        extra = (slice(None),) + (None,) * (x.ndim - 2)
+        filled = np.where(ok[(0,) + extra], x[0], last)[None]
+        q = np.where(ok, QUALITY_GOOD, np.where(seen[None], QUALITY_ESTIMATED, QUALITY_MISSING)).astype(np.int8)
+        return filled, q, filled[0].copy(), seen | ok[0]
     idx = np.where(ok, np.arange(F)[:, None], -1)
     idx = np.maximum.accumulate(idx, axis=0)
     cols = np.arange(x.shape[1])[None, :]
@@ -360,7 +366,7 @@ class Retargeter:
             rok = np.isfinite(rotations).all(-1)
         else:
             rotations = np.asarray(rotations, dtype=np.float64)
-            n = np.linalg.norm(rotations, axis=-1)
+            n = norm(rotations)
             rok = np.isfinite(n) & (np.abs(n - 1.0) < 1e-3)
             if rotation_ok is not None:
                 rok &= np.asarray(rotation_ok, bool)
@@ -379,12 +385,15 @@ class Retargeter:
             have = (sub @ self._follow_bone[..., None])[..., 0]
             A = self._A[self._follow_m]
             want = (A @ (pts[:, self._follow_b] - pts[:, self._follow_a])[..., None])[..., 0]
-            ok = np.linalg.norm(want, axis=-1) > 1e-9
-            turn = quat_to_matrix(quat_between(have, np.where(ok[..., None], want, have)))
+            ok = norm(want) > 1e-9
+            turn = matrix_between(have, np.where(ok[..., None], want, have))
             d_rot[:, self._follow_m] = turn @ sub
         delta[:, self._rot_joint] = d_rot
         jq = np.full((F, J), QUALITY_GOOD, np.int8)
         jq[:, self._rot_joint] = rq[:, self._rot_src]
+        if len(self._follow_m):   # a bone aimed at held points is estimated too
+            fj = self._rot_joint[self._follow_m]
+            jq[:, fj] = np.minimum(jq[:, fj], np.minimum(pq[:, self._follow_a], pq[:, self._follow_b]))
         # 2. spread chains
         for c in self._chains:
             qs = matrix_to_quat(delta[:, c["start"]])
@@ -398,9 +407,12 @@ class Retargeter:
                 kids_off = c["offsets"]
                 for _ in range(1 if c["endpt"] == c["end"] else 4):
                     vec = np.einsum("fkij,kj->fi", delta[:, path], kids_off)
-                    corr = quat_to_matrix(quat_between(vec, target))
+                    corr = matrix_between(vec, target)
                     delta[:, c["joints"]] = corr[:, None] @ delta[:, c["joints"]]
             jq[:, c["joints"]] = np.minimum(jq[:, [c["start"]]], jq[:, [c["end"]]])
+            if c["end_src"] >= 0 and c["pivot_src"] >= 0:
+                jq[:, c["joints"]] = np.minimum(jq[:, c["joints"]],
+                                                np.minimum(pq[:, [c["end_src"]]], pq[:, [c["pivot_src"]]]))
         # 3. inherit, 4. aims
         if self._aims:
             delta_all = delta[:, self._src_pre]
@@ -408,7 +420,7 @@ class Retargeter:
                 dp = delta_all[:, self.character.parents[j]]
                 carried = (dp @ b[:, None])[..., 0]
                 want = (A @ (pts[:, to] - pts[:, frm])[..., None])[..., 0]
-                delta[:, j] = quat_to_matrix(quat_between(carried, want)) @ dp
+                delta[:, j] = matrix_between(carried, want) @ dp
                 jq[:, j] = np.minimum(pq[:, to], pq[:, frm])
         delta_all = delta[:, np.maximum(self._src_post, 0)]
         delta_all[:, self._src_post < 0] = np.eye(3)
@@ -443,7 +455,7 @@ class Retargeter:
         """Root: horizontal source root times the ratio (A applied), height matched at the floor."""
         p = (self._root_A @ src_root[..., None])[..., 0] * self.ratio
         p[:, 2] = self._h_c + self.ratio * (src_root[:, 2] - self._h_s) + self.options.floor_z
-        return p
+        return p + np.asarray(self.options.offset, dtype=np.float64)
 
     def _positions(self, world: np.ndarray, root: np.ndarray) -> np.ndarray:
         ch = self.character
@@ -482,6 +494,8 @@ class Retargeter:
         target, contact = plant_targets(ankle, L["rest_h"], t, self._state.plant, floor_z=opt.floor_z,
                                         height_m=opt.contact_height_m * k, speed_mps=opt.contact_speed_mps * k,
                                         release_s=opt.release_s, toe_lift=toe_lift)
+        if np.abs(target - ankle).max(initial=0.0) < 1e-12 or not np.isfinite(target).any():
+            return world, pos, contact          # nothing to correct (free feet above the floor)
         hip, knee = pos[:, L["hip"]], pos[:, L["knee"]]
         pole = (world[:, L["hip"]] @ np.array([1.0, 0.0, 0.0]))  # the thigh's forward axis
         s1, s2, _ = two_bone_ik(hip, knee, ankle, target, L["l1"][None], L["l2"][None], pole)

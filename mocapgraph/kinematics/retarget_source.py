@@ -51,6 +51,15 @@ class SourceSkeleton:
         return (self.kind, self.point_names, self.rotation_names)
 
 
+def observed_bone_lengths(positions: np.ndarray, parents) -> np.ndarray:
+    """Median distance from each joint to its parent over frames [F, J, 3] (m; NaN for roots)."""
+    par = np.asarray(parents, dtype=np.int64)
+    d = np.linalg.norm(positions - positions[:, np.maximum(par, 0)], axis=-1)
+    out = np.nanmedian(np.where(np.isfinite(d), d, np.nan), axis=0) if len(positions) else np.full(len(par), np.nan)
+    out[par < 0] = np.nan
+    return out
+
+
 def skeleton_source(names, parents, rest_offsets, *, has_orientations: bool, kind_hint: str = "") -> SourceSkeleton:
     """A SkeletonInfo-like source: ``rest_offsets`` [J, 3] from the parent (the root's: its rest position)."""
     names = tuple(names)
@@ -227,11 +236,18 @@ def kinect_tpose(names, parents) -> np.ndarray:
     return out
 
 
-def kinect_source(names, parents, kind_hint: str = "") -> SourceSkeleton:
-    """A positions-only Kinect source with the canonical T-pose (:func:`kinect_tpose`) as its rest."""
+def kinect_source(names, parents, kind_hint: str = "", bone_lengths: np.ndarray | None = None) -> SourceSkeleton:
+    """A positions-only Kinect source with the canonical T-pose (:func:`kinect_tpose`) as its rest:
+    its bone directions, with the performer's observed ``bone_lengths`` [J] (m, to the parent;
+    NaN or None keeps the canonical length) so that the leg-length ratio is the performer's."""
     rest = kinect_tpose(names, parents)
     par = np.asarray(parents, dtype=np.int64)
     offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+    if bone_lengths is not None:
+        L = np.asarray(bone_lengths, dtype=np.float64)
+        n = np.linalg.norm(offs, axis=1)
+        use = (par >= 0) & np.isfinite(L) & (L > 1e-3) & (n > 1e-9)
+        offs[use] *= (L[use] / n[use])[:, None]
     return skeleton_source(names, par, offs, has_orientations=False,
                            kind_hint=kind_hint or ("kinect_v2" if len(names) == 25 else "kinect_v1"))
 

@@ -31,7 +31,7 @@ from ..messages import CharacterInfo, CharacterPose, NodeCommand, NodeStatus, Ph
 from ..messages.commands import PHYSICS_COMMANDS
 from ..physics.controller import Gains
 from ..physics.posture_db import PostureDB, PostureDBError
-from ..physics.stage import EMPTY_STAGE, StageError, load_stage
+from ..physics.stage import EMPTY_STAGE, StageError, load_stage, shifted
 from ..physics.tracker import TargetConditioner
 from ..physics.world import PhysicsWorld, TrackerParams
 
@@ -68,6 +68,7 @@ class PhysicsTrackerNode(Node):
                        "build one at start (e.g. synthetic:gym,reach,turn,kick); empty: none")
     stage = Param("", "stage YAML or shipped stage name (graph_configs/stages: claro_pole, balls, mace); "
                   "empty: the floor only")
+    stage_offset = Param([0.0, 0.0, 0.0], "move the whole stage by this much, m (with a retargeter offset)")
     characters = Param([], "character names to simulate, in world order; empty: every one that appears")
     stale_s = Param(0.25, "no frame for this long: keep simulating in wall time (stand and wait), s",
                     minimum=0.01)
@@ -104,7 +105,7 @@ class PhysicsTrackerNode(Node):
             elif self.posture_db:
                 self.db = PostureDB.load(self.posture_db)
             if self.stage:
-                self.stage_def = load_stage(self.stage)
+                self.stage_def = shifted(load_stage(self.stage), self.stage_offset)
         except (PostureDBError, StageError, ValueError) as exc:
             self.failed = str(exc)
 

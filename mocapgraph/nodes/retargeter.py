@@ -61,6 +61,9 @@ class RetargeterNode(Node):
     foot_planting = Param(True, "feet in contact stay put and above the floor (Kiip 3.5.6)")
     root_scale = Param(True, "scale the root translation by the leg-length ratio")
     floor_z = Param(0.0, "floor height, m")
+    keep_up = Param(False, "when frames come faster than they are retargeted, take only the newest (bounded latency "
+                           "for live viewing; the skipped frames are not retargeted)")
+    offset = Param([0.0, 0.0, 0.0], "world shift of the character, m, e.g. [0, -1.2, 0] stands it beside the performer")
 
     @classmethod
     def interface(cls, params: dict[str, Any]):
@@ -69,6 +72,11 @@ class RetargeterNode(Node):
             else ("actor_pose", "skeleton_model")
         for k in drop:
             iface.inputs.pop(k, None)
+        if params.get("keep_up", False):
+            from dataclasses import replace
+            for k in ("actor_pose", "skeleton_pose"):
+                if k in iface.inputs:
+                    iface.inputs[k] = replace(iface.inputs[k], latest_only=True)
         return iface
 
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
@@ -89,7 +97,8 @@ class RetargeterNode(Node):
     def _options(self) -> RetargetOptions:
         return RetargetOptions(spread=self.spread, aim=self.aim, roll=self.roll, follow_bones=self.follow_bones,
                                foot_planting=self.foot_planting, root_scale=self.root_scale,
-                               scale=self.scale or None, floor_z=self.floor_z)
+                               scale=self.scale or None, floor_z=self.floor_z,
+                               offset=tuple(float(x) for x in (list(self.offset) + [0.0, 0.0, 0.0])[:3]))
 
     def _build(self, source, key: tuple, what: str) -> None:
         if self._rg_definition == key and self.rig is not None:

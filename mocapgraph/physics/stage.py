@@ -80,6 +80,15 @@ class Stage:
 EMPTY_STAGE = Stage("empty")
 
 
+def shifted(stage: Stage, offset) -> Stage:
+    """The same stage with every object (and the shooter) moved by ``offset`` (m, world)."""
+    from dataclasses import replace
+    d = np.asarray(offset, dtype=np.float64).reshape(3)
+    objs = tuple(replace(o, pos=o.pos + d) for o in stage.objects)
+    sh = replace(stage.shooter, origin=stage.shooter.origin + d) if stage.shooter else None
+    return replace(stage, objects=objs, shooter=sh)
+
+
 # ----- reading -----------------------------------------------------------------------------------
 def _plain(node: yaml.Node) -> Any:
     """Python value of a composed node, mappings as (value dict, line dict)."""

@@ -67,3 +67,29 @@ def test_wrong_character_files_are_one_line_errors(tmp_path, body, line, needle)
 def test_unknown_character_name_lists_the_shipped_ones():
     with pytest.raises(CharacterFileError, match="shipped: cmu, mixamo, standard_20"):
         load_character("mixamoo")
+
+
+def test_every_shipped_mapping_fits_its_character_and_source(shared_data):
+    """graph_configs/mappings: each file loads and checks against the character and source it names."""
+    from mocapgraph.formats.kinect_csv import KINECT_V1_JOINTS, KINECT_V1_PARENTS, KINECT_V2_JOINTS, KINECT_V2_PARENTS
+    from mocapgraph.formats.mapping_file import MAPPINGS_DIR, load_mapping
+    from mocapgraph.kinematics.retarget_mapping import check_mapping
+    from mocapgraph.kinematics.retarget_source import kinect_source, optical_source
+    from mocapgraph.kinematics.skeleton import SkeletonDefinition
+    from retarget_support import bvh_source
+
+    files = sorted(MAPPINGS_DIR.glob("*.yaml"))
+    assert len(files) >= 6
+    for f in files:
+        m = load_mapping(f)
+        if m.source == "kinect_v2":
+            src = kinect_source(KINECT_V2_JOINTS, KINECT_V2_PARENTS)
+        elif m.source == "kinect_v1":
+            src = kinect_source(KINECT_V1_JOINTS, KINECT_V1_PARENTS)
+        elif m.source == "bvh":
+            src = bvh_source(shared_data / "bvh/cmu/131_01.bvh")[2]
+        else:
+            sk = SkeletonDefinition.from_layout_file(m.source.split(":", 1)[1])
+            src = optical_source(sk.joint_names, sk.joint_parent, sk.joint_limbs, sk.limb_names,
+                                 np.zeros((len(sk.joint_names), 3)))
+        check_mapping(m, load_character(m.character), src)

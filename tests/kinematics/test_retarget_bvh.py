@@ -94,3 +94,29 @@ def test_character_from_bvh_strips_the_mixamo_prefix_and_keeps_every_joint(share
     np.testing.assert_allclose(shipped.rest_offsets, ch.rest_offsets, atol=1e-8)
     # the character's rest pose is the BVH rest pose in world axes
     np.testing.assert_allclose(ch.rest_pose()[0], motion.rest_positions(), atol=1e-9)
+
+
+def test_missing_and_broken_source_joints_are_held_and_flagged(shared_data):
+    """NaN joints, a non-unit quaternion on the stream, a joint never seen: never NaN out, flags tell."""
+    motion, trial, src = bvh_source(shared_data / "bvh/cmu/131_01.bvh")
+    ch = load_character("mixamo")
+    m = derive_mapping(ch, src)
+    q = trial.orientations[:200].copy()
+    p = trial.positions[:200].copy()
+    elbow = src.rotation("LeftElbow")
+    q[50:80, elbow] = np.nan                       # lost for 30 frames
+    q[90, elbow] *= 1.7                            # a corrupt (non-unit) quaternion
+    q[:, src.rotation("RightWrist")] = np.nan      # never seen at all
+    p[120:125] = np.nan                            # a whole frame of positions gone
+    ref = Retargeter(ch, m, src, RetargetOptions()).process(trial.positions[:200], None, trial.orientations[:200])
+    res = Retargeter(ch, m, src, RetargetOptions()).process(p, None, q)
+    assert np.isfinite(res.local_rotations).all() and np.isfinite(res.joint_positions).all()
+    fore, hand = ch.index("LeftForeArm"), ch.index("LeftHand")
+    assert (res.joint_quality[50:80, fore] == 1).all() and (res.joint_quality[50:80, hand] == 1).all()
+    assert res.joint_quality[90, fore] == 1 and res.joint_quality[91, fore] == 2
+    assert (res.joint_quality[:, ch.index("RightHand")] == 0).all()         # never seen: rest pose, missing
+    assert (res.joint_quality[120:125, ch.root] == 1).all()                  # the root held too
+    np.testing.assert_allclose(res.root_positions[120:125], np.repeat(res.root_positions[119:120], 5, 0), atol=1e-12)
+    ok = np.ones(200, bool)
+    ok[50:125] = False
+    assert np.abs(res.joint_positions[ok][:, [ch.index("Spine2")]] - ref.joint_positions[ok][:, [ch.index("Spine2")]]).max() < 1e-9

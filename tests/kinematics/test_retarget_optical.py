@@ -104,3 +104,22 @@ def test_scaled_characters_keep_bone_lengths_stay_on_the_floor_and_do_not_skate(
     assert both.sum() > 50
     assert rows[True][0] <= 5.0
     assert rows[True][2] <= 2.0
+
+
+def test_live_frame_by_frame_equals_batch(solved):
+    """One code path: a live node feeds one frame at a time, the batch command the whole trial."""
+    cap, model, res, src, truth_ch, perf = solved
+    ch = truth_ch.scaled(0.9)
+    pts = optical_points(res.joints, model.joint_names)[:400]
+    rot, rok, t = res.limb_rotation[:400], res.limb_quality[:400] > 0, cap.times[perf][:400]
+    pts = pts.copy()
+    pts[100:140, 3] = np.nan                       # a joint lost for a while: held, flagged
+    m = derive_mapping(ch, src)
+    batch = Retargeter(ch, m, src, RetargetOptions(foot_planting=True)).process(pts, None, rot, rok, t)
+    live = Retargeter(ch, m, src, RetargetOptions(foot_planting=True))
+    frames = [live.process(pts[f:f + 1], None, rot[f:f + 1], rok[f:f + 1], t[f:f + 1]) for f in range(400)]
+    for name in ("local_rotations", "joint_positions", "root_positions", "joint_quality", "contact"):
+        got = np.concatenate([getattr(x, name) for x in frames])
+        np.testing.assert_allclose(got, getattr(batch, name), atol=1e-9, err_msg=name)
+    assert (batch.joint_quality[100:140] == 1).any() and (batch.joint_quality[100:140] == 2).any()
+    assert np.isfinite(batch.local_rotations).all()

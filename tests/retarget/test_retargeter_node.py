@@ -145,7 +145,8 @@ def test_capture_rest_pose_writes_an_editable_mapping(launch_graph, tmp_path, sh
     g.wait_for("retargeting bvh", 30)
     cmd.send("bogus")
     cmd.send("capture_rest_pose")
-    wait_until(lambda: any("capture_rest_pose" in s for s in _status(tmp_path)), 20, "capture acknowledged", g)
+    wait_until(lambda: any("the current pose is the character's rest pose" in s for s in _status(tmp_path)), 30,
+               "capture acknowledged", g)
     captured = load_mapping(out)
     assert not np.allclose(captured.entry("LeftArm").R, derived.entry("LeftArm").R)
     assert any("unknown command 'bogus'" in s for s in _status(tmp_path))
