@@ -112,10 +112,89 @@ def _check_definition(definition: Any, markers: np.ndarray, source: str) -> np.n
     return idx
 
 
+# Share of frames farthest from the mean orientation left out of the range of motion, so that
+# a few glitched frames (a marker swap) do not pass for motion.
+_ROM_TRIM = 0.02
+
+
+# Frames averaged (moving window) before the range is taken: marker noise on a small cluster
+# jitters its orientation by degrees, and the largest pairwise angle of raw frames measures the
+# noise's extremes, not the motion (a still subject with 1 mm noise "moved" 5-20 deg).
+_ROM_SMOOTH = 15
+
+
+def _moving_mean(x: np.ndarray, n: int = _ROM_SMOOTH) -> np.ndarray:
+    """Centred moving mean of rows of x [N,D] over n frames (shorter at the ends)."""
+    if x.shape[0] < 3 or n < 2:
+        return x
+    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    i = np.arange(x.shape[0])
+    lo, hi = np.maximum(i - n // 2, 0), np.minimum(i + n // 2 + 1, x.shape[0])
+    return (c[hi] - c[lo]) / (hi - lo)[:, None]
+
+
+def _swing_range(u: np.ndarray, max_samples: int = 240) -> float:
+    """Largest angle (rad) between any two of the unit directions u [N,3] (smoothed, trimmed)."""
+    if u.shape[0] < 2:
+        return 0.0
+    u = _moving_mean(u)
+    u /= np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
+    mean = u.mean(0)
+    dev = u @ (mean / max(np.linalg.norm(mean), 1e-12))
+    u = u[dev >= np.quantile(dev, _ROM_TRIM)]
+    sel = u[np.linspace(0, u.shape[0] - 1, min(max_samples, u.shape[0])).astype(int)]
+    return float(np.arccos((sel @ sel.T).clip(-1.0, 1.0).min()))
+
+
+def joint_range_of_motion(definition: Any, markers: np.ndarray, fit: Any | None = None) -> np.ndarray:
+    """Range of motion (rad) of every joint from markers float[T,M,3] (layout order, metres).
+
+    Measured from the markers alone, never through joint points: a limb with a rigid fit of its
+    own (>= 3 markers) gives the largest relative rotation to the other limb; a limb with fewer
+    (a Plug-in Gait thigh: THI, KNE) gives the swing of its marker pair seen in the other limb's
+    frame, a lower bound that ignores the twist about the pair. A fit through an estimated joint
+    point would turn that point's noise into rotation (a still subject would "move" 30-180 deg).
+    """
+    markers = np.asarray(markers, dtype=float)
+    idx = np.asarray(definition.limb_marker_index())
+    if fit is None:
+        ref = gather_limb_markers(markers[0], idx)
+        fit = fit_rigid(ref, gather_limb_markers(markers, idx), (idx >= 0).astype(float))
+    jl = np.asarray(definition.joint_limbs)
+    rom = np.zeros(len(jl))
+    for j, (a, b) in enumerate(jl):
+        va, vb = fit.valid[:, a], fit.valid[:, b]
+        both = np.flatnonzero(va & vb)
+        own_a, own_b = (idx[a] >= 0).sum() >= MIN_MARKERS, (idx[b] >= 0).sum() >= MIN_MARKERS
+        if own_a and own_b:
+            if both.size:
+                q_rel = Rotation.from_matrix(np.swapaxes(fit.rotation[both, a], -1, -2)
+                                             @ fit.rotation[both, b]).as_quat(scalar_first=True)
+                rom[j] = _range_of_motion(q_rel)
+            continue
+        frame_l, pair_l = (a, b) if own_a else (b, a)
+        pair = idx[pair_l][idx[pair_l] >= 0][:2]
+        if pair.size < 2:
+            continue
+        v = markers[:, pair[1]] - markers[:, pair[0]]
+        ok = fit.valid[:, frame_l] & np.isfinite(v).all(-1)
+        u = np.einsum("tji,tj->ti", fit.rotation[ok, frame_l], v[ok])
+        u /= np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
+        rom[j] = _swing_range(u)
+    return rom
+
+
 def _range_of_motion(q_rel: np.ndarray, max_samples: int = 240) -> float:
-    """Largest rotation angle (rad) between any two of the relative orientations (wxyz [N,4])."""
+    """Largest rotation angle (rad) between any two of the relative orientations (wxyz [N,4]),
+    leaving out the ``_ROM_TRIM`` share farthest from their mean."""
     if q_rel.shape[0] < 2:
         return 0.0
+    q_rel = q_rel * np.where(q_rel @ q_rel[0] < 0, -1.0, 1.0)[:, None]  # one hemisphere to average
+    q_rel = _moving_mean(q_rel)
+    q_rel /= np.linalg.norm(q_rel, axis=-1, keepdims=True)
+    r = Rotation.from_quat(q_rel, scalar_first=True)
+    dev = (r * r.mean().inv()).magnitude()
+    q_rel = q_rel[dev <= np.quantile(dev, 1.0 - _ROM_TRIM)]
     sel = q_rel[np.linspace(0, q_rel.shape[0] - 1, min(max_samples, q_rel.shape[0])).astype(int)]
     dots = np.abs(sel @ sel.T).clip(0.0, 1.0)
     return float(2.0 * np.arccos(dots.min()))
@@ -196,9 +275,16 @@ def calibrate(
     names = tuple(definition.joint_names)
     hinge = np.asarray(definition.joint_hinge, dtype=bool)
     jpts = _joint_points(definition)
+    # Range of motion from the markers' own fits, before any joint point enters a fit.
+    rom = joint_range_of_motion(definition, markers, fit)
+    low = rom < np.radians(min_rom_deg)
+    if low.all():
+        raise CalibrationError(
+            f"{source}: gym capture has almost no motion (every joint below {min_rom_deg:g} deg): "
+            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in range(len(rom))))
     point_centre: dict[int, tuple[np.ndarray, float]] = {}
     if (jpts >= 0).any():
-        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source)
+        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low)
     rot = fit.rotation                                        # [T,L,3,3]
     cen = (rot @ c0[:, :, None])[..., 0] + fit.translation    # base centroid carried along
 
@@ -216,19 +302,6 @@ def calibrate(
     shift = np.concatenate([mid - c0[la], mid - c0[lb]], axis=-1)  # [J,6]
     bvec = cen[:, lb] - cen[:, la] - (a_mat @ shift[None, :, :, None])[..., 0]
     bvec = np.where(valid[..., None], bvec, 0.0)
-
-    # Range of motion between each joint's two limbs.
-    rom = np.zeros(J)
-    for j in range(J):
-        fr = np.flatnonzero(valid[:, j])
-        q_rel = Rotation.from_matrix(
-            np.swapaxes(rot[fr, la[j]], -1, -2) @ rot[fr, lb[j]]).as_quat(scalar_first=True)
-        rom[j] = _range_of_motion(q_rel)
-    low = rom < np.radians(min_rom_deg)
-    if low.all():
-        raise CalibrationError(
-            f"{source}: gym capture has almost no motion (every joint below {min_rom_deg:g} deg): "
-            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in range(J)))
 
     w = valid.astype(float)
     x = np.zeros((J, 6))
@@ -253,7 +326,7 @@ def calibrate(
     offsets = (x + shift).reshape(J, 2, 3)
     for j, (centre, rms_j) in point_centre.items():
         offsets[j, 0], offsets[j, 1] = centre - c0[la[j]], centre - c0[lb[j]]
-        methods[j] = "sphere"
+        methods[j] = "prior" if low[j] else "sphere"
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
     _place_hinge_centres(definition, joint_base, offsets, axes, hinge & ~low, methods)
     inlier = valid & (err <= c)
@@ -373,9 +446,10 @@ def _sphere_centre(y: np.ndarray, prior: np.ndarray) -> tuple[np.ndarray, float]
     return c + prior, float(np.sqrt(np.mean(res * res))) if res.size else float("nan")
 
 
-def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source):
+def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low):
     """Joint centres used as fit points (sphere fit of the limb's markers in the other limb's
-    frame), then the limbs' rigid fits redone with those centres as extra points."""
+    frame; the midpoint prior for joints that hardly moved, ``low`` bool[J]), then the limbs'
+    rigid fits redone with those centres as extra points."""
     jl = np.asarray(definition.joint_limbs)
     names = definition.joint_names
     pl = np.flatnonzero((jpts >= 0).any(1))
@@ -395,7 +469,9 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source):
             x = gather_limb_markers(markers[frames], idx[l])  # [F,K,3]
             rm = fit.rotation[frames, m]
             y = np.einsum("fji,fkj->fki", rm, x - fit.translation[frames, m][:, None, :])
-            centre[int(j)] = _sphere_centre(y, 0.5 * (c0[l] + c0[m]))
+            prior = 0.5 * (c0[l] + c0[m])
+            # A still joint's markers fit any sphere: the "centre" would be noise.
+            centre[int(j)] = (prior, float("nan")) if low[j] else _sphere_centre(y, prior)
     vmask = jpts[pl] >= 0
     js = np.where(vmask, jpts[pl], 0)
     other = np.where(jl[js, 1] == pl[:, None], jl[js, 0], jl[js, 1])

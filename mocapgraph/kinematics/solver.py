@@ -2,7 +2,8 @@
 
 Per frame: each limb's rotation from its visible markers (weighted Kabsch against the base
 pose), each joint from every attached limb that is visible (``R @ base_point + t``), an
-inverse-variance weighted average, then bone lengths enforced outward from the root. One code
+inverse-variance weighted average, then bone lengths enforced outward from the root. A joint is
+GOOD only when every attached limb is seen and its calibration is reliable; else ESTIMATED. One code
 path for one frame or many: :meth:`FrameSolver.solve` batches the geometry over frames and runs
 the (optional) temporal stage frame by frame exactly as :meth:`FrameSolver.step` does live.
 """
@@ -99,6 +100,10 @@ class FrameSolver:
         tol = np.maximum(4.0 * sig, 0.005) if limb_rms_tol is None else np.full_like(sig, limb_rms_tol)
         self._rms_tol = tol
         self._J = len(model.joint_names)
+        # A joint whose calibrated centre is unreliable (from the prior, too little motion) is at
+        # best ESTIMATED, however well its limbs are seen: quality flags tell the truth.
+        rel = np.asarray(model.quality.reliable, dtype=bool).reshape(-1)
+        self._unreliable = ~rel if rel.shape == (self._J,) else np.zeros(self._J, dtype=bool)
         # Bone-length correction order: joints grouped by depth so each level is one vector op.
         parent = np.asarray(model.joint_parent)
         depth = np.zeros(self._J, dtype=int)
@@ -175,7 +180,8 @@ class FrameSolver:
             wsum > 0, wsum, 1.0)[..., None]
         n_ok = ok[:, :J].astype(np.int8) + ok[:, J:]
         n_need = self._has[:J].astype(np.int8) + self._has[J:]
-        jq = np.where(n_ok == 0, _MISS, np.where(n_ok >= n_need, _GOOD, _EST)).astype(np.int8)
+        jq = np.where(n_ok == 0, _MISS, np.where((n_ok >= n_need) & ~self._unreliable, _GOOD, _EST)
+                      ).astype(np.int8)
         joints[jq == _MISS] = np.nan
         if self.enforce_lengths:
             for c, p, length in self._levels:
