@@ -18,7 +18,10 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mocapgraph.kinematics.centres import DEFAULT_ORDER, METHODS, Candidate, CentreCandidates
+from mocapgraph.kinematics.consistency import cluster_changes
 from mocapgraph.kinematics.model import JointQuality, SkeletonModel
+from mocapgraph.kinematics.subject import Subject
 from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
 
 # Directions of the 6-D offset space whose eigenvalue (relative to the largest) is below this
@@ -245,6 +248,10 @@ def calibrate(
     huber_k: float = 3.0,
     irls_iterations: int = 8,
     source: str = "capture",
+    centre_order: Sequence[str] = DEFAULT_ORDER,
+    max_residual_mm: float = 10.0,
+    subject: Subject | None = None,
+    parts: Sequence[tuple[str, int]] | None = None,
 ) -> SkeletonModel:
     """Build a SkeletonModel from float[T,M,3] markers (layout order, metres, NaN = unseen).
 
@@ -252,12 +259,28 @@ def calibrate(
     base_frame: the base pose frame; by default the first frame with every marker visible,
     searched within ``max_base_search_s`` (needs ``rate_hz``; otherwise the whole capture).
     All frames (base pose included) are the gym motion. Joints whose two limbs rotate less than
-    ``min_rom_deg`` relative to each other get a CalibrationWarning naming them and a centre
-    from the prior; if no joint moved enough, CalibrationError.
+    ``min_rom_deg`` relative to each other get no functional centre; if no joint moved enough
+    and none has landmarks or a regression either, CalibrationError.
+
+    Per joint the centre's method is the first of ``centre_order`` that applies: "functional"
+    (SCoRE/SARA, or a sphere fit for joint points: range >= min_rom_deg and residual <=
+    ``max_residual_mm``), "anatomical" (the layout's landmark pair, midpoint over the static
+    frames), "regression" (the layout's Plug-in Gait / Harrington regression with ``subject``);
+    else the prior (a centre between the limbs, flagged unreliable). A functional hinge's place
+    along its axis comes from its landmarks, else its regression, else the plane of its
+    neighbours, else the mid-plane of the markers.
+    parts: (file name, frame count) of concatenated captures: the first is the static trial
+    (landmarks, regressions); markers absent from every later part are static-only (the model
+    does not need them later); cluster distances changing by more than 3 mm between parts are
+    reported as warnings naming the markers.
     """
     markers = np.asarray(markers, dtype=float)
     idx = _check_definition(definition, markers, source)
     labels = tuple(definition.marker_labels)
+    bad = [m for m in centre_order if m not in METHODS]
+    if bad:
+        raise CalibrationError(f"{source}: unknown centre method {bad[0]!r} (known: {', '.join(METHODS)})")
+    n_static = int(parts[0][1]) if parts else markers.shape[0]
     if base_frame is None:
         max_frames = int(round(max_base_search_s * rate_hz)) if (rate_hz and max_base_search_s) else None
         base_frame = find_base_pose(markers, labels, max_frames, source)
@@ -278,13 +301,35 @@ def calibrate(
     # Range of motion from the markers' own fits, before any joint point enters a fit.
     rom = joint_range_of_motion(definition, markers, fit)
     low = rom < np.radians(min_rom_deg)
-    if low.all():
+    cands = CentreCandidates(definition, markers, slice(0, n_static), subject)
+    if low.all() and not cands.has_any():
+        hint = ("; the layout's regression centres need subject measurements (a VSK, a C3D's PROCESSING "
+                "parameters or --subject)" if any(r is not None for r in cands.regressions) else "")
         raise CalibrationError(
             f"{source}: gym capture has almost no motion (every joint below {min_rom_deg:g} deg): "
-            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in range(len(rom))))
+            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in range(len(rom))) + hint)
+    max_res = max_residual_mm / 1000.0
+    chosen: dict[int, np.ndarray] = {}
+    picked: dict[int, tuple[str, float, bool, dict]] = {}  # joint -> method, residual, reliable, inputs
+
+    def pick(j: int, functional: Candidate | None, cur_fit: Any) -> Candidate:
+        """The first method of centre_order that gives joint j a centre; else the prior."""
+        for m in centre_order:
+            if m == "functional" and functional is not None and not low[j] and functional.spread <= max_res:
+                picked[j] = (functional.method, functional.spread, True, functional.inputs)
+                return functional
+            got = (cands.anatomical(j, cur_fit) if m == "anatomical"
+                   else cands.regression(j, cur_fit, chosen) if m == "regression" else None)
+            if got is not None:
+                picked[j] = (got.method, got.spread, True, got.inputs)
+                return got
+        fallback = functional if functional is not None else None
+        return fallback  # type: ignore[return-value]
+
     point_centre: dict[int, tuple[np.ndarray, float]] = {}
     if (jpts >= 0).any():
-        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low)
+        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low,
+                                             pick, chosen)
     rot = fit.rotation                                        # [T,L,3,3]
     cen = (rot @ c0[:, :, None])[..., 0] + fit.translation    # base centroid carried along
 
@@ -328,12 +373,35 @@ def calibrate(
         offsets[j, 0], offsets[j, 1] = centre - c0[la[j]], centre - c0[lb[j]]
         methods[j] = "prior" if low[j] else "sphere"
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
-    _place_hinge_centres(definition, joint_base, offsets, axes, hinge & ~low, methods)
     inlier = valid & (err <= c)
     resid = np.array([np.sqrt(np.mean(err[inlier[:, j], j] ** 2)) if inlier[:, j].any() else np.nan
                       for j in range(J)])
     for j, (centre, rms_j) in point_centre.items():
         resid[j] = rms_j
+    # One method per joint, in tree order (a knee chord needs its hip's chosen centre).
+    functional_hinge = np.zeros(J, dtype=bool)
+    for j in range(J):
+        if j in point_centre:
+            if j not in picked:
+                picked[j] = (methods[j], resid[j], False, {})
+            methods[j], resid[j] = picked[j][0], picked[j][1]
+            chosen[j] = joint_base[j].copy()
+            continue
+        func = None if methods[j] == "prior" else Candidate(joint_base[j].copy(), float(resid[j]), methods[j],
+                                                            {"functional": "SARA" if hinge[j] else "SCoRE"})
+        got = pick(j, func, fit)
+        if j not in picked:
+            picked[j] = (methods[j], resid[j], False, {})
+        elif got is not func:
+            offsets[j, 0], offsets[j, 1] = got.point - c0[la[j]], got.point - c0[lb[j]]
+            joint_base[j] = got.point
+        else:
+            functional_hinge[j] = bool(hinge[j])
+        methods[j], resid[j] = picked[j][0], picked[j][1]
+        chosen[j] = joint_base[j].copy()
+    _place_hinge_centres(definition, joint_base, offsets, axes, functional_hinge, methods, cands, fit, chosen)
+    reliable = np.array([picked[j][2] for j in range(J)], dtype=bool)
+    method_inputs = tuple(dict(picked[j][3]) for j in range(J))
     outl = 1.0 - inlier.sum(0) / np.maximum(n_frames, 1)
     axes[~hinge] = np.nan  # the axis sign is arbitrary; only the line matters to the solver
 
@@ -341,10 +409,18 @@ def calibrate(
         else np.array([np.nanmedian(fit.rms[fit.valid[:, l], l]) if fit.valid[:, l].any() else np.nan
                        for l in range(len(definition.limb_names))])
     warns: list[str] = []
-    if low.any():
+    weak = np.flatnonzero(~reliable)
+    if weak.size:
         warns.append(
-            f"{source}: too little motion for a reliable centre (< {min_rom_deg:g} deg), centre "
-            "from the prior: " + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in np.flatnonzero(low)))
+            f"{source}: no reliable centre (range of motion < {min_rom_deg:g} deg or residual > "
+            f"{max_residual_mm:g} mm, and no landmarks or regression): centre from the prior: "
+            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in weak))
+    warns.extend(f"{source}: {n}" for n in cands.notes if names[0] is not None)
+    static_only: tuple[str, ...] = ()
+    if parts and len(parts) > 1:
+        later = np.isfinite(markers[n_static:]).all(-1).any(0)
+        static_only = tuple(labels[m] for m in np.flatnonzero(~later & np.isfinite(markers[:n_static]).all(-1).any(0)))
+        warns.extend(cluster_changes(definition, markers, parts))
     model = SkeletonModel(
         layout=str(definition.name),
         marker_labels=labels,
@@ -367,12 +443,14 @@ def calibrate(
             range_of_motion=rom,
             n_frames=n_frames.astype(np.int64),
             outlier_fraction=outl,
-            reliable=~low,
+            reliable=reliable,
             method=tuple(methods),
+            inputs=method_inputs,
         ),
         n_gym_frames=int(markers.shape[0]),
         rate_hz=rate_hz,
         limb_joint_points=jpts,
+        static_only_markers=static_only,
     )
     model.bone_length = _bone_lengths(model, markers)
     model.warnings = tuple(warns)
@@ -382,18 +460,29 @@ def calibrate(
 
 
 def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.ndarray,
-                         axes: np.ndarray, hinge: np.ndarray, methods: list[str]) -> None:
-    """Slide each hinge centre along its axis to where the axis meets the line from the parent
-    joint to the child joint (in place).
+                         axes: np.ndarray, hinge: np.ndarray, methods: list[str],
+                         cands: CentreCandidates | None = None, fit: Any = None,
+                         chosen: dict[int, np.ndarray] | None = None) -> None:
+    """Fix each functional hinge centre's place along its axis (in place).
 
-    Motion about one axis leaves the centre's position along it unobservable. An anatomical
-    hinge's axis is normal to the plane of the neighbouring joint centres (shoulder, elbow,
-    wrist), so the closest point of the axis to the parent-child line is the centre in any pose.
-    Without both neighbours the midpoint prior stays.
+    Motion about one axis leaves the centre's position along it unobservable. In order: the
+    point of the axis nearest the landmark midpoint (epicondyles), else nearest the regression
+    centre (PiG knee width), else where the axis meets the line from the parent joint to the
+    child joint (an anatomical hinge's axis is normal to the plane of its neighbours: shoulder,
+    elbow, wrist), else the mid-plane of the two limbs' markers (the SCoRE prior).
     """
     jl = np.asarray(definition.joint_limbs)
     parent = np.asarray(definition.joint_parent)
     for j in np.flatnonzero(hinge):
+        n = axes[j]
+        if cands is not None and np.isfinite(n).all():
+            got = cands.anatomical(j, fit) or cands.regression(j, fit, chosen or {})
+            if got is not None:
+                s = float((got.point - joint_base[j]) @ n)
+                joint_base[j] += s * n
+                offsets[j] += s * n
+                methods[j] += "+" + ("landmarks" if got.method == "landmarks" else "regression")
+                continue
         kids = [k for k in np.flatnonzero(jl[:, 0] == jl[j, 1]) if not hinge[k]]
         p = parent[j]
         n = axes[j]
@@ -411,6 +500,9 @@ def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.nd
         joint_base[j] += s * n
         offsets[j] += s * n
         methods[j] = "hinge+plane"
+    for j in np.flatnonzero(hinge):
+        if methods[j] in ("hinge", "hinge+prior"):
+            methods[j] += "+midplane"
 
 
 def _joint_points(definition: Any) -> np.ndarray:
@@ -446,7 +538,7 @@ def _sphere_centre(y: np.ndarray, prior: np.ndarray) -> tuple[np.ndarray, float]
     return c + prior, float(np.sqrt(np.mean(res * res))) if res.size else float("nan")
 
 
-def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low):
+def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low, pick=None, chosen=None):
     """Joint centres used as fit points (sphere fit of the limb's markers in the other limb's
     frame; the midpoint prior for joints that hardly moved, ``low`` bool[J]), then the limbs'
     rigid fits redone with those centres as extra points."""
@@ -472,6 +564,13 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
             prior = 0.5 * (c0[l] + c0[m])
             # A still joint's markers fit any sphere: the "centre" would be noise.
             centre[int(j)] = (prior, float("nan")) if low[j] else _sphere_centre(y, prior)
+            if pick is not None:
+                func = None if low[j] else Candidate(centre[int(j)][0], centre[int(j)][1], "sphere",
+                                                     {"functional": "sphere fit"})
+                got = pick(int(j), func, fit)
+                if got is not None:
+                    centre[int(j)] = (got.point, got.spread)
+                chosen[int(j)] = centre[int(j)][0]
     vmask = jpts[pl] >= 0
     js = np.where(vmask, jpts[pl], 0)
     other = np.where(jl[js, 1] == pl[:, None], jl[js, 0], jl[js, 1])

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from mocapgraph.kinematics.filters import GapFiller, make_filter
 from mocapgraph.kinematics.model import Quality, SkeletonModel
+from mocapgraph.kinematics.regression import RegressionStage
 from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
 
 _GOOD, _EST, _MISS = np.int8(Quality.GOOD), np.int8(Quality.ESTIMATED), np.int8(Quality.MISSING)
@@ -112,7 +113,11 @@ class FrameSolver:
             while p >= 0 and d <= self._J:
                 d, p = d + 1, parent[p]
             depth[j] = d
-        blen = np.asarray(model.bone_length)
+        blen = np.asarray(model.bone_length).copy()
+        # Regression joints are recomputed from the markers each frame (as Plug-in Gait does):
+        # their distances to the parent follow the markers, not a calibrated length.
+        self._regression = RegressionStage(model)
+        blen[self._regression.joints] = np.nan
         self._levels = [
             (c, parent[c], blen[c])
             for lvl in range(1, depth.max(initial=0) + 1)
@@ -183,6 +188,8 @@ class FrameSolver:
         jq = np.where(n_ok == 0, _MISS, np.where((n_ok >= n_need) & ~self._unreliable, _GOOD, _EST)
                       ).astype(np.int8)
         joints[jq == _MISS] = np.nan
+        if self._regression:
+            self._regression.apply(markers, joints, jq, _GOOD)
         if self.enforce_lengths:
             for c, p, length in self._levels:
                 v = joints[:, c] - joints[:, p]

@@ -107,6 +107,7 @@ class FrameSolverNode(Node):
             self.log.warning("model layout '%s' used on marker layout '%s' (every marker found by label)",
                              self.model.layout, layout.name)
         self.where = where
+        self.absent = where < 0  # static-only markers the stream does not carry
         self.n_stream = len(layout.labels)
         self.identity = bool(len(where) == self.n_stream and (where == np.arange(len(where))).all())
         self.solver = FrameSolver(self.model, max_gap_s=self.max_gap_s, enforce_lengths=self.enforce_lengths,
@@ -132,7 +133,7 @@ class FrameSolverNode(Node):
             self.actor_pose.publish(missing_pose(self.model, self.actor, frame.frame_number), env.capture_ns)
             return
         x = pos if self.identity else pos[self.where]
-        seen = np.isfinite(x).all(1)
+        seen = np.isfinite(x).all(1) & ~self.absent
         if frame.valid.shape == (pos.shape[0],):
             seen &= frame.valid if self.identity else frame.valid[self.where]
         if not seen.all():

@@ -35,8 +35,17 @@ def test_a_still_subject_has_no_range_of_motion(layout):
     print(f"\n{layout} still, 1 mm noise: ROM deg " + " ".join(f"{n} {r:.1f}" for n, r in
                                                          zip(definition.joint_names, rom)))
     assert rom.max() < 5.0
-    with pytest.raises(CalibrationError, match="almost no motion"):
-        calibrate(definition, markers, rate_hz=120.0)
+    if not any(definition.joint_landmarks):
+        with pytest.raises(CalibrationError, match="almost no motion"):
+            calibrate(definition, markers, rate_hz=120.0)
+        return
+    # With landmarks a static alone calibrates: anatomical centres are reliable, nothing else is.
+    with pytest.warns(CalibrationWarning, match="no reliable centre"):
+        model = calibrate(definition, markers, rate_hz=120.0)
+    q = model.quality
+    anat = np.array([m == "landmarks" for m in q.method])
+    assert anat.sum() == sum(1 for lm in definition.joint_landmarks if lm)
+    assert (q.reliable == anat).all()
 
 
 def test_the_real_static_is_still_through_the_two_marker_limbs(shared_data):
