@@ -222,7 +222,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
     times = (numbers - numbers[0]) / inp.rate_hz
     try:
         solver = FrameSolver(model, rate_hz=inp.rate_hz, max_gap_s=args.max_gap_s,
-                             enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None)
+                             enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None,
+                             fit=args.fit)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     res = solver.solve(x, times)
@@ -335,6 +336,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-gap-s", type=float, default=0.1, help="longest gap predicted over, s (0: none)")
     p.add_argument("--filter", default="", choices=("", "one_euro", "constant_velocity"), help="joint filter")
     p.add_argument("--no-enforce-lengths", action="store_true", help="do not keep calibrated bone lengths")
+    p.add_argument("--fit", default="segment", choices=("segment", "global"),
+                   help="limb poses one by one (segment) or all together under the joint constraints (global)")
     p.add_argument("--allow-missing", action="store_true", help="solve even if some model markers are absent")
     p.add_argument("--actor", default="actor", help="actor name in bag output")
     p.add_argument("--topic", help="marker topic of a bag input (when it has several)")

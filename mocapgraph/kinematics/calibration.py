@@ -31,6 +31,10 @@ _NULL_TOL = 1e-9
 _LOW_MOTION_TOL = 1e-2
 
 
+# Largest slide (m) of a hinge centre along its axis by the perpendicular-to-the-parent rule.
+_MAX_AXIAL_SHIFT = 0.04
+
+
 class CalibrationError(ValueError):
     """The capture cannot produce a skeleton model (message names the fault)."""
 
@@ -165,15 +169,17 @@ def joint_range_of_motion(definition: Any, markers: np.ndarray, fit: Any | None 
         fit = fit_rigid(ref, gather_limb_markers(markers, idx), (idx >= 0).astype(float))
     jl = np.asarray(definition.joint_limbs)
     rom = np.zeros(len(jl))
+    # Relative rotations of every joint's two limbs in one conversion (identity where unseen).
+    both_all = fit.valid[:, jl[:, 0]] & fit.valid[:, jl[:, 1]]                      # [T,J]
+    rel = np.swapaxes(fit.rotation[:, jl[:, 0]], -1, -2) @ fit.rotation[:, jl[:, 1]]
+    rel = np.where(both_all[..., None, None], rel, np.eye(3))
+    q_all = Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_quat(scalar_first=True).reshape(rel.shape[:2] + (4,))
     for j, (a, b) in enumerate(jl):
-        va, vb = fit.valid[:, a], fit.valid[:, b]
-        both = np.flatnonzero(va & vb)
+        both = np.flatnonzero(both_all[:, j])
         own_a, own_b = (idx[a] >= 0).sum() >= MIN_MARKERS, (idx[b] >= 0).sum() >= MIN_MARKERS
         if own_a and own_b:
             if both.size:
-                q_rel = Rotation.from_matrix(np.swapaxes(fit.rotation[both, a], -1, -2)
-                                             @ fit.rotation[both, b]).as_quat(scalar_first=True)
-                rom[j] = _range_of_motion(q_rel)
+                rom[j] = _range_of_motion(q_all[both, j])
             continue
         frame_l, pair_l = (a, b) if own_a else (b, a)
         pair = idx[pair_l][idx[pair_l] >= 0][:2]
@@ -195,9 +201,9 @@ def _range_of_motion(q_rel: np.ndarray, max_samples: int = 240) -> float:
     q_rel = q_rel * np.where(q_rel @ q_rel[0] < 0, -1.0, 1.0)[:, None]  # one hemisphere to average
     q_rel = _moving_mean(q_rel)
     q_rel /= np.linalg.norm(q_rel, axis=-1, keepdims=True)
-    r = Rotation.from_quat(q_rel, scalar_first=True)
-    dev = (r * r.mean().inv()).magnitude()
-    q_rel = q_rel[dev <= np.quantile(dev, 1.0 - _ROM_TRIM)]
+    mean = q_rel.mean(0)
+    closeness = np.abs(q_rel @ (mean / max(np.linalg.norm(mean), 1e-12)))  # cos(half angle from the mean)
+    q_rel = q_rel[closeness >= np.quantile(closeness, _ROM_TRIM)]
     sel = q_rel[np.linspace(0, q_rel.shape[0] - 1, min(max_samples, q_rel.shape[0])).astype(int)]
     dots = np.abs(sel @ sel.T).clip(0.0, 1.0)
     return float(2.0 * np.arccos(dots.min()))
@@ -469,7 +475,8 @@ def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.nd
     point of the axis nearest the landmark midpoint (epicondyles), else nearest the regression
     centre (PiG knee width), else where the axis meets the line from the parent joint to the
     child joint (an anatomical hinge's axis is normal to the plane of its neighbours: shoulder,
-    elbow, wrist), else the mid-plane of the two limbs' markers (the SCoRE prior).
+    elbow, wrist), else the axis point nearest the parent joint (the segment's long axis is
+    perpendicular to its flexion axis), else the mid-plane of the two limbs' markers.
     """
     jl = np.asarray(definition.joint_limbs)
     parent = np.asarray(definition.joint_parent)
@@ -501,6 +508,19 @@ def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.nd
         offsets[j] += s * n
         methods[j] = "hinge+plane"
     for j in np.flatnonzero(hinge):
+        p = parent[j]
+        n = axes[j]
+        if methods[j] in ("hinge", "hinge+prior") and p >= 0 and np.isfinite(n).all():
+            # The segment's long axis (parent joint to this centre) is perpendicular to its
+            # flexion axis: the centre is the axis point nearest the parent joint.
+            d = joint_base[p] - joint_base[j]
+            s = float(d @ n)
+            # Only a small correction: a poorly found axis would otherwise slide the centre far
+            # along it (the joint is at most a few centimetres wide).
+            if abs(s) < min(np.cos(np.radians(75.0)) * np.linalg.norm(d), _MAX_AXIAL_SHIFT):
+                joint_base[j] += s * n
+                offsets[j] += s * n
+                methods[j] = "hinge+perpendicular"
         if methods[j] in ("hinge", "hinge+prior"):
             methods[j] += "+midplane"
 

@@ -16,9 +16,11 @@ from scipy.spatial.transform import Rotation
 
 from mocapgraph.kinematics.filters import GapFiller, make_filter
 from mocapgraph.kinematics.model import Quality, SkeletonModel
+from mocapgraph.kinematics.global_fit import GlobalFit, GlobalFitOptions
 from mocapgraph.kinematics.regression import RegressionStage
 from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
 
+FITS = ("segment", "global")
 _GOOD, _EST, _MISS = np.int8(Quality.GOOD), np.int8(Quality.ESTIMATED), np.int8(Quality.MISSING)
 
 
@@ -63,6 +65,9 @@ class FrameSolver:
     filter: None, "one_euro" or "constant_velocity"; filter_params go to its constructor.
     limb_rms_tol: a limb fit worse than this (m) is ESTIMATED and its joint estimates weigh less;
     None -> max(4 x calibrated fit RMS, 5 mm).
+    fit: "segment" (each limb by itself, Kiip) or "global" (all limbs of a frame together under
+    the joint constraints, :mod:`mocapgraph.kinematics.global_fit`; warm-started from the
+    previous frame, so it also carries state between calls).
     """
 
     def __init__(
@@ -74,8 +79,14 @@ class FrameSolver:
         filter: str | None = None,
         filter_params: dict[str, float] | None = None,
         limb_rms_tol: float | None = None,
+        fit: str = "segment",
+        global_options: GlobalFitOptions | None = None,
     ) -> None:
+        if fit not in FITS:
+            raise ValueError(f"unknown fit {fit!r} (expected one of {', '.join(FITS)})")
         self.model = model
+        self.fit = fit
+        self._global = GlobalFit(model, global_options) if fit == "global" else None
         self.rate_hz = rate_hz if rate_hz is not None else model.rate_hz
         self.max_gap_s = float(max_gap_s)
         self.enforce_lengths = enforce_lengths
@@ -155,7 +166,8 @@ class FrameSolver:
         return est, valid[:, lab] & self._has
 
     def solve_geometry(self, markers: np.ndarray) -> SolverResult:
-        """float[T,M,3] -> SolverResult over [T]; no temporal state is touched."""
+        """float[T,M,3] -> SolverResult over [T]; no temporal state is touched (but the global fit
+        keeps the last poses as its warm start)."""
         markers = np.asarray(markers, dtype=float)
         J = self._J
         fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
@@ -172,6 +184,11 @@ class FrameSolver:
             pl = self._pl
             rot[:, pl], trans[:, pl], valid[:, pl] = fit2.rotation, fit2.translation, fit2.valid
             rms_l[:, pl], nfit[:, pl] = fit2.rms, fit2.n_visible
+        if self._global is not None:
+            rot, trans = self._global.refine(markers, rot, trans, valid)
+            nan = ~valid
+            rot = np.where(nan[..., None, None], np.nan, rot)
+            trans = np.where(nan[..., None], np.nan, trans)
         est, ok = self._limb_estimates(rot, trans, valid)
         lab = self._labs
         n = nfit[:, lab]
@@ -245,6 +262,8 @@ class FrameSolver:
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter = make_filter(self._filter_spec[0], self._J, **self._filter_spec[1])
         self._frame = 0
+        if self._global is not None:
+            self._global.reset()
 
 
 def solve_markers(model: SkeletonModel, markers: np.ndarray, rate_hz: float | None = None,

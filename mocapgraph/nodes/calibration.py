@@ -35,6 +35,7 @@ from ..kinematics.calibration import CalibrationError, CalibrationWarning, calib
 from ..kinematics.layout import LayoutError, layout_path
 from ..kinematics.model import ModelFileError, SkeletonModel, load_model, save_model
 from ..kinematics.skeleton import SkeletonDefinition
+from ..kinematics.subject import SubjectError, read_vsk
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
 from ..messages import SkeletonModel as ModelMsg
 from .model_messages import jsonable, model_to_message, quality_report
@@ -75,6 +76,8 @@ class CalibrationNode(Node):
     auto = Param(False, "on start (without a model file to load): find base pose, capture gym, process")
     min_rom_deg = Param(25.0, "joints moving less than this are reported unreliable, deg", minimum=0.0)
     status_rate_hz = Param(2.0, "periodic status rate, Hz", minimum=0.1)
+    centres = Param("functional,anatomical,regression", "joint-centre methods in order of preference")
+    subject_file = Param("", "Vicon VSK with the subject's measurements (regression centres); '' none")
 
     # ----- life cycle ---------------------------------------------------------------------------
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
@@ -295,9 +298,11 @@ class CalibrationNode(Node):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
             try:
+                subject = read_vsk(self.subject_file) if self.subject_file else None
                 model = calibrate(self.definition, frames, base_frame=0, rate_hz=rate,
-                                  min_rom_deg=self.min_rom_deg, source="gym capture")
-            except CalibrationError as exc:
+                                  min_rom_deg=self.min_rom_deg, source="gym capture", subject=subject,
+                                  centre_order=tuple(m.strip() for m in self.centres.split(",") if m.strip()))
+            except (CalibrationError, SubjectError) as exc:
                 self._error(str(exc))
                 return
         # The published model is the file form (rounded as saved), so a later run that loads the

@@ -42,6 +42,8 @@ class FrameSolverNode(Node):
     filter = Param("", "temporal filter on joints: '', one_euro, constant_velocity", choices=FILTERS)
     enforce_lengths = Param(True, "keep calibrated bone lengths (Kiip), outward from the root")
     actor = Param("actor", "actor name carried in every ActorPose")
+    fit = Param("segment", "limb poses: segment (each by itself) or global (together under the joints)",
+                choices=("segment", "global"))
     model_file = Param("", "model JSON loaded at start instead of waiting for skeleton_model")
 
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
@@ -111,7 +113,7 @@ class FrameSolverNode(Node):
         self.n_stream = len(layout.labels)
         self.identity = bool(len(where) == self.n_stream and (where == np.arange(len(where))).all())
         self.solver = FrameSolver(self.model, max_gap_s=self.max_gap_s, enforce_lengths=self.enforce_lengths,
-                                  filter=self.filter or None)
+                                  filter=self.filter or None, fit=self.fit)
         self._last_t = -np.inf
         self.log.info("solving %d joints of layout '%s' (%s) from %d markers", len(self.model.joint_names),
                       self.model.layout, self.model_source, len(where))
