@@ -424,8 +424,12 @@ def calibrate(
     warns.extend(f"{source}: {n}" for n in cands.notes if names[0] is not None)
     static_only: tuple[str, ...] = ()
     if parts and len(parts) > 1:
+        # Only the layout's landmarks may be static-only: any other marker stays required later.
+        lmk = np.zeros(len(labels), dtype=bool)
+        lmk[[k for pair in (getattr(definition, "joint_landmarks", ()) or ()) for k in pair]] = True
         later = np.isfinite(markers[n_static:]).all(-1).any(0)
-        static_only = tuple(labels[m] for m in np.flatnonzero(~later & np.isfinite(markers[:n_static]).all(-1).any(0)))
+        static_only = tuple(labels[m] for m in np.flatnonzero(
+            lmk & ~later & np.isfinite(markers[:n_static]).all(-1).any(0)))
         warns.extend(cluster_changes(definition, markers, parts))
     model = SkeletonModel(
         layout=str(definition.name),

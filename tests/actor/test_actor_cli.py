@@ -189,7 +189,7 @@ def test_static_plus_walk_with_other_markers_and_plug_in_gait_regressions(shared
     code, out, _ = run(capsys, "calibrate", folder / "subject01_static.trc", folder / "subject01_walk1.trc",
                        "--layout", "opensim_gait2392", "--centres", "anatomical,functional", "-o", tmp_path / "os.json")
     assert code == 0, out
-    assert "subject01_walk1.trc: lacks 8 layout markers of" in out and "R.Knee.Med" in out
+    assert "subject01_walk1.trc: lacks 8 landmarks of subject01_static.trc: static-only" in out and "R.Knee.Med" in out
     assert "knee_r: midpoint of R.Knee.Lat and R.Knee.Med" in out
     code, out, _ = run(capsys, "solve", folder / "subject01_walk1.trc", "--model", tmp_path / "os.json",
                        "-o", tmp_path / "walk.csv")
