@@ -213,13 +213,23 @@ nodes:
   - name: solver
     type: frame_solver
     params: {{model_file: {tmp_path / "m.json"}}}
+  - name: solver_global
+    type: frame_solver
+    params: {{model_file: {tmp_path / "m.json"}, fit: global}}
+    remap: {{actor_pose: actor_pose_global}}
   - name: logger
     type: topic_logger
-    params: {{path: {log}, topics: [actor_pose]}}
+    params: {{path: {log}, topics: [actor_pose, actor_pose_global, ground_truth]}}
 """)
     g.wait_ready()
     g.wait_for("node src exited with code 0", timeout=30)
-    wait_until(lambda: len(poses(log)) > 300, what="poses", graph=g)
+    wait_until(lambda: len(poses(log)) > 300 and len(poses(log, "actor_pose_global")) > 300, what="poses", graph=g)
     assert g.stop() == 0
-    q = np.array([p["joint_quality"] for p in poses(log).values()])
-    assert (q[:, bad] == 1).all() and (q[:, ~bad] == 2).mean() > 0.99
+    truth = poses(log, "ground_truth")
+    for topic in ("actor_pose", "actor_pose_global"):  # the segment-wise and the global fit node
+        got = poses(log, topic)
+        q = np.array([p["joint_quality"] for p in got.values()])
+        assert (q[:, bad] == 1).all() and (q[:, ~bad] == 2).mean() > 0.99
+        frames = sorted(set(got) & set(truth))
+        err = np.linalg.norm(joints(got, frames) - joints(truth, frames), axis=-1)
+        assert np.median(err[:, ~bad]) < 0.005, topic
