@@ -94,9 +94,10 @@ class GlobalFit:
         self._levels = []
         for d in range(depth.max(), 0, -1):
             limbs = np.flatnonzero(depth == d)
-            inc = np.zeros((L, limbs.size))
-            inc[parent[limbs], np.arange(limbs.size)] = 1.0
-            self._levels.append((limbs, np.array([joint_of[int(l)] for l in limbs]), parent[limbs], inc))
+            ups, where = np.unique(parent[limbs], return_inverse=True)
+            inc = np.zeros((ups.size, limbs.size))
+            inc[where, np.arange(limbs.size)] = 1.0
+            self._levels.append((limbs, np.array([joint_of[int(l)] for l in limbs]), parent[limbs], ups, inc))
         self._last: tuple[np.ndarray, np.ndarray] | None = None   # warm start: previous poses
 
     def reset(self) -> None:
@@ -171,19 +172,19 @@ class GlobalFit:
         eye3 = np.eye(3)
         wj = self._wj[None, :, None, None]
         # markers: H_ww = sum w (|q|^2 I - q q^T), H_wc = sum w [q]x, H_cc = sum w I
-        q = np.einsum("tlij,lkj->tlki", r, self._a)                               # [T,L,K,3]
+        q = self._a @ np.swapaxes(r, -1, -2)                                       # [T,L,K,3]
         res = q + c[:, :, None] - y
         wq = wm[..., None] * q
         diag = np.empty((T, L, 6, 6))
-        diag[..., :3, :3] = (wq * q).sum((-1, -2))[..., None, None] * eye3 - np.einsum("tlki,tlkj->tlij", wq, q)
+        diag[..., :3, :3] = (wq * q).sum((-1, -2))[..., None, None] * eye3 - np.swapaxes(wq, -1, -2) @ q
         sq = _skew(wq.sum(2))
         diag[..., :3, 3:] = sq
         diag[..., 3:, :3] = -sq
         diag[..., 3:, 3:] = wsum[..., None, None] * eye3
         g = np.concatenate([np.cross(wq, res).sum(2), (wm[..., None] * res).sum(2)], -1)   # [T,L,6]
         # joints: e = q_a + c_a - q_b - c_b, J_a = [-[q_a]x, I], J_b = [[q_b]x, -I]
-        qa = np.einsum("tjik,jk->tji", r[:, ja], self._p_a)
-        qb = np.einsum("tjik,jk->tji", r[:, jb], self._p_b)
+        qa = (r[:, ja] @ self._p_a[..., None])[..., 0]
+        qb = (r[:, jb] @ self._p_b[..., None])[..., 0]
         e = qa + c[:, ja] - qb - c[:, jb]                                         # [T,J,3]
         eye = np.broadcast_to(eye3, (T, J, 3, 3))
         Ja = np.concatenate([-_skew(qa), eye], -1)                                # [T,J,3,6]
@@ -204,8 +205,11 @@ class GlobalFit:
             hab[:, hj, :3, :3] += wh * (Sa @ Sb)
             ga[:, hj, :3] += wh[..., 0] * (Sa @ eh)[..., 0]
             gb[:, hj, :3] -= wh[..., 0] * (Sb @ eh)[..., 0]
-        diag += np.einsum("lj,tjab->tlab", self._Ea, haa) + np.einsum("lj,tjab->tlab", self._Eb, hbb)
-        g += np.einsum("lj,tja->tla", self._Ea, ga) + np.einsum("lj,tja->tla", self._Eb, gb)
+        # Each limb but the root is the distal side of exactly one joint; parents may repeat.
+        diag[:, jb] += hbb
+        g[:, jb] += gb
+        diag += (self._Ea @ haa.reshape(T, J, 36)).reshape(T, L, 6, 6)
+        g += self._Ea @ ga
         # Directions no residual sees (a limb's spin about its only marker-joint line) stay put.
         tr = np.einsum("tlii->tl", diag)[..., None, None] / 6.0
         diag = diag + (1e-9 * tr + 1e-12) * self._eye6
@@ -217,12 +221,14 @@ class GlobalFit:
         H[parent, child] per joint, right side b [T,L,6]) by elimination leaves -> root -> leaves."""
         D, b = diag.copy(), b.copy()
         saved = []
-        for limbs, joints, parents, inc in self._levels:       # deepest level first
+        T = D.shape[0]
+        for limbs, joints, parents, ups, inc in self._levels:  # deepest level first
             Dinv = np.linalg.inv(D[:, limbs])                   # [T,n,6,6]
             B = hab[:, joints]                                  # H[parent, child]
             BD = B @ Dinv
-            D -= np.einsum("ln,tnab->tlab", inc, BD @ np.swapaxes(B, -1, -2))
-            b -= np.einsum("ln,tna->tla", inc, (BD @ b[:, limbs, :, None])[..., 0])
+            n = limbs.size
+            D[:, ups] -= (inc @ (BD @ np.swapaxes(B, -1, -2)).reshape(T, n, 36)).reshape(T, ups.size, 6, 6)
+            b[:, ups] -= inc @ (BD @ b[:, limbs, :, None])[..., 0]
             saved.append((limbs, joints, parents, Dinv))
         x = np.zeros_like(b)
         root = self._root
