@@ -229,6 +229,15 @@ def test_model_file_keeps_methods_inputs_and_static_only_markers(tmp_path, share
     model = _quiet_calibrate(definition, np.concatenate([s, w]), rate_hz=60.0, centre_order=("anatomical", "functional"),
                              parts=[("s", len(s)), ("w", len(w))])
     save_model(model, tmp_path / "m.json")
+    # A stream without the static-only landmarks is accepted (they are always missing); one that
+    # lacks any other model marker is still refused.
+    from mocapgraph.nodes.model_messages import ModelMismatchError, marker_index
+
+    where = marker_index(model, "opensim_gait2392", walk.labels)
+    absent = {model.marker_labels[m] for m in np.flatnonzero(where < 0)}
+    assert absent == set(model.static_only_markers)
+    with pytest.raises(ModelMismatchError, match="R.Heel"):
+        marker_index(model, "opensim_gait2392", [l for l in walk.labels if l != "R.Heel"])
     for back in (load_model(tmp_path / "m.json"), model_from_message(model_to_message(model))):
         assert isinstance(back, SkeletonModel)
         assert back.static_only_markers == model.static_only_markers
