@@ -20,7 +20,8 @@ from scipy.spatial.transform import Rotation
 
 from mocapgraph.kinematics.centres import DEFAULT_ORDER, METHODS, Candidate, CentreCandidates
 from mocapgraph.kinematics.consistency import cluster_changes
-from mocapgraph.kinematics.model import JointQuality, SkeletonModel
+from mocapgraph.kinematics.labels import missing_labels, place_labels
+from mocapgraph.kinematics.model import JointQuality, ActorModel
 from mocapgraph.kinematics.subject import Subject
 from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
 
@@ -56,8 +57,8 @@ def layout_markers(
     capture lacks raise CalibrationError naming them, or become NaN with ``allow_missing``.
     """
     positions = np.asarray(positions, dtype=float)
-    where, _ = definition.match_labels(list(labels))
-    missing = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+    where, _ = place_labels(definition.marker_labels, list(labels))
+    missing = missing_labels(definition.marker_labels, where)
     if missing and not allow_missing:
         raise CalibrationError(
             f"{source}: layout '{definition.name}' names markers the capture lacks: {', '.join(missing)}")
@@ -258,8 +259,8 @@ def calibrate(
     max_residual_mm: float = 10.0,
     subject: Subject | None = None,
     parts: Sequence[tuple[str, int]] | None = None,
-) -> SkeletonModel:
-    """Build a SkeletonModel from float[T,M,3] markers (layout order, metres, NaN = unseen).
+) -> ActorModel:
+    """Build an ActorModel from float[T,M,3] markers (layout order, metres, NaN = unseen).
 
     definition: a SkeletonDefinition (name, limb/joint/marker names and indices).
     base_frame: the base pose frame; by default the first frame with every marker visible,
@@ -431,7 +432,7 @@ def calibrate(
         static_only = tuple(labels[m] for m in np.flatnonzero(
             lmk & ~later & np.isfinite(markers[:n_static]).all(-1).any(0)))
         warns.extend(cluster_changes(definition, markers, parts))
-    model = SkeletonModel(
+    model = ActorModel(
         layout=str(definition.name),
         marker_labels=labels,
         limb_names=tuple(definition.limb_names),
@@ -615,7 +616,7 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
     return type(fit)(**merged), centre
 
 
-def _bone_lengths(model: SkeletonModel, markers: np.ndarray) -> np.ndarray:
+def _bone_lengths(model: ActorModel, markers: np.ndarray) -> np.ndarray:
     """Median distance from each joint to its parent joint over the gym frames (Kiip 3.3.3)."""
     from mocapgraph.kinematics.solver import FrameSolver  # solver imports model only; no cycle at load
 

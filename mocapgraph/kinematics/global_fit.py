@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocapgraph.kinematics.model import SkeletonModel
+from mocapgraph.kinematics.model import ActorModel
 from mocapgraph.kinematics.rigid import gather_limb_markers
 
 
@@ -43,7 +43,7 @@ class GlobalFitOptions:
 class GlobalFit:
     """Refines segment-wise limb poses of [T] frames to the global weighted least-squares optimum."""
 
-    def __init__(self, model: SkeletonModel, options: GlobalFitOptions | None = None) -> None:
+    def __init__(self, model: ActorModel, options: GlobalFitOptions | None = None) -> None:
         o = options or GlobalFitOptions()
         self.options = o
         idx = np.asarray(model.limb_markers)

@@ -113,7 +113,7 @@ class RegressionStage:
     from the current markers and the just-computed proximal centre. Batched over frames and over
     the joints of one level (hips, then knees, then ankles): three vector steps per call.
 
-    model: a SkeletonModel (reads ``quality.method``, ``quality.inputs``, ``joint_parent``,
+    model: a ActorModel (reads ``quality.method``, ``quality.inputs``, ``joint_parent``,
     ``marker_labels``).
     """
 

@@ -14,7 +14,7 @@ from mocapgraph.formats.c3d_file import read_c3d
 from mocapgraph.formats.trc_file import read_trc
 from mocapgraph.kinematics.calibration import CalibrationError, CalibrationWarning, calibrate, layout_markers
 from mocapgraph.kinematics.layout import LayoutError, layout_path
-from mocapgraph.kinematics.model import SkeletonModel
+from mocapgraph.kinematics.model import ActorModel
 from mocapgraph.kinematics.skeleton import SkeletonDefinition
 from mocapgraph.kinematics.solver import FrameSolver
 from mocapgraph.kinematics.subject import SubjectError, parse_subject_args, read_c3d_processing, read_vsk
@@ -218,7 +218,7 @@ def test_bad_landmark_and_regression_keys_are_one_line_errors(joint, problem):
 
 def test_model_file_keeps_methods_inputs_and_static_only_markers(tmp_path, shared_data):
     from mocapgraph.kinematics.model import load_model, save_model
-    from mocapgraph.nodes.model_messages import model_from_message, model_to_message
+    from mocapgraph.adapters.model_messages import model_from_message, model_to_message
 
     folder = shared_data / "trc" / "opensim-gait2392"
     static = read_trc(folder / "subject01_static.trc")
@@ -231,7 +231,7 @@ def test_model_file_keeps_methods_inputs_and_static_only_markers(tmp_path, share
     save_model(model, tmp_path / "m.json")
     # A stream without the static-only landmarks is accepted (they are always missing); one that
     # lacks any other model marker is still refused.
-    from mocapgraph.nodes.model_messages import ModelMismatchError, marker_index
+    from mocapgraph.adapters.model_messages import ModelMismatchError, marker_index
 
     where = marker_index(model, "opensim_gait2392", walk.labels)
     absent = {model.marker_labels[m] for m in np.flatnonzero(where < 0)}
@@ -239,7 +239,7 @@ def test_model_file_keeps_methods_inputs_and_static_only_markers(tmp_path, share
     with pytest.raises(ModelMismatchError, match="R.Heel"):
         marker_index(model, "opensim_gait2392", [l for l in walk.labels if l != "R.Heel"])
     for back in (load_model(tmp_path / "m.json"), model_from_message(model_to_message(model))):
-        assert isinstance(back, SkeletonModel)
+        assert isinstance(back, ActorModel)
         assert back.static_only_markers == model.static_only_markers
         assert back.quality.method == model.quality.method
         assert back.quality.inputs[1]["landmarks"] == ["R.Knee.Lat", "R.Knee.Med"]
