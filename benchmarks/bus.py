@@ -303,7 +303,7 @@ nodes:
     if max(got) < count:
         verdict += f"; the sender reached only {max(got)} of {count} in time (CPU-starved machine)"
     print(f"soak, CurveZMQ tcp, 1 kHz to 4 subscribers for {minutes:g} min: planned {count}, received {got}, "
-          f"gaps {gaps} ({verdict}); receivers keep every latency sample (8 B each), so their RSS grows "
+          f"gaps {gaps} ({verdict}); receivers keep every latency sample (a Python int each), so their RSS grows "
           "by design")
     for name, pts in sorted(samples.items()):
         t, mb = np.array(pts).T
