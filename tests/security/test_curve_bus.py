@@ -62,6 +62,12 @@ nodes:
     assert tool.poll(1000), "the key holder still receives meanwhile"
     for s in (plain, stranger, tool):
         s.close(0)
+    # the command-line tools go through the manifest's key files: echo and record work
+    r = g.cli("topic", "echo", "markers", "-n", "2", "--json", "--timeout", "20", timeout=60)
+    assert r.returncode == 0 and r.stdout.count("\n") >= 2, r.stderr
+    bag = tmp_path / "rec.mcap"
+    r = g.cli("bag", "record", "markers", "-o", str(bag), "--duration", "2", timeout=60)
+    assert r.returncode == 0 and bag.stat().st_size > 1000, r.stdout + r.stderr
 
 
 def test_publishing_beyond_loopback_needs_keys_or_insecure(tmp_path: Path, capsys) -> None:
