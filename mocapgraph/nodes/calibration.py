@@ -18,6 +18,12 @@ the base pose, sampled at ``F`` frames/s (0: every frame). Processing runs
 :func:`mocapgraph.kinematics.calibration.calibrate` on base pose + gym; the result is published
 latched on ``skeleton_model`` in its file form (what ``model_file`` holds), so a session
 calibrated now and one loaded from the file later solve identically.
+
+The node is the command state machine; the capture steps live in
+:mod:`mocapgraph.kinematics.capture_steps`, the stream binding in
+:mod:`mocapgraph.adapters.layout_binding`, the status texts in
+:mod:`mocapgraph.adapters.calibration_report`, saving and the message form in
+:mod:`mocapgraph.adapters.model_store`.
 """
 from __future__ import annotations
 
