@@ -35,6 +35,7 @@ from ..bus import Input, Node, Output, Param
 from ..kinematics.calibration import CalibrationError
 from ..kinematics.capture_steps import FOUND, TIMED_OUT, CaptureSession, GymSampler
 from ..kinematics.model import ActorModel, ModelFileError, as_saved, load_model
+from ..kinematics.subject import SubjectError, read_vsk
 from ..messages.commands import CALIBRATION_COMMANDS, parse_command
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
 from ..messages import SkeletonModel
@@ -78,6 +79,8 @@ class CalibrationNode(Node):
     auto = Param(False, "on start (without a model file to load): find base pose, capture gym, process")
     min_rom_deg = Param(25.0, "joints moving less than this are reported unreliable, deg", minimum=0.0)
     status_rate_hz = Param(2.0, "periodic status rate, Hz", minimum=0.1)
+    centres = Param("functional,anatomical,regression", "joint-centre methods in order of preference")
+    subject_file = Param("", "Vicon VSK with the subject's measurements (regression centres); '' none")
 
     # ----- life cycle ---------------------------------------------------------------------------
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
@@ -213,8 +216,11 @@ class CalibrationNode(Node):
     def _process(self) -> None:
         self._auto_running = False
         try:
-            model, warns = self.capture.process(self.binding.definition, min_rom_deg=self.min_rom_deg)
-        except CalibrationError as exc:
+            subject = read_vsk(self.subject_file) if self.subject_file else None
+            model, warns = self.capture.process(
+                self.binding.definition, min_rom_deg=self.min_rom_deg, subject=subject,
+                centre_order=tuple(m.strip() for m in self.centres.split(",") if m.strip()))
+        except (CalibrationError, SubjectError) as exc:
             self._error(str(exc))
             return
         # The published model is the file form (rounded as saved), so a later run that loads the
