@@ -12,7 +12,7 @@ from ..bag.player import Outgoing, Playback, select_topics, set_publish_stamp
 from ..bag.reader import BagReader
 from ..bus import Input, Interface, Node, Output, Param
 from ..bus.node import NodeConfigError
-from ..messages.commands import PLAYER_COMMANDS
+from ..messages.commands import PLAYER_COMMANDS, parse_command
 from ..messages import NodeCommand, NodeStatus
 from ..messages.registry import lookup
 
@@ -174,10 +174,7 @@ class BagPlayer(Node):
             return
         self.command_error = ""
         try:
-            args = json.loads(cmd.args_json or "{}")
-            if not isinstance(args, dict):
-                raise ValueError("args_json is not a JSON object")
-            self.handle(cmd.command, args)
+            self.handle(cmd.command, parse_command(cmd.command, cmd.args_json, PLAYER_COMMANDS))
         except (ValueError, TypeError, KeyError, OverflowError, BagError) as exc:
             # A bad command is answered on player_status and changes nothing: the player plays on.
             self.command_error = f"command {cmd.command[:40]!r} refused: {exc}"
