@@ -39,13 +39,13 @@ from ..messages import Diagnostics, Message
 from ..messages.codec import topic_frame
 from .bound_ports import InputPort, OutputPort
 from .curve import CurveKeys, make_server, start_authenticator, stop_authenticators
+from .subscriptions import Subscriptions
 from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, EdgeRecord, build_diagnostics,
                           input_edge_records)
 from .loop import EventLoop, Timer
 from .ports import Input, Interface, Output, Param, ParamError
 from .protocol import READY, START, STARTED, STOP, LauncherLink, ParentWatchdog, Wiring
 
-LATCHED_RESEND_S = 0.05  # a latched value goes out at most this often per topic, however many subscribe
 SEND_QUEUE = 1000  # messages per subscriber held by a publisher before it drops (counted downstream)
 LOG_FORMAT = "%(levelname)s %(message)s"
 _DIAGNOSTICS_PORT = "__diagnostics__"
@@ -74,12 +74,8 @@ class Node:
         self._t0 = time.monotonic()
         self._ctx = zmq.Context.instance()
         self._pub: zmq.Socket | None = None
-        self._sub_counts: dict[bytes, int] = {}  # our own topic keys only: bounded
-        self._foreign_subscriptions = 0  # subscriptions to topics we do not publish (counted, ignored)
-        self._resent_at: dict[bytes, float] = {}
-        self._resend_pending: set[bytes] = set()
-        #: latched values re-sent to late subscribers since start
-        self.latched_resends = 0
+        self._subs = Subscriptions(lambda: [p for p in self._ports.values() if isinstance(p, OutputPort)],
+                                   self.call_later, lambda: self._loop.timers_on)
         self._ready_sent = False
         self._launcher: LauncherLink | None = None
         self._watchdog = ParentWatchdog()
@@ -222,57 +218,15 @@ class Node:
         return want
 
     def _on_subscription(self) -> None:
-        # Only our own topics are counted (junk subscriptions cost nothing), and a latched value
-        # is re-sent at most once per LATCHED_RESEND_S per topic: the XPUB sends it to every
-        # subscriber of the topic, so a flood of subscriptions must not multiply it.
-        ours = self._topic_ports()
-        wanted: set[bytes] = set()
-        while True:
-            try:
-                ev = self._pub.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                break
-            if not ev or ev[0] != 1:
-                continue
-            key = ev[1:]
-            if key not in ours:
-                self._foreign_subscriptions += 1
-                continue
-            self._sub_counts[key] = self._sub_counts.get(key, 0) + 1
-            wanted.add(key)
-        for key in wanted:
-            if any(p.last_frames is not None for p in ours[key]):
-                self._resend_latched(key)
+        self._subs.drain(self._pub)
         self.announce_ready()
-
-    def _topic_ports(self) -> dict[bytes, list[OutputPort]]:
-        ours: dict[bytes, list[OutputPort]] = {}
-        for port in self._ports.values():
-            if isinstance(port, OutputPort):
-                ours.setdefault(port.topic_key, []).append(port)
-        return ours
-
-    def _resend_latched(self, key: bytes) -> None:
-        """Send the latched value(s) of topic ``key`` now, or once after the pause when one just went."""
-        now = time.monotonic()
-        last = self._resent_at.get(key, -LATCHED_RESEND_S)
-        if now - last >= LATCHED_RESEND_S or not self._loop.timers_on:
-            self._resent_at[key] = now
-            self._resend_pending.discard(key)
-            for port in self._topic_ports().get(key, []):
-                if port.last_frames is not None:
-                    port._send(port.last_frames)
-                    self.latched_resends += 1
-        elif key not in self._resend_pending:
-            self._resend_pending.add(key)
-            self.call_later(last + LATCHED_RESEND_S - now, lambda: self._resend_latched(key))
 
     def announce_ready(self) -> None:
         """Tell the launcher we are ready once every expected subscriber has subscribed
         (without a launcher: start now)."""
         if self._ready_sent:
             return
-        if all(self._sub_counts.get(k, 0) >= n for k, n in self._expected_subscriptions().items()):
+        if all(self._subs.counts.get(k, 0) >= n for k, n in self._expected_subscriptions().items()):
             self._ready_sent = True
             if self._launcher is not None:
                 self._launcher.send(READY)

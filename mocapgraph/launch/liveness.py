@@ -1,12 +1,19 @@
 """Which nodes stopped talking: a node whose diagnostics (1 Hz) stop for STALL_S is stalled.
 
 A stopped process (SIGSTOP, a debugger, a swap storm, an endless loop in a handler) keeps its
-pid and its sockets, so only its silence shows it. Pure bookkeeping: the launcher feeds arrival
-times and asks for transitions.
+pid and its sockets, so only its silence shows it. `Liveness` is pure bookkeeping (the launcher
+feeds arrival times and asks for transitions); the socket helpers below feed it.
 """
 from __future__ import annotations
 
 from typing import Iterable
+
+import zmq
+
+from ..bus.curve import CurveKeys, make_client
+from ..bus.diagnostics import DIAGNOSTICS_TOPIC
+from ..messages import DecodeError, decode_envelope
+from ..messages.codec import topic_frame
 
 STALL_S = 3.0
 
@@ -48,3 +55,30 @@ class Liveness:
 
     def is_stalled(self, node: str) -> bool:
         return node in self.stalled
+
+
+def diagnostics_socket(ctx: zmq.Context, endpoints: Iterable[str], curve: CurveKeys | None) -> zmq.Socket:
+    """A SUB socket on every node's diagnostics (a CurveZMQ client when the graph has keys)."""
+    sock = ctx.socket(zmq.SUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    if curve is not None:
+        make_client(sock, curve)
+    sock.setsockopt(zmq.RCVHWM, 1000)
+    sock.setsockopt(zmq.SUBSCRIBE, topic_frame(DIAGNOSTICS_TOPIC))
+    for ep in endpoints:
+        sock.connect(ep)
+    return sock
+
+
+def drain_senders(sock: zmq.Socket) -> list[str]:
+    """Sender names of every diagnostics message waiting on ``sock`` (malformed ones skipped)."""
+    out = []
+    while True:
+        try:
+            frames = sock.recv_multipart(zmq.NOBLOCK)
+        except zmq.Again:
+            return out
+        try:
+            out.append(decode_envelope(frames).sender)
+        except DecodeError:
+            continue

@@ -34,10 +34,8 @@ import zmq
 from ..bus.diagnostics import DIAGNOSTICS_TOPIC
 from ..bus.protocol import READY, START, STARTED, STOP, Wiring, die_with_parent
 from .check import CheckedGraph, ResolvedNode, shutdown_order
-from ..messages import DecodeError, decode_envelope
-from ..messages.codec import topic_frame
-from ..bus.curve import CurveKeys, make_client
-from .liveness import STALL_S, Liveness
+from ..bus.curve import CurveKeys
+from .liveness import STALL_S, Liveness, diagnostics_socket, drain_senders
 from .manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
 from .wiring_plan import plan_wiring
 
@@ -121,27 +119,7 @@ class Supervisor:
 
     def manifest(self) -> Manifest:
         """Nodes, topics, types and endpoints of the running graph."""
-        types = self.graph.topic_types()
-        m = Manifest(graph=self.graph.spec.file)
-        sec = self.graph.spec.security
-        if sec.curve:
-            m.security = {"key": sec.key, "authorized": sec.authorized}
-        for rn in self.graph.nodes:
-            for port, t in rn.outputs.items():
-                m.add_publisher(t, types[t], rn.name, self.endpoints[rn.name], rn.iface.outputs[port].is_latched)
-            for port, t in rn.inputs.items():
-                m.add_subscriber(t, types.get(t, "*"), rn.name, port)
-        for ext in self.graph.spec.external:
-            m.add_publisher(ext.topic, ext.type, "external", ext.endpoint)
-        diag = m.topics.pop(DIAGNOSTICS_TOPIC, {"subscribers": []})
-        m.topics[DIAGNOSTICS_TOPIC] = {"type": "Diagnostics", "subscribers": diag["subscribers"], "publishers": []}
-        for n, e in self.endpoints.items():
-            m.add_publisher(DIAGNOSTICS_TOPIC, "Diagnostics", n, e)
-        m.nodes = [NodeEntry(c.node.name, c.node.spec.type, c.node.class_path, c.proc.pid if c.proc else None,
-                             self.endpoints[c.node.name], c.node.params, c.node.inputs, c.node.outputs,
-                             c.restarts, bool(c.proc and c.proc.poll() is None),
-                             stalled=self.liveness.is_stalled(c.node.name)) for c in self.children.values()]
-        return m
+        return graph_manifest(self.graph, self.endpoints, list(self.children.values()), self.liveness)
 
     # ----- logging --------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -241,15 +219,9 @@ class Supervisor:
 
     def _watch_diagnostics(self) -> None:
         """Subscribe to every node's diagnostics: their silence is how a stopped node shows."""
-        self.diag = self.ctx.socket(zmq.SUB)
-        self.diag.setsockopt(zmq.LINGER, 0)
         sec = self.graph.spec.security
-        if sec.curve:
-            make_client(self.diag, CurveKeys.load(sec.key, sec.authorized))
-        self.diag.setsockopt(zmq.RCVHWM, 1000)
-        self.diag.setsockopt(zmq.SUBSCRIBE, topic_frame(DIAGNOSTICS_TOPIC))
-        for ep in self.endpoints.values():
-            self.diag.connect(ep)
+        self.diag = diagnostics_socket(self.ctx, self.endpoints.values(),
+                                       CurveKeys.load(sec.key, sec.authorized) if sec.curve else None)
         now = time.monotonic()
         for name in self.children:
             self.liveness.watch(name, now)
@@ -257,19 +229,10 @@ class Supervisor:
     def _check_liveness(self, now: float) -> None:
         if self.diag is None:
             return
-        while True:
-            try:
-                frames = self.diag.recv_multipart(zmq.NOBLOCK)
-            except zmq.Again:
-                break
-            try:
-                sender = decode_envelope(frames).sender
-            except DecodeError:
-                continue
-            if sender in self.children:
-                silent = self.liveness.heard(sender, now)
-                if silent is not None:
-                    self.say(f"[launch] node {sender} is responding again after {silent:.1f} s of silence")
+        for sender in drain_senders(self.diag):
+            silent = self.liveness.heard(sender, now) if sender in self.children else None
+            if silent is not None:
+                self.say(f"[launch] node {sender} is responding again after {silent:.1f} s of silence")
         running = [n for n, c in self.children.items() if c.proc is not None and c.proc.poll() is None]
         for name, silent in self.liveness.newly_stalled(now, running):
             self.say(f"[launch] node {name} stalled: no diagnostics for {silent:.1f} s "
@@ -351,6 +314,33 @@ class Supervisor:
             if c.proc is not None and c.proc.poll() is None:
                 c.proc.kill()
 
+
+
+def graph_manifest(graph: CheckedGraph, endpoints: dict[str, str], children: list[Child],
+                   liveness: Liveness) -> Manifest:
+    """The manifest of a running graph: every node's topics and endpoints (also those on other
+    machines), this launcher's processes, the key files of a CurveZMQ bus."""
+    types = graph.topic_types()
+    m = Manifest(graph=graph.spec.file)
+    sec = graph.spec.security
+    if sec.curve:
+        m.security = {"key": sec.key, "authorized": sec.authorized}
+    for rn in graph.nodes:
+        for port, t in rn.outputs.items():
+            m.add_publisher(t, types[t], rn.name, endpoints[rn.name], rn.iface.outputs[port].is_latched)
+        for port, t in rn.inputs.items():
+            m.add_subscriber(t, types.get(t, "*"), rn.name, port)
+    for ext in graph.spec.external:
+        m.add_publisher(ext.topic, ext.type, "external", ext.endpoint)
+    diag = m.topics.pop(DIAGNOSTICS_TOPIC, {"subscribers": []})
+    m.topics[DIAGNOSTICS_TOPIC] = {"type": "Diagnostics", "subscribers": diag["subscribers"], "publishers": []}
+    for n, e in endpoints.items():
+        m.add_publisher(DIAGNOSTICS_TOPIC, "Diagnostics", n, e)
+    m.nodes = [NodeEntry(c.node.name, c.node.spec.type, c.node.class_path, c.proc.pid if c.proc else None,
+                         endpoints[c.node.name], c.node.params, c.node.inputs, c.node.outputs,
+                         c.restarts, bool(c.proc and c.proc.poll() is None),
+                         stalled=liveness.is_stalled(c.node.name)) for c in children]
+    return m
 
 def _wait(proc: subprocess.Popen, timeout: float) -> bool:
     try:
