@@ -15,12 +15,13 @@ import argparse
 import csv
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
 from . import UserError
+from .progress import Progress
 
 OUTPUT_KINDS = (".csv", ".trc", ".mcap")
 
@@ -110,8 +111,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UserError(f"--frames given {len(frames)} times for {len(args.files)} files "
                         "(give it once for all files, or once per file)")
     parts, rate = [], None
+    bar = Progress("calibrating", unit="step", total=len(args.files) + 2)
     for i, f in enumerate(args.files):
         inp = read_marker_input(f, args.topic)
+        bar.advance()
         try:
             x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name)
         except CalibrationError as exc:
@@ -136,6 +139,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             raise UserError(str(exc)) from None
         except IndexError:
             raise UserError(f"--base-frame {args.base_frame} is outside the {len(markers)} frames") from None
+    bar.advance()
     print(f"layout {definition.name}: {len(model.joint_names)} joints from {len(markers)} frames")
     print(quality_table(model))
     for w in caught:
@@ -145,6 +149,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         save_model(model, args.output)
     except OSError as exc:
         raise UserError(f"{args.output}: cannot write ({exc.strerror or exc})") from None
+    bar.close()
     print(f"wrote {args.output}")
     return 0
 
@@ -180,7 +185,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
                              enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    res = solver.solve(x, times)
+    res = _solve_chunks(solver, x, times)
     q = res.joint_quality
     T, J = q.shape
     print(f"{inp.path.name}: {T} frames, {J} joints: {100 * (q == 2).mean():.1f} % good, "
@@ -207,6 +212,23 @@ def cmd_solve(args: argparse.Namespace) -> int:
         raise UserError(f"{out}: cannot write ({exc.strerror or exc})") from None
     print(f"wrote {out}")
     return 0
+
+
+SOLVE_CHUNK = 500  # frames per solver call: a bar that moves, same result as one call
+
+
+def _solve_chunks(solver, x: np.ndarray, times: np.ndarray):
+    """``solver.solve`` over float[T,M,3] in chunks (the solver carries its state across calls)."""
+    from ..kinematics.solver import SolverResult
+
+    parts = []
+    with Progress("solving", total=len(x)) as bar:
+        for a in range(0, len(x), SOLVE_CHUNK):
+            parts.append(solver.solve(x[a:a + SOLVE_CHUNK], times[a:a + SOLVE_CHUNK]))
+            bar.advance(len(parts[-1].joints))
+    if len(parts) == 1:
+        return parts[0]
+    return SolverResult(*(np.concatenate([getattr(r, f.name) for r in parts]) for f in fields(SolverResult)))
 
 
 def _place(model, inp: MarkerInput, allow_missing: bool) -> tuple[np.ndarray, list[str]]:

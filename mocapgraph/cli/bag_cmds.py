@@ -16,7 +16,7 @@ from typing import Any
 import zmq
 
 from ..bag.errors import BagError
-from ..bag.progress import ProgressBar
+from .progress import Progress
 from . import UserError
 
 
@@ -327,7 +327,7 @@ def cmd_info(args: argparse.Namespace) -> int:
             s = r.summary()
             scan = None
             if not args.fast:
-                with ProgressBar("scanning") as bar:
+                with Progress("scanning", unit="msg") as bar:
                     scan = r.scan(progress=lambda i: bar(i, s.count))
     except BagError as exc:
         raise _fail(exc) from None
@@ -398,7 +398,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
     src, dst = Path(args.input), Path(args.output)
     try:
-        with ProgressBar("converting") as bar:
+        with Progress("converting") as bar:
             if src.suffix.lower() == ".mcap":
                 if dst.suffix.lower() not in OUTPUT_KINDS:
                     raise UserError(f"{dst}: a bag converts to {', '.join(sorted(OUTPUT_KINDS))}")
@@ -419,7 +419,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
     from ..bag.recover import recover
 
     try:
-        with ProgressBar("recovering", unit="bytes") as bar:
+        with Progress("recovering", unit="bytes") as bar:
             rep = recover(args.file, args.output, progress=bar)
     except BagError as exc:
         raise _fail(exc) from None
