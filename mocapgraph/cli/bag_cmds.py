@@ -486,3 +486,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file")
     p.add_argument("-o", "--output", help="new bag (default <name>.recovered.mcap)")
     p.set_defaults(func=cmd_recover)
+
+    from .foxglove_cmds import register_bag as register_foxglove
+    register_foxglove(bs)
