@@ -111,7 +111,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UserError(f"--frames given {len(frames)} times for {len(args.files)} files "
                         "(give it once for all files, or once per file)")
     parts, rate = [], None
-    bar = Progress("calibrating", unit="step", total=len(args.files) + 2)
+    report = _report_path(args.report, args.output)
+    bar = Progress("calibrating", unit="step", total=len(args.files) + 2 + (report is not None))
     for i, f in enumerate(args.files):
         inp = read_marker_input(f, args.topic)
         bar.advance()
@@ -149,9 +150,29 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         save_model(model, args.output)
     except OSError as exc:
         raise UserError(f"{args.output}: cannot write ({exc.strerror or exc})") from None
-    bar.close()
     print(f"wrote {args.output}")
+    if report is not None:
+        from ..reports.calibration_report import write_report
+
+        try:
+            write_report(report, model, markers, source=" + ".join(Path(f).name for f in args.files),
+                         model_path=str(args.output), min_rom_deg=args.min_rom_deg)
+        except OSError as exc:
+            raise UserError(f"{report}: cannot write ({exc.strerror or exc})") from None
+        print(f"wrote {report}")
+    bar.close()
     return 0
+
+
+def _report_path(arg: str | None, model_path: str) -> Path | None:
+    """Where ``--report`` goes: a bare file name lands next to the model file; '' picks the name."""
+    if arg is None:
+        return None
+    model = Path(model_path)
+    p = Path(arg) if arg else model.with_name(model.stem + "_report.html")
+    if p.suffix.lower() not in (".html", ".png"):
+        raise UserError(f"--report {arg}: give a .html or .png file")
+    return model.parent / p if p.parent == Path(".") else p
 
 
 # ----- solve -------------------------------------------------------------------------------------
@@ -292,6 +313,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--base-search-s", type=float, default=10.0, help="seconds searched for a base pose")
     p.add_argument("--min-rom-deg", type=float, default=25.0, help="joints moving less are unreliable, deg")
     p.add_argument("--topic", help="marker topic of bag inputs (when a bag has several)")
+    p.add_argument("--report", nargs="?", const="", metavar="REPORT.html|png",
+                   help="also write a report (per-joint residual and ROM bars, marker residuals over time, "
+                        "joint centres on the base pose); a bare name goes next to the model file, "
+                        "no name gives <model>_report.html")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("solve", help="solve a marker trial with a calibrated model",
