@@ -52,6 +52,7 @@ UNSEEN = (0.95, 0.2, 0.2, 1.0)
 QUALITY_COLORS = np.array([[0.0, 0.0, 0.0, 0.0],     # missing: never drawn
                            [1.0, 0.72, 0.1, 1.0],    # estimated
                            [0.25, 0.6, 1.0, 1.0]])   # good
+_SEEN_UNSEEN = np.array([UNSEEN, SEEN])
 TRACKED_BODY = (1.0, 0.55, 0.15, 0.85)
 STAGE_BODY = (0.6, 0.62, 0.66, 0.9)
 
@@ -89,7 +90,7 @@ def spheres(centres: np.ndarray, diameters: np.ndarray | float, colors: np.ndarr
     vals = np.empty((n, 14))
     vals[:, 0:3] = centres
     vals[:, 3:7] = (0.0, 0.0, 0.0, 1.0)
-    vals[:, 7:10] = np.broadcast_to(np.asarray(diameters, float).reshape(-1, 1), (n, 1))
+    vals[:, 7:10] = diameters if np.ndim(diameters) == 0 else np.asarray(diameters, float)[:, None]
     vals[:, 10:14] = colors
     return _SPHERES.encode(vals)
 
@@ -271,8 +272,8 @@ class SceneBuilder:
     def _markers(self, msg: MarkerFrame) -> tuple[bytes, int]:
         p = msg.positions
         ok = np.isfinite(p).all(-1)
-        colors = np.where(msg.valid[ok][:, None], SEEN, UNSEEN)
-        return spheres(p[ok], self.marker_d, colors), int(ok.sum())
+        colors = _SEEN_UNSEEN[msg.valid[ok].astype(np.intp)]
+        return spheres(p[ok], self.marker_d, colors), len(colors)
 
     def _scene(self, topic: str, entity_id: str, stamp: int, parts: tuple[bytes, int],
                meta: dict[str, str]) -> FoxgloveMessage:

@@ -9,6 +9,7 @@ costs a few numpy calls instead of 300 Python objects. Layouts are lists of
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Sequence, Union
 
 import numpy as np
@@ -18,8 +19,13 @@ Layout = Sequence[tuple[int, Union[str, "Layout"]]]
 WIRE_VARINT, WIRE_FIXED64, WIRE_LEN = 0, 1, 2
 
 
+_SMALL = [bytes((i,)) for i in range(128)]
+
+
 def varint(n: int) -> bytes:
     """Protobuf base-128 varint of a non-negative int."""
+    if n < 128:
+        return _SMALL[n]
     out = bytearray()
     while True:
         b = n & 0x7F
@@ -31,6 +37,7 @@ def varint(n: int) -> bytes:
             return bytes(out)
 
 
+@lru_cache(maxsize=256)
 def key(field: int, wire: int) -> bytes:
     return varint((field << 3) | wire)
 
@@ -89,7 +96,8 @@ class FixedRecord:
         n = doubles.shape[0]
         if doubles.shape != (n, self.n_doubles):
             raise ValueError(f"expected float[N,{self.n_doubles}], got {doubles.shape}")
-        out = np.tile(self.template, (n, 1))
+        out = np.empty((n, self.size), np.uint8)
+        out[:] = self.template
         out[:, self._dbl] = doubles.view(np.uint8).reshape(n, self.n_doubles * 8)
         if self.n_small:
             out[:, self._small] = np.asarray(small, np.uint8).reshape(n, self.n_small)

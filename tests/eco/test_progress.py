@@ -56,6 +56,7 @@ def _commands(c, tmp: Path) -> dict[str, list[str]]:
         "converting": ["bag", "convert", str(c.rom), str(tmp / "b.mcap")],
         "scanning": ["bag", "info", str(c.rom_bag)],
         "recovering": ["bag", "recover", str(trunc), "-o", str(tmp / "rec.mcap")],
+        "exporting": ["bag", "export-foxglove", str(c.rom_bag), "-o", str(tmp / "fox.mcap"), "-f"],
     }
 
 
