@@ -28,6 +28,7 @@ from ..formats.protobuf_records import FixedRecord, key, length_delimited, varin
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
                         PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose)
 from ..messages.codec import Envelope
+from ..messages.quality import character_quality
 
 FRAME_ID = "world"
 SCENE_SCHEMA = "foxglove.SceneUpdate"
@@ -244,8 +245,7 @@ class SceneBuilder:
             info = self.characters.get(msg.character)
             J = len(msg.joint_positions)
             parent = info.joint_parent if info is not None and len(info.joint_names) == J else None
-            # A character pose is computed, not measured: every finite joint is drawn as good.
-            q = np.where(np.isfinite(msg.joint_positions).all(-1), 2, 0)
+            q = character_quality(msg)
             parts, n = skeleton_parts(msg.joint_positions, q, parent, self.joint_d, self.bone_w)
             return [self._scene(topic, f"{topic}/{msg.character}", stamp, (parts, n), {"frame": str(msg.frame_number)})]
         elif isinstance(msg, PhysicsState):

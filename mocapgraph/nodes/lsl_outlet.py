@@ -3,7 +3,7 @@
 So that LabRecorder records them time-synchronised with EEG, EMG or eye tracking. One stream per
 source: ``<prefix>Markers`` (per marker X, Y, Z), ``<prefix>Joints_<actor>`` (per joint X, Y, Z and
 a quality code 0 missing / 1 estimated / 2 good), ``<prefix>Character_<name>`` (per joint world
-X, Y, Z and the local rotation W, X, Y, Z). Channel format double64; positions in metres,
+X, Y, Z, the local rotation W, X, Y, Z and a quality code). Channel format double64; positions in metres,
 world frame Z up X forward; NaN where missing. Every channel carries ``label``, ``type``
 (``PositionX``..., ``OrientationW``..., ``Quality``), ``unit`` and the ``marker``/``joint`` it
 belongs to, following the XDF mocap meta-data; the description also has ``setup/markers`` (or
@@ -25,6 +25,7 @@ import pylsl
 from ..bus import Input, Node, Param
 from ..messages import ActorPose, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, SkeletonModel
 from ..messages.codec import Envelope
+from ..messages.quality import character_quality
 
 HOLD = 2000  # frames per stream held while its names are not yet known
 AXES = ("X", "Y", "Z")
@@ -133,7 +134,8 @@ class LSLOutlet(Node):
         self._send(f"joints/{msg.actor}", sample, self._env("actor_pose"))
 
     def on_character_pose(self, msg: CharacterPose) -> None:
-        sample = np.concatenate([msg.joint_positions, msg.local_rotations], axis=1).ravel()
+        q = character_quality(msg).astype(float)[:, None]
+        sample = np.concatenate([msg.joint_positions, msg.local_rotations, q], axis=1).ravel()
         self._send(f"character/{msg.character}", sample, self._env("character_pose"))
 
     def _env(self, port: str) -> Envelope:
@@ -210,7 +212,7 @@ class LSLOutlet(Node):
                                f"joint centres of actor {who}, layout {model.layout_name or '?'}")
         else:
             ch = self.characters.get(who)
-            if ch is None or 7 * len(ch.joint_names) != n_values:
+            if ch is None or 8 * len(ch.joint_names) != n_values:
                 return None
             names = list(ch.joint_names)
             chans = []
@@ -218,6 +220,8 @@ class LSLOutlet(Node):
                 chans += _position_channels([n], "joint")
                 chans += [{"label": f"{n}_Q{a}", "joint": n, "type": f"Orientation{a}",
                            "unit": "quaternion, relative to the rest pose in the parent frame"} for a in QUAT]
+                chans.append({"label": f"{n}_Quality", "joint": n, "type": "Quality",
+                              "unit": "0 missing, 1 estimated, 2 good"})
             info = stream_info(f"{self.prefix}Character_{who}", self.stream_type, self._rate,
                                f"{self.prefix}-character-{who}", chans, ("joints", "joint", names),
                                f"retargeted character {who}")

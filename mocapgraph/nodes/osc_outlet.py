@@ -21,6 +21,7 @@ import numpy as np
 from ..bus import Input, Node, Param
 from ..formats.osc_frames import JointBundle
 from ..messages import ActorPose, CharacterInfo, CharacterPose, SkeletonInfo, SkeletonModel, SkeletonPose
+from ..messages.quality import character_quality
 
 
 class OSCOutlet(Node):
@@ -87,9 +88,8 @@ class OSCOutlet(Node):
         info = self.characters.get(msg.character)
         if info is None or len(info.joint_names) != len(msg.joint_positions):
             return self._skip("character_pose", msg.character)
-        q = np.where(np.isfinite(msg.joint_positions).all(-1), 2, 0)
         self._send("character", msg.character, info.joint_names, msg.frame_number, msg.joint_positions,
-                   msg.local_rotations, q, "character_pose")
+                   msg.local_rotations, character_quality(msg), "character_pose")
 
     def on_skeleton_pose(self, msg: SkeletonPose) -> None:
         J = len(msg.joint_positions)

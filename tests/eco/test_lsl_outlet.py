@@ -103,6 +103,7 @@ nodes:
     pos = js.reshape(120, J, 4)[..., :3]
     assert (np.isnan(pos).all(-1) == (q == 0)).all()  # missing is NaN and flagged 0, never 0,0,0
     assert [c["label"] for c in cm["channels"][3:7]] == ["pelvis_QW", "pelvis_QX", "pelvis_QY", "pelvis_QZ"]
-    assert cs.shape == (60, 7 * J) and cm["rate"] == 60.0
-    quat = cs.reshape(60, J, 7)[..., 3:]
+    assert cs.shape == (60, 8 * J) and cm["rate"] == 60.0
+    assert cm["channels"][7]["label"] == "pelvis_Quality"
+    quat = cs.reshape(60, J, 8)[..., 3:7]
     np.testing.assert_allclose(np.linalg.norm(quat, axis=-1), 1.0, atol=1e-9)
