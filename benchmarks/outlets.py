@@ -3,8 +3,10 @@
 Prints: a marker frame as a foxglove.SceneUpdate, our vectorised protobuf records against the
 official SDK's message objects (one SpherePrimitive per marker); an actor frame as an OSC bundle,
 our python-osc template filled with numpy against building every message with python-osc's
-builders; and a bag exported to Foxglove, frames per second. Compare ratios, not absolute times.
-Run: .venv/bin/python benchmarks/outlets.py [--markers 40 100] [--joints 16 60]
+builders; a bag exported to Foxglove, frames per second; and a launched graph (test pattern at
+240 Hz -> foxglove_bridge) seen by a WebSocket client: frames received, capture-to-client latency,
+and the bridge's CPU with the client subscribed beside without one. Compare ratios, not times.
+Run: .venv/bin/python benchmarks/outlets.py [--markers 40 100] [--joints 16 60] [--graph-seconds 10]
 """
 from __future__ import annotations
 
@@ -105,17 +107,110 @@ def export(frames: int) -> None:
           f"({frames / dt / 240:.0f}x a 240 Hz capture)")
 
 
+BRIDGE_GRAPH = """\
+nodes:
+  - name: pattern
+    type: marker_test_pattern
+    params: {{rate_hz: 240.0, n_markers: {n}}}
+  - name: fox
+    type: foxglove_bridge
+    params: {{port: 0, token: bench}}
+"""
+
+
+def bridge(seconds: float, n_markers: int = 60) -> None:
+    """Frames and latency a Foxglove client sees, and the bridge's CPU with and without it."""
+    import asyncio
+    import json
+    import os
+    import re
+    import signal
+    import struct
+    import subprocess
+    import sys
+
+    import websockets
+
+    with tempfile.TemporaryDirectory() as tmp:
+        graph = Path(tmp) / "graph.yaml"
+        graph.write_text(BRIDGE_GRAPH.format(n=n_markers))
+        proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)],
+                                env=dict(os.environ, MOCAPGRAPH_MASTER=f"ipc://{tmp}/master", PYTHONUNBUFFERED="1"),
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        try:
+            url = None
+            for line in proc.stdout:
+                m = re.search(r"foxglove bridge at (ws://\S+)", line)
+                if m:
+                    url = m.group(1)
+                    break
+            if url is None:
+                raise SystemExit("the bridge did not start")
+
+            async def run() -> tuple[list[float], list[float], list[float], int]:
+                async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:
+                    channels: dict[str, int] = {}
+                    while not {"/markers", "/diagnostics/fox"} <= set(channels):
+                        msg = json.loads(await ws.recv())
+                        if msg["op"] == "advertise":
+                            channels.update({c["topic"]: c["id"] for c in msg["channels"]})
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                        {"id": 2, "channelId": channels["/diagnostics/fox"]}]}))
+                    cpu: list[float] = []   # bridge CPU % per diagnostics window
+
+                    async def gather(with_markers: bool, until: float) -> tuple[list[float], int]:
+                        lat, frames, last = [], 0, None
+                        while time.monotonic() < until:
+                            m = await ws.recv()
+                            if isinstance(m, str):
+                                continue
+                            sub, stamp = struct.unpack_from("<IQ", m, 1)
+                            if sub == 2:
+                                d = json.loads(m[13:])
+                                if last is not None and d["uptime_s"] > last[0]:
+                                    cpu.append(100 * (d["cpu_s"] - last[1]) / (d["uptime_s"] - last[0]))
+                                last = (d["uptime_s"], d["cpu_s"])
+                            else:
+                                frames += 1
+                                lat.append((time.time_ns() - stamp) / 1e6)
+                        return lat, frames
+
+                    await gather(False, time.monotonic() + min(seconds, 4.0))
+                    idle = list(cpu)
+                    cpu.clear()
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                        {"id": 1, "channelId": channels["/markers"]}]}))
+                    await gather(True, time.monotonic() + 1.0)  # warm-up
+                    cpu.clear()
+                    lat, frames = await gather(True, time.monotonic() + seconds)
+                    return idle, cpu, lat, frames
+
+            idle, busy, lat, frames = asyncio.run(run())
+        finally:
+            os.killpg(proc.pid, signal.SIGINT)
+            proc.wait(10)
+    lat_a = np.asarray(lat)
+    print(f"foxglove_bridge, 240 Hz x {n_markers} markers, {seconds:g} s: {frames} scenes at the client "
+          f"({frames / seconds:.0f}/s); capture -> client median {np.median(lat_a):.2f} ms, "
+          f"p99 {np.percentile(lat_a, 99):.2f} ms")
+    print(f"  bridge CPU: {np.median(idle):.1f} % of a core with nobody subscribed to /markers, "
+          f"{np.median(busy):.1f} % with a client  ->  {np.median(busy) / max(np.median(idle), 1e-3):.1f}x")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--markers", type=int, nargs="+", default=[40, 100])
     ap.add_argument("--joints", type=int, nargs="+", default=[16, 60])
     ap.add_argument("--export-frames", type=int, default=10000)
+    ap.add_argument("--graph-seconds", type=float, default=10.0, help="launched bridge run, s (0 skips it)")
     a = ap.parse_args()
     for n in a.markers:
         scene(n)
     for n in a.joints:
         osc(n)
     export(a.export_frames)
+    if a.graph_seconds > 0:
+        bridge(a.graph_seconds)
 
 
 if __name__ == "__main__":
