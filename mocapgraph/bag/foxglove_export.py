@@ -9,7 +9,6 @@ Foxglove's 3D panel with its recorded timing. The source bag is only read.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
@@ -17,7 +16,7 @@ from typing import Callable, Iterable
 from mcap.writer import CompressionType, Writer
 
 from .errors import BagError
-from .foxglove_scene import DIAGNOSTICS_JSON_SCHEMA, SceneBuilder, scene_schema
+from .foxglove_scene import SceneBuilder, scene_schema
 from .reader import BagReader
 from .writer import mocapgraph_version
 
@@ -72,8 +71,7 @@ def export_foxglove(src: str | Path, dst: str | Path, topics: Iterable[str] | No
             w.add_metadata("mocapgraph", {"exported_from": src.name, "writer": "bag export-foxglove"})
             name, data = scene_schema()
             scene_id = w.register_schema(name, "protobuf", data)
-            diag_id = w.register_schema(DIAGNOSTICS_JSON_SCHEMA["title"], "jsonschema",
-                                        json.dumps(DIAGNOSTICS_JSON_SCHEMA).encode())
+            json_schemas: dict[str, int] = {}
             channels: dict[str, int] = {}
             seqs: dict[int, int] = {}
             done = 0
@@ -93,7 +91,11 @@ def export_foxglove(src: str | Path, dst: str | Path, topics: Iterable[str] | No
                     for m in outs:
                         ch = channels.get(m.topic)
                         if ch is None:
-                            schema = scene_id if m.encoding == "protobuf" else diag_id
+                            if m.encoding == "protobuf":
+                                schema = scene_id
+                            else:
+                                schema = json_schemas.get(m.schema) or json_schemas.setdefault(
+                                    m.schema, w.register_schema(m.schema, "jsonschema", m.schema_data))
                             ch = channels[m.topic] = w.register_channel(m.topic, m.encoding, schema,
                                                                         {"source_topic": raw.topic})
                         seqs[ch] = seqs.get(ch, 0) + 1

@@ -12,7 +12,8 @@ characters as spheres coloured by quality (good blue, estimated amber; missing l
 bones as lines to the parent joint; physics bodies as their shapes (capsules as a cylinder and
 two spheres, MuJoCo sizes converted to Foxglove's full extents), tracked bodies orange and
 untracked stage objects grey. Diagnostics become one JSON message per node on
-``/diagnostics/<node>`` whose fields plot directly (``rate_hz.<topic>``, ``latency_ms.<topic>``).
+``/diagnostics/<node>`` whose fields plot directly (``rate_hz.<topic>``, ``latency_ms.<topic>``);
+node states and commands (calibration, bag player) become JSON on their own topics.
 """
 from __future__ import annotations
 
@@ -26,7 +27,8 @@ from scipy.spatial.transform import Rotation
 
 from ..formats.protobuf_records import FixedRecord, key, length_delimited, varint
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
-                        PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose)
+                        NodeCommand, NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel,
+                        SkeletonPose)
 from ..messages.codec import Envelope
 from ..messages.quality import character_quality
 
@@ -60,13 +62,15 @@ STAGE_BODY = (0.6, 0.62, 0.66, 0.9)
 
 @dataclass
 class FoxgloveMessage:
-    """One message for Foxglove: topic, schema name, encoding ("protobuf" or "json"), payload, stamp ns."""
+    """One message for Foxglove: topic, schema name, encoding ("protobuf" or "json"), payload, stamp ns;
+    JSON messages carry their JSON Schema (``schema_data``), scenes use :func:`scene_schema`."""
 
     topic: str
     schema: str
     encoding: str
     data: bytes
     log_ns: int
+    schema_data: bytes = b""
 
 
 def _stamp(ns: int) -> bytes:
@@ -197,6 +201,9 @@ DIAGNOSTICS_JSON_SCHEMA = {
 }
 
 
+_DIAGNOSTICS_SCHEMA_BYTES = json.dumps(DIAGNOSTICS_JSON_SCHEMA).encode()
+
+
 class SceneBuilder:
     """Turns our messages into Foxglove messages, keeping the latched definitions it has seen.
 
@@ -259,7 +266,20 @@ class SceneBuilder:
             return [self._scene(topic, topic, stamp, (parts, B), {"sim_time_s": f"{msg.sim_time_s:.4f}"})]
         elif isinstance(msg, Diagnostics):
             data = json.dumps(diagnostics_json(msg), allow_nan=False).encode()
-            return [FoxgloveMessage(f"/{topic}/{msg.node}", DIAGNOSTICS_SCHEMA, "json", data, stamp)]
+            return [FoxgloveMessage(f"/{topic}/{msg.node}", DIAGNOSTICS_SCHEMA, "json", data, stamp,
+                                    _DIAGNOSTICS_SCHEMA_BYTES)]
+        elif isinstance(msg, (NodeStatus, NodeCommand)):
+            # state machines (calibration, bag player) for Foxglove's Raw Messages and State panels
+            rec = {k: (_finite(v) if isinstance(v, float) else v) for k, v in msg.to_dict().items()}
+            for field in ("data_json", "args_json"):
+                if field in rec:
+                    try:
+                        rec[field.removesuffix("_json")] = json.loads(rec[field] or "{}")
+                    except ValueError:
+                        pass
+            data = json.dumps(rec, allow_nan=False, default=str).encode()
+            return [FoxgloveMessage(f"/{topic}", f"mocapgraph.{env.type_name}", "json", data, stamp,
+                                    json.dumps(type(msg).json_schema()).encode())]
         return []
 
     @staticmethod

@@ -6,19 +6,19 @@ does, because the SDK's server has no authentication. In Foxglove: Open connecti
 WebSocket > the ``ws://127.0.0.1:<port>/?token=...`` URL the node prints. Channels (created as
 their topics first arrive): ``/markers``, ``/actor_pose``, ``/skeleton_pose``, ``/character_pose``,
 ``/physics_state`` as ``foxglove.SceneUpdate`` for the 3D panel (what is drawn:
-:mod:`mocapgraph.bag.foxglove_scene`), ``/diagnostics/<node>`` as JSON for the Plot panel. A
+:mod:`mocapgraph.bag.foxglove_scene`), ``/diagnostics/<node>`` as JSON for the Plot panel,
+``/calibration_status`` and ``/player_status`` as JSON. A
 frame is encoded only while some client subscribes to its channel.
 """
 from __future__ import annotations
 
-import json
 import secrets
 from typing import Any, Callable
 
-from ..bag.foxglove_scene import DIAGNOSTICS_JSON_SCHEMA, SceneBuilder, scene_schema
+from ..bag.foxglove_scene import FoxgloveMessage, SceneBuilder, scene_schema
 from ..bus import Input, Node, Param
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
-                        PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose)
+                        NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose)
 from ..net.ws_gate import GateStartError, WebSocketGate
 
 QUEUE = 256  # messages per input socket before dropping (counted as gaps)
@@ -50,6 +50,8 @@ class FoxgloveBridge(Node):
     physics_state = _frames("physics_state", PhysicsState, "simulated bodies and stage objects")
     physics_scene = _latched("physics_scene", PhysicsScene, "body shapes and sizes")
     node_diagnostics = _frames("diagnostics", Diagnostics, "every node's rates, latency, drops (plots)")
+    calibration_status = _frames("calibration_status", NodeStatus, "calibration state (JSON)")
+    player_status = _frames("player_status", NodeStatus, "bag player state (JSON)")
 
     host = Param("127.0.0.1", "address Foxglove connects to (loopback unless you mean otherwise)")
     port = Param(8766, "WebSocket port; 0 picks a free one (printed at start)", minimum=0, maximum=65535)
@@ -72,24 +74,23 @@ class FoxgloveBridge(Node):
 
         def handle(msg: Message) -> None:
             for m in feed(port.envelope, msg, port.topic):
-                ch = self.channels.get(m.topic) or self._channel(m.topic, m.encoding)
+                ch = self.channels.get(m.topic) or self._channel(m)
                 if ch.has_sinks():
                     ch.log(m.data, log_time=m.log_ns)
                     self.sent += 1
 
         return handle
 
-    def _channel(self, topic: str, encoding: str) -> Any:
+    def _channel(self, m: FoxgloveMessage) -> Any:
         import foxglove
 
-        if encoding == "protobuf":
+        if m.encoding == "protobuf":
             name, data = scene_schema()
             schema = foxglove.Schema(name=name, encoding="protobuf", data=data)
         else:
-            schema = foxglove.Schema(name=DIAGNOSTICS_JSON_SCHEMA["title"], encoding="jsonschema",
-                                     data=json.dumps(DIAGNOSTICS_JSON_SCHEMA).encode())
-        ch = self.channels[topic] = foxglove.Channel(topic, schema=schema, message_encoding=encoding,
-                                                     context=self._fox)
+            schema = foxglove.Schema(name=m.schema, encoding="jsonschema", data=m.schema_data)
+        ch = self.channels[m.topic] = foxglove.Channel(m.topic, schema=schema, message_encoding=m.encoding,
+                                                       context=self._fox)
         return ch
 
     def setup(self) -> None:
