@@ -96,6 +96,8 @@ class FoxgloveBridge(Node):
     def setup(self) -> None:
         import foxglove
 
+        # The SDK would announce its inner port at INFO; only the gate's URL is for people.
+        foxglove.set_log_level("WARNING")
         self._fox = foxglove.Context()
         # The SDK's server on a free loopback port; only the gate is told to the world.
         self.server = foxglove.start_server(name=f"mocapgraph {self.name}", host="127.0.0.1", port=0,

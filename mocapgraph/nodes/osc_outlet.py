@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..bus import Input, Node, Param
+from ..bus.node import NodeConfigError
 from ..formats.osc_frames import JointBundle
 from ..messages import ActorPose, CharacterInfo, CharacterPose, SkeletonInfo, SkeletonModel, SkeletonPose
 from ..messages.quality import character_quality
@@ -47,7 +48,7 @@ class OSCOutlet(Node):
         try:
             infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_DGRAM)
         except socket.gaierror as exc:
-            raise SystemExit(f"osc_outlet: host {self.host!r}: {exc.strerror}") from None
+            raise NodeConfigError(f"host {self.host!r}: {exc.strerror}") from None
         family, _, _, _, self._addr = infos[0]
         self._sock = socket.socket(family, socket.SOCK_DGRAM)
         self.models: list[SkeletonModel] = []
