@@ -396,7 +396,14 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_convert(args: argparse.Namespace) -> int:
     from ..bag.convert import INPUT_KINDS, OUTPUT_KINDS, bag_to_file, file_to_bag
 
-    src, dst = Path(args.input), Path(args.output)
+    if args.output and args.legacy_output:
+        raise UserError(f"two outputs ({args.legacy_output} and -o {args.output}): give one, as -o OUT")
+    if not (args.output or args.legacy_output):
+        raise UserError("no output: bag convert IN -o OUT (e.g. trial.c3d -o trial.mcap)")
+    if args.legacy_output:
+        print(f"note: the output is now given as -o: mocapgraph bag convert {args.input} -o {args.legacy_output}",
+              file=sys.stderr)
+    src, dst = Path(args.input), Path(args.output or args.legacy_output)
     try:
         with Progress("converting") as bar:
             if src.suffix.lower() == ".mcap":
@@ -408,7 +415,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
                     raise UserError(f"{src}: converts into a bag from {', '.join(sorted(INPUT_KINDS))}")
                 rep = file_to_bag(src, dst, compression=args.compression, start_ns=args.start_ns, progress=bar)
             else:
-                raise UserError("one side of a conversion is a bag (.mcap): FILE.c3d OUT.mcap or BAG.mcap OUT.trc")
+                raise UserError("one side of a conversion is a bag (.mcap): FILE.c3d -o OUT.mcap or BAG.mcap -o OUT.trc")
     except BagError as exc:
         raise _fail(exc) from None
     print(rep.text())
@@ -474,8 +481,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_info)
 
     p = bs.add_parser("convert", help="C3D/TRC/BVH/Kinect CSV -> bag, or bag -> CSV/TRC/C3D/BVH")
-    p.add_argument("input")
-    p.add_argument("output")
+    p.add_argument("input", metavar="IN", help="C3D, TRC, BVH or Kinect CSV file, or a bag (.mcap)")
+    p.add_argument("legacy_output", nargs="?", help=argparse.SUPPRESS)  # the old positional OUT, still read
+    p.add_argument("-o", "--output", metavar="OUT", help="the bag to write, or CSV/TRC/C3D/BVH from a bag")
     p.add_argument("--topic", help="bag topic to export (default: the only one of the right type)")
     p.add_argument("--units", choices=["mm", "m", "cm"], default="mm", help="TRC/C3D output units")
     p.add_argument("--compression", choices=["lz4", "none"], default="lz4")

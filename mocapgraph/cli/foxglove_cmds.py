@@ -7,11 +7,6 @@ from pathlib import Path
 from . import UserError
 from .progress import Progress
 
-EXAMPLES = """examples:
-  mocapgraph bag export-foxglove session.mcap -o session.foxglove.mcap
-  mocapgraph bag export-foxglove session.mcap -o scene.mcap --topics markers actor_pose
-then open the output in Foxglove (File > Open local file) and add a 3D panel."""
-
 
 def cmd_export_foxglove(args: argparse.Namespace) -> int:
     from ..bag.errors import BagError
@@ -35,7 +30,7 @@ def register_bag(bs: argparse._SubParsersAction) -> None:
                       description="Write a new MCAP file that Foxglove's 3D and Plot panels decode: markers, "
                                   "actors, skeletons, characters and physics bodies as foxglove.SceneUpdate, "
                                   "diagnostics as JSON. The source bag is not changed.",
-                      epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+                      epilog="Then open the output in Foxglove (Open local file) and add a 3D panel.")
     p.add_argument("file", metavar="BAG", help="a bag recorded or converted by mocapgraph")
     p.add_argument("-o", "--output", help="output MCAP (default <name>.foxglove.mcap)")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (latched ones included)")

@@ -53,7 +53,7 @@ def _commands(c, tmp: Path) -> dict[str, list[str]]:
     return {
         "calibrating": ["calibrate", str(c.rom), "--layout", "kiip_full_body", "-o", str(tmp / "m.json")],
         "solving": ["solve", str(c.trial), "--model", str(c.model), "-o", str(tmp / "o.csv")],
-        "converting": ["bag", "convert", str(c.rom), str(tmp / "b.mcap")],
+        "converting": ["bag", "convert", str(c.rom), "-o", str(tmp / "b.mcap")],
         "scanning": ["bag", "info", str(c.rom_bag)],
         "recovering": ["bag", "recover", str(trunc), "-o", str(tmp / "rec.mcap")],
         "exporting": ["bag", "export-foxglove", str(c.rom_bag), "-o", str(tmp / "fox.mcap"), "-f"],
