@@ -68,7 +68,8 @@ class _Stream:
 
     def __init__(self) -> None:
         self.outlet: pylsl.StreamOutlet | None = None
-        self.held: deque[tuple[np.ndarray, int]] = deque(maxlen=HOLD)
+        self.held: deque[tuple[np.ndarray, float]] = deque(maxlen=HOLD)
+        self.n_values = 0
         self.sent = 0
 
 
@@ -112,7 +113,12 @@ class LSLOutlet(Node):
         self._flush("markers")
 
     def on_skeleton_model(self, msg: SkeletonModel) -> None:
-        self.models = [m for m in self.models if len(m.joint_names) != len(msg.joint_names)] + [msg]
+        J = len(msg.joint_names)
+        old = next((m for m in self.models if len(m.joint_names) == J), None)
+        if old is not None and old.joint_names != msg.joint_names:
+            for key in [k for k, st in self.streams.items() if k.startswith("joints/") and st.n_values == 4 * J]:
+                self._drop(key)  # same size, other joints: a new stream, not relabelled samples
+        self.models = [m for m in self.models if len(m.joint_names) != J] + [msg]
         for key in [k for k in self.streams if k.startswith("joints/")]:
             self._flush(key)
 
@@ -153,8 +159,12 @@ class LSLOutlet(Node):
         if st is None:
             st = self.streams[key] = _Stream()
         stamp = env.capture_ns * 1e-9 - self._wall_minus_lsl
+        if st.outlet is not None and st.n_values != len(sample):
+            self._drop(key)  # the source changed shape (another layout or model): describe it anew
+            st = self.streams[key] = _Stream()
         if st.outlet is None:
             st.outlet = self._open(key, len(sample))
+            st.n_values = len(sample)
         if st.outlet is None:
             if len(st.held) == st.held.maxlen:
                 self._warn(f"held-{key}", "%s: names still unknown, oldest held frames dropped", key)
@@ -167,9 +177,11 @@ class LSLOutlet(Node):
         st = self.streams.get(key)
         if st is None or st.outlet is not None or not st.held:
             return
-        st.outlet = self._open(key, len(st.held[0][0]))
+        st.n_values = len(st.held[-1][0])
+        st.outlet = self._open(key, st.n_values)
         if st.outlet is None:
             return
+        st.held = deque((h for h in st.held if len(h[0]) == st.n_values), maxlen=HOLD)
         while st.held:
             sample, stamp = st.held.popleft()
             st.outlet.push_sample(sample, stamp)
