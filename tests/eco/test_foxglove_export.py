@@ -4,22 +4,35 @@ from __future__ import annotations
 
 import hashlib
 import json
-import subprocess
-import sys
+from dataclasses import dataclass
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from foxglove_decode import message_class
 from mocapgraph.bag.reader import BagReader
 from mocapgraph.bag.writer import BagWriter
+from mocapgraph.cli import main
 from mocapgraph.messages import (CharacterInfo, CharacterPose, Diagnostics, NodeStatus, PhysicsScene,
                                  PhysicsState)
 
 
-def _cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "mocapgraph", *map(str, args)], capture_output=True, text=True,
-                          timeout=120, cwd=cwd)
+@dataclass
+class Result:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture
+def _cli(capsys):
+    """``mocapgraph ARGS`` in this process (the same main() as the command), output captured."""
+    def run(*args):
+        code = main([str(a) for a in args])
+        out = capsys.readouterr()
+        return Result(code, out.out, out.err)
+    return run
 
 
 def _read(path):
@@ -38,7 +51,7 @@ def _read(path):
     return out
 
 
-def test_markers_and_actor_poses_export_frame_by_frame(capture, tmp_path):
+def test_markers_and_actor_poses_export_frame_by_frame(capture, tmp_path, _cli):
     bag = tmp_path / "solved.mcap"
     assert _cli("solve", capture.trial, "--model", capture.model, "-o", bag).returncode == 0
     before = hashlib.sha256(capture.rom_bag.read_bytes()).hexdigest()
@@ -79,7 +92,7 @@ def test_markers_and_actor_poses_export_frame_by_frame(capture, tmp_path):
             assert len(ent.lines[0].points) == 2 * bones
 
 
-def test_characters_physics_and_diagnostics_from_constructed_messages(tmp_path):
+def test_characters_physics_and_diagnostics_from_constructed_messages(tmp_path, _cli):
     src = tmp_path / "built.mcap"
     T = 5
     with BagWriter(src) as w:
@@ -123,7 +136,7 @@ def test_characters_physics_and_diagnostics_from_constructed_messages(tmp_path):
     assert schema == "mocapgraph.DiagnosticsPlot" and diag["rate_hz"]["markers"] == 240.0
 
 
-def test_bad_input_is_one_line(tmp_path, capture):
+def test_bad_input_is_one_line(tmp_path, capture, _cli):
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"not a bag at all" * 10)
     r = _cli("bag", "export-foxglove", junk, "-o", tmp_path / "o.mcap")
@@ -134,7 +147,7 @@ def test_bad_input_is_one_line(tmp_path, capture):
     assert r.returncode == 2 and "source bag" in r.stderr
 
 
-def test_a_truncated_bag_exports_what_it_holds_and_says_so(capture, tmp_path):
+def test_a_truncated_bag_exports_what_it_holds_and_says_so(capture, tmp_path, _cli):
     data = capture.rom_bag.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) // 2])

@@ -3,6 +3,7 @@ pipe, as in a CI log."""
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import pty
 import select
@@ -12,16 +13,17 @@ import sys
 import termios
 from pathlib import Path
 
-import pytest
+from mocapgraph.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _run(args: list[str], tty: bool, cwd: Path) -> tuple[int, str]:
-    """Run ``mocapgraph ARGS`` with stderr on a pseudo-terminal (tty) or a pipe; (code, stderr)."""
+def _run(args: list[str], tty: bool, cwd: Path, module: bool = True) -> tuple[int, str]:
+    """Run ``mocapgraph ARGS`` (or ``python ARGS``) with stderr on a pseudo-terminal (tty) or a
+    pipe; (code, stderr)."""
     env = dict(os.environ, COLUMNS="100")
     env.pop("MOCAPGRAPH_PROGRESS", None)
-    cmd = [sys.executable, "-m", "mocapgraph", *args]
+    cmd = [sys.executable, *(["-m", "mocapgraph"] if module else []), *args]
     if not tty:
         p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=cwd, timeout=120)
         return p.returncode, p.stderr
@@ -60,12 +62,31 @@ def _commands(c, tmp: Path) -> dict[str, list[str]]:
     }
 
 
-@pytest.mark.parametrize("tty", [True, False], ids=["terminal", "pipe"])
-def test_batch_commands_show_a_bar_only_on_a_terminal(capture, tmp_path, tty):
+# Every command in one process (the command's own main()), its stderr a pseudo-terminal.
+DRIVER = """import json, sys
+from mocapgraph.cli import main
+for args in json.loads(sys.argv[1]):
+    print("---", args[0], args[1], file=sys.stderr, flush=True)
+    if main(args):
+        sys.exit(f"failed: {args}")
+"""
+
+
+def test_batch_commands_show_a_bar_on_a_terminal(capture, tmp_path):
+    cmds = _commands(capture, tmp_path)
+    code, err = _run(["-c", DRIVER, json.dumps(list(cmds.values()))], True, tmp_path, module=False)
+    assert code == 0, err
+    parts = err.split("--- ")[1:]
+    assert len(parts) == len(cmds), err
+    for (label, _), part in zip(cmds.items(), parts):
+        assert f"{label}: 100%|" in part and "\r" in part, (label, part)
+
+
+def test_and_none_into_a_log(capture, tmp_path, capsys, monkeypatch):
+    """The same commands with stderr captured (not a terminal), as in a CI log."""
+    monkeypatch.delenv("MOCAPGRAPH_PROGRESS", raising=False)
     for label, args in _commands(capture, tmp_path).items():
-        code, err = _run(args, tty, tmp_path)
+        code = main(args)
+        err = capsys.readouterr().err
         assert code == 0, (label, err)
-        if tty:
-            assert f"{label}: 100%|" in err and "\r" in err, (label, err)
-        else:
-            assert "%|" not in err and "\r" not in err and label not in err, (label, err)
+        assert "%|" not in err and "\r" not in err and label not in err, (label, err)
