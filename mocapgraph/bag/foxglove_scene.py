@@ -30,7 +30,7 @@ from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, Ma
                         NodeCommand, NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel,
                         SkeletonPose)
 from ..messages.codec import Envelope
-from ..messages.quality import character_quality
+from ..messages.pose_quality import character_quality
 
 FRAME_ID = "world"
 SCENE_SCHEMA = "foxglove.SceneUpdate"

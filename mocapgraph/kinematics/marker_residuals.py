@@ -6,10 +6,14 @@ it was seen, m. Large values show a marker sliding on the skin or a swapped labe
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from .model import SkeletonModel
 from .rigid import fit_rigid, gather_limb_markers
+
+if TYPE_CHECKING:  # for hints only: nothing of the model module is needed at run time
+    from .model import SkeletonModel
 
 
 def marker_residuals(model: SkeletonModel, markers: np.ndarray) -> np.ndarray:

@@ -25,7 +25,7 @@ import pylsl
 from ..bus import Input, Node, Param
 from ..messages import ActorPose, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, SkeletonModel
 from ..messages.codec import Envelope
-from ..messages.quality import character_quality
+from ..messages.pose_quality import character_quality
 
 HOLD = 2000  # frames per stream held while its names are not yet known
 AXES = ("X", "Y", "Z")

@@ -22,7 +22,7 @@ from ..bus import Input, Node, Param
 from ..bus.node import NodeConfigError
 from ..formats.osc_frames import JointBundle
 from ..messages import ActorPose, CharacterInfo, CharacterPose, SkeletonInfo, SkeletonModel, SkeletonPose
-from ..messages.quality import character_quality
+from ..messages.pose_quality import character_quality
 
 
 class OSCOutlet(Node):

@@ -9,6 +9,8 @@ Nothing is fetched from the internet: figures are embedded PNGs.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import base64
 import html
 import io
@@ -20,7 +22,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ..kinematics.marker_residuals import marker_residuals
-from ..kinematics.model import SkeletonModel
+
+if TYPE_CHECKING:  # for hints only: nothing of the model module is needed at run time
+    from ..kinematics.model import SkeletonModel
 
 RELIABLE = "#3f7fd9"
 UNRELIABLE = "#e8871e"
