@@ -16,7 +16,7 @@ import websockets
 from websockets.exceptions import InvalidStatus
 
 from foxglove_decode import message_class
-from mocapgraph.nodes.test_pattern import pattern_positions
+from eco_support import STAGE_PERFORMER, pattern_positions
 
 N, RATE, TOKEN = 10, 120.0, "s3cret-token"
 GRAPH = f"""
@@ -25,7 +25,7 @@ nodes:
     type: marker_test_pattern
     params: {{rate_hz: {RATE}, n_markers: {N}, missing_every: 5}}
   - name: performer
-    type: mocapgraph.nodes.viewer.testing_nodes:StagePerformer
+    type: {STAGE_PERFORMER}
     params: {{actor: ann, rate_hz: 30.0, publish: [actor]}}
   - name: fox
     type: foxglove_bridge

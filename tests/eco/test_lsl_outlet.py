@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from graph_helpers import wait_until
-from mocapgraph.nodes.test_pattern import pattern_positions
+from eco_support import JOINT_NAMES, STAGE_PERFORMER, pattern_positions
 
 HERE = Path(__file__).resolve().parent
 RATE = 240.0
@@ -80,7 +80,7 @@ def test_joint_and_character_streams_are_described(launch_graph, tmp_path):
     g = launch_graph(f"""
 nodes:
   - name: performer
-    type: mocapgraph.nodes.viewer.testing_nodes:StagePerformer
+    type: {STAGE_PERFORMER}
     params: {{actor: ann, rate_hz: 60.0, publish: [actor, character], nan_joint: 6}}
   - name: lsl
     type: lsl_outlet
@@ -92,8 +92,6 @@ nodes:
     js, jt, jm = _result(pj, oj)
     cs, ct, cm = _result(pc, oc)
     g.stop()
-    from mocapgraph.nodes.viewer.testing_nodes import JOINT_NAMES
-
     J = len(JOINT_NAMES)
     assert [c["label"] for c in jm["channels"][:4]] == ["pelvis_X", "pelvis_Y", "pelvis_Z", "pelvis_Quality"]
     assert jm["channels"][3]["type"] == "Quality" and jm["channels"][3]["unit"].startswith("0 missing")

@@ -10,7 +10,7 @@ from pythonosc.dispatcher import Dispatcher
 from pythonosc.osc_server import ThreadingOSCUDPServer
 
 from graph_helpers import read_jsonl, wait_until
-from mocapgraph.nodes.viewer.testing_nodes import JOINT_NAMES
+from eco_support import JOINT_NAMES, STAGE_PERFORMER
 
 
 class Receiver:
@@ -52,7 +52,7 @@ def test_joint_messages_reach_a_real_osc_server(launch_graph, tmp_path):
         g = launch_graph(f"""
 nodes:
   - name: performer
-    type: mocapgraph.nodes.viewer.testing_nodes:StagePerformer
+    type: {STAGE_PERFORMER}
     params: {{actor: ann, rate_hz: 60.0, publish: [actor, character], nan_joint: 6}}
   - name: osc
     type: osc_outlet
