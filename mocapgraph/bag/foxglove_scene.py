@@ -143,7 +143,7 @@ def skeleton_parts(joints: np.ndarray, quality: np.ndarray, parent: np.ndarray |
     return out, int(show.sum())
 
 
-def body_parts(names: list[str], shapes: list[str], sizes: np.ndarray, pos: np.ndarray, quat: np.ndarray,
+def body_parts(shapes: list[str], sizes: np.ndarray, pos: np.ndarray, quat: np.ndarray,
                tracked: np.ndarray) -> bytes:
     """Physics bodies as Foxglove primitives; MuJoCo sizes (radius, half-length, half-extents)."""
     ok = np.isfinite(pos).all(-1) & np.isfinite(quat).all(-1)
@@ -261,8 +261,7 @@ class SceneBuilder:
             shapes = list(scene.shapes) if scene is not None else ["sphere"] * B
             sizes = scene.sizes if scene is not None else np.full((B, 3), 0.03)
             tracked = np.isfinite(msg.tracking_error)
-            parts = body_parts(list(scene.body_names) if scene else [], shapes, sizes, msg.positions,
-                               msg.orientations, tracked)
+            parts = body_parts(shapes, sizes, msg.positions, msg.orientations, tracked)
             return [self._scene(topic, topic, stamp, (parts, B), {"sim_time_s": f"{msg.sim_time_s:.4f}"})]
         elif isinstance(msg, Diagnostics):
             data = json.dumps(diagnostics_json(msg), allow_nan=False).encode()
