@@ -1,13 +1,15 @@
 """Per-edge statistics: rate from sender stamps, latency, sequence gaps, rejects.
 
-An edge is one (topic, sending node) pair seen by one subscriber. Sequence numbers are per
-sender and topic and start at 1, so a restarted sender (seq back to 1) is a new stream, not loss.
+An edge is one (topic, sending node) pair seen by one subscriber; its sequence numbers are read
+by the one rule in `messages.sequence`.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from ..messages.sequence import DUPLICATE, RESTART, sequence_gap
 
 WINDOW = 512
 
@@ -31,16 +33,14 @@ class EdgeStats:
 
     def accept(self, seq: int, publish_ns: int, now_ns: int) -> bool:
         """Record one arrival; False when it is a duplicate (a latched resend) to be dropped."""
-        last = self.last_seq
-        if seq == last or (0 < seq < last and seq != 1):
+        lost = sequence_gap(self.last_seq, seq)
+        if lost == DUPLICATE:
             self.duplicates += 1
             return False
-        if seq < last:  # the sender restarted
+        if lost == RESTART:
             self.restarts += 1
-        elif last and seq > last + 1:
-            self.gaps += seq - last - 1
-        elif not last and seq > 1 and self.received == 0:
-            pass  # joined a running stream: earlier messages were never ours to lose
+        else:
+            self.gaps += lost
         self.last_seq = seq
         self.received += 1
         i = self._n % WINDOW

@@ -1,6 +1,6 @@
 """``mocapgraph calibrate`` and ``mocapgraph solve``: the actor pipeline on files, batch.
 
-The same code as the live nodes: label matching (:mod:`mocapgraph.nodes.model_messages`),
+The same code as the live nodes: label matching (:mod:`mocapgraph.adapters.model_messages`),
 :func:`~mocapgraph.kinematics.calibration.calibrate`, :class:`~mocapgraph.kinematics.solver.FrameSolver`
 (batch ``solve`` runs the very temporal stage ``step`` runs live) and the ActorPose conversion.
 
@@ -124,7 +124,7 @@ def _definition(layout: str):
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate, layout_markers
     from ..kinematics.model import save_model
-    from ..nodes.model_messages import quality_table
+    from ..adapters.model_messages import quality_table
 
     definition = _definition(args.layout)
     frames = args.frames or []
@@ -213,7 +213,7 @@ def _report_path(arg: str | None, model_path: str) -> Path | None:
 def cmd_solve(args: argparse.Namespace) -> int:
     from ..kinematics.model import ModelFileError, load_model
     from ..kinematics.solver import FrameSolver
-    from ..nodes.model_messages import marker_index
+    from ..adapters.model_messages import marker_index
 
     out = Path(args.output)
     if out.suffix.lower() not in OUTPUT_KINDS:
@@ -289,13 +289,14 @@ def _solve_chunks(solver, x: np.ndarray, times: np.ndarray):
 def _place(model, inp: MarkerInput, allow_missing: bool) -> tuple[np.ndarray, list[str]]:
     """Model marker -> input column (-1 absent); UserError for another layout or absent markers."""
     from ..kinematics.model import ModelFileError
-    from ..nodes.model_messages import ModelLabels, marker_index
+    from ..adapters.model_messages import marker_index
+    from ..kinematics.labels import missing_labels, place_labels
 
     try:
         return marker_index(model, inp.layout_name, inp.labels, source=inp.path.name), []
     except ModelFileError as exc:
-        where, _ = ModelLabels(model.layout, tuple(model.marker_labels)).match_labels(inp.labels)
-        missing = [model.marker_labels[m] for m in np.flatnonzero(where < 0)]
+        where, _ = place_labels(model.marker_labels, inp.labels)
+        missing = missing_labels(model.marker_labels, where)
         if not allow_missing or not (where >= 0).any():
             raise UserError(f"{exc}" + ("" if allow_missing else "; --allow-missing solves without them")) from None
         return where, missing
@@ -319,7 +320,7 @@ def _write_csv(out: Path, model, res, numbers: np.ndarray, times: np.ndarray) ->
 def _write_bag(out: Path, model, res, numbers: np.ndarray, times: np.ndarray, actor: str, inp: MarkerInput) -> None:
     from ..bag.errors import BagError
     from ..bag.writer import BagWriter, base_metadata
-    from ..nodes.model_messages import model_to_message, pose_message
+    from ..adapters.model_messages import model_to_message, pose_message
 
     stamps = np.round(times * 1e9).astype(np.int64)
     try:

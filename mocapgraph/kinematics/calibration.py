@@ -18,7 +18,8 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapgraph.kinematics.model import JointQuality, SkeletonModel
+from mocapgraph.kinematics.labels import missing_labels, place_labels
+from mocapgraph.kinematics.model import JointQuality, ActorModel
 from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
 
 # Directions of the 6-D offset space whose eigenvalue (relative to the largest) is below this
@@ -49,8 +50,8 @@ def layout_markers(
     capture lacks raise CalibrationError naming them, or become NaN with ``allow_missing``.
     """
     positions = np.asarray(positions, dtype=float)
-    where, _ = definition.match_labels(list(labels))
-    missing = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+    where, _ = place_labels(definition.marker_labels, list(labels))
+    missing = missing_labels(definition.marker_labels, where)
     if missing and not allow_missing:
         raise CalibrationError(
             f"{source}: layout '{definition.name}' names markers the capture lacks: {', '.join(missing)}")
@@ -166,8 +167,8 @@ def calibrate(
     huber_k: float = 3.0,
     irls_iterations: int = 8,
     source: str = "capture",
-) -> SkeletonModel:
-    """Build a SkeletonModel from float[T,M,3] markers (layout order, metres, NaN = unseen).
+) -> ActorModel:
+    """Build a ActorModel from float[T,M,3] markers (layout order, metres, NaN = unseen).
 
     definition: a SkeletonDefinition (name, limb/joint/marker names and indices).
     base_frame: the base pose frame; by default the first frame with every marker visible,
@@ -272,7 +273,7 @@ def calibrate(
         warns.append(
             f"{source}: too little motion for a reliable centre (< {min_rom_deg:g} deg), centre "
             "from the prior: " + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in np.flatnonzero(low)))
-    model = SkeletonModel(
+    model = ActorModel(
         layout=str(definition.name),
         marker_labels=labels,
         limb_names=tuple(definition.limb_names),
@@ -416,7 +417,7 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source):
     return type(fit)(**merged), centre
 
 
-def _bone_lengths(model: SkeletonModel, markers: np.ndarray) -> np.ndarray:
+def _bone_lengths(model: ActorModel, markers: np.ndarray) -> np.ndarray:
     """Median distance from each joint to its parent joint over the gym frames (Kiip 3.3.3)."""
     from mocapgraph.kinematics.solver import FrameSolver  # solver imports model only; no cycle at load
 

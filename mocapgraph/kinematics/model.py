@@ -10,22 +10,15 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field
-from enum import IntEnum
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from ..messages.quality import Quality  # noqa: F401  (the one definition; re-exported for the math)
+
 MODEL_FORMAT = "mocapgraph.skeleton_model"
 MODEL_VERSION = 1
-
-
-class Quality(IntEnum):
-    """Per joint / limb quality code carried as int8 next to NaN-able values."""
-
-    MISSING = 0    # no value (NaN)
-    ESTIMATED = 1  # from fewer limbs than usual, a poor fit, or predicted over a short gap
-    GOOD = 2       # measured from every attached limb
 
 
 class ModelFileError(ValueError):
@@ -50,8 +43,8 @@ class JointQuality:
 
 
 @dataclass
-class SkeletonModel:
-    """A calibrated actor: the layout's structure plus per-actor geometry in the base pose."""
+class ActorModel:
+    """A calibrated actor (the kinematic model; its message is `SkeletonModel`): the layout's structure plus per-actor geometry in the base pose."""
 
     layout: str
     marker_labels: tuple[str, ...]
@@ -163,7 +156,7 @@ class SkeletonModel:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any], source: str = "model") -> "SkeletonModel":
+    def from_dict(cls, d: dict[str, Any], source: str = "model") -> "ActorModel":
         if d.get("format") != MODEL_FORMAT:
             raise ModelFileError(f"{source}: not a skeleton model file (format {d.get('format')!r})")
         if d.get("version") != MODEL_VERSION:
@@ -227,7 +220,7 @@ class SkeletonModel:
         return model
 
 
-def save_model(model: SkeletonModel, path: str | Path) -> None:
+def save_model(model: ActorModel, path: str | Path) -> None:
     """Write the model as indented JSON."""
     Path(path).write_text(json.dumps(model.to_dict(), indent=1) + "\n", encoding="utf-8")
 
@@ -236,7 +229,7 @@ def load_model(
     path: str | Path,
     layout: str | None = None,
     marker_labels: Sequence[str] | None = None,
-) -> SkeletonModel:
+) -> ActorModel:
     """Read a model file; with ``layout`` (and labels), refuse a model calibrated for another layout.
 
     ``layout`` may also be any object with ``name`` and ``marker_labels`` (a SkeletonDefinition).
@@ -250,7 +243,7 @@ def load_model(
         raise ModelFileError(f"{path}: cannot read skeleton model ({exc})") from None
     if not isinstance(data, dict):
         raise ModelFileError(f"{path}: not a skeleton model file")
-    model = SkeletonModel.from_dict(data, source=str(path))
+    model = ActorModel.from_dict(data, source=str(path))
     if layout is not None:
         if not isinstance(layout, str):
             marker_labels = tuple(layout.marker_labels)

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .labels import place_labels
+
 from mocapgraph.kinematics.layout import (
     LayoutError,
     layout_path,
@@ -130,25 +132,8 @@ class SkeletonDefinition:
         return limb - 1
 
     def match_labels(self, labels: list[str]) -> tuple[np.ndarray, list[str]]:
-        """Place capture labels on layout markers, case-insensitively.
-
-        A label also matches after dropping a ``Subject:`` prefix (Vicon) and surrounding spaces.
-        Returns int64[M] (index into ``labels`` for each layout marker, -1 if absent) and the
-        labels that could not be placed (unknown, or a second label for an already placed marker).
-        """
-        want = {m.lower(): k for k, m in enumerate(self.marker_labels)}
-        idx = np.full(self.n_markers, -1, dtype=np.int64)
-        unplaced: list[str] = []
-        for i, lab in enumerate(labels):
-            s = str(lab).strip()
-            k = want.get(s.lower())
-            if k is None and ":" in s:
-                k = want.get(s.rsplit(":", 1)[1].strip().lower())
-            if k is None or idx[k] >= 0:
-                unplaced.append(lab)
-            else:
-                idx[k] = i
-        return idx, unplaced
+        """Place capture labels on layout markers (:func:`~mocapgraph.kinematics.labels.place_labels`)."""
+        return place_labels(self.marker_labels, labels)
 
     def __repr__(self) -> str:
         return (f"SkeletonDefinition({self.name!r}: {self.n_limbs} limbs, {self.n_joints} joints, "

@@ -1,4 +1,4 @@
-"""Frame solver: joint positions from labelled markers and a calibrated SkeletonModel (Kiip 3.4).
+"""Frame solver: joint positions from labelled markers and a calibrated ActorModel (Kiip 3.4).
 
 Per frame: each limb's rotation from its visible markers (weighted Kabsch against the base
 pose), each joint from every attached limb that is visible (``R @ base_point + t``), an
@@ -14,7 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapgraph.kinematics.filters import GapFiller, make_filter
-from mocapgraph.kinematics.model import Quality, SkeletonModel
+from mocapgraph.kinematics.model import Quality, ActorModel
 from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
 
 _GOOD, _EST, _MISS = np.int8(Quality.GOOD), np.int8(Quality.ESTIMATED), np.int8(Quality.MISSING)
@@ -65,7 +65,7 @@ class FrameSolver:
 
     def __init__(
         self,
-        model: SkeletonModel,
+        model: ActorModel,
         rate_hz: float | None = None,
         max_gap_s: float = 0.1,
         enforce_lengths: bool = True,
@@ -119,7 +119,7 @@ class FrameSolver:
         self._filter = make_filter(filter, self._J, **self._filter_spec[1])
         self._frame = 0
 
-    def _setup_joint_points(self, model: SkeletonModel) -> None:
+    def _setup_joint_points(self, model: ActorModel) -> None:
         jp = np.asarray(model.limb_joint_points)
         self._pl = np.flatnonzero((jp >= 0).any(1)) if jp.size else np.zeros(0, dtype=np.int64)
         if not self._pl.size:
@@ -232,9 +232,3 @@ class FrameSolver:
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter = make_filter(self._filter_spec[0], self._J, **self._filter_spec[1])
         self._frame = 0
-
-
-def solve_markers(model: SkeletonModel, markers: np.ndarray, rate_hz: float | None = None,
-                  max_gap_s: float = 0.1, **kw: object) -> SolverResult:
-    """Batch convenience: a fresh FrameSolver over a whole trial float[T,M,3]."""
-    return FrameSolver(model, rate_hz=rate_hz, max_gap_s=max_gap_s, **kw).solve(markers)  # type: ignore[arg-type]

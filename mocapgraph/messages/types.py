@@ -9,10 +9,7 @@ from __future__ import annotations
 
 from .schema import Message, array, scalar, strings
 
-# Quality codes shared by joints, limbs and markers.
-QUALITY_MISSING = 0
-QUALITY_ESTIMATED = 1
-QUALITY_GOOD = 2
+from .quality import QUALITY_ESTIMATED, QUALITY_GOOD, QUALITY_MISSING  # noqa: F401  (re-exported)
 
 # Kinect-style tracking states (SkeletonPose.tracking_state).
 TRACK_NOT_TRACKED = 0

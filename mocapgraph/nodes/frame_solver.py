@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
-from ..kinematics.model import ModelFileError, SkeletonModel, load_model
+from ..kinematics.model import ActorModel, ModelFileError, load_model
 from ..kinematics.solver import FrameSolver
 from ..messages import ActorPose, MarkerFrame, MarkerLayout
-from ..messages import SkeletonModel as ModelMsg
-from .model_messages import marker_index, missing_pose, model_from_message, pose_message
+from ..messages import SkeletonModel
+from ..adapters.model_messages import marker_index, missing_pose, model_from_message, pose_message
 
 FILTERS = ("", "one_euro", "constant_velocity")
 
@@ -33,7 +33,7 @@ class FrameSolverNode(Node):
     summary = "joint centres every frame from labelled markers and a calibrated model -> ActorPose"
     markers = Input("markers", MarkerFrame, "labelled markers, m, world, in marker_layout order")
     marker_layout = Input("marker_layout", MarkerLayout, "latched labels of the marker stream", latched=True)
-    skeleton_model = Input("skeleton_model", ModelMsg, "latched calibrated model", latched=True,
+    skeleton_model = Input("skeleton_model", SkeletonModel, "latched calibrated model", latched=True,
                            required=False)
     actor_pose = Output("actor_pose", ActorPose, "solved joints in the order of skeleton_model")
 
@@ -47,7 +47,7 @@ class FrameSolverNode(Node):
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
         # State lives from construction: a latched model or layout may arrive before on_start.
-        self.model: SkeletonModel | None = None
+        self.model: ActorModel | None = None
         self.model_source = ""
         self.solver: FrameSolver | None = None
         self.where: np.ndarray | None = None
@@ -72,7 +72,7 @@ class FrameSolverNode(Node):
             self.log.error("%s; waiting for skeleton_model", exc)
 
     # ----- model and layout ---------------------------------------------------------------------
-    def on_skeleton_model(self, msg: ModelMsg) -> None:
+    def on_skeleton_model(self, msg: SkeletonModel) -> None:
         try:
             model = model_from_message(msg, source=f"skeleton_model from {self.skeleton_model.envelope.sender}")
         except ModelFileError as exc:
@@ -83,7 +83,7 @@ class FrameSolverNode(Node):
     def on_marker_layout(self, msg: MarkerLayout) -> None:
         self._bind()
 
-    def _use_model(self, model: SkeletonModel, source: str) -> None:
+    def _use_model(self, model: ActorModel, source: str) -> None:
         self.model, self.model_source = model, source
         self._bind()
 

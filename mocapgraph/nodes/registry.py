@@ -6,7 +6,7 @@ imported only when a graph uses it or `mocapgraph node info` asks for it.
 from __future__ import annotations
 
 NODE_TYPES: dict[str, str] = {
-    "marker_test_pattern": "mocapgraph.nodes.test_pattern:MarkerTestPattern",
+    "marker_test_pattern": "mocapgraph.testing.marker_pattern:MarkerTestPattern",
     "topic_logger": "mocapgraph.nodes.topic_logger:TopicLogger",
     # inputs: marker readers (markers + marker_layout) and skeleton sources (skeleton_pose + skeleton_info)
     "synthetic_actor": "mocapgraph.nodes.synthetic_actor:SyntheticActorNode",
@@ -29,11 +29,6 @@ NODE_TYPES: dict[str, str] = {
     "lsl_outlet": "mocapgraph.nodes.lsl_outlet:LSLOutlet",
     "osc_outlet": "mocapgraph.nodes.osc_outlet:OSCOutlet",
 }
-
-
-def register_node_type(name: str, import_path: str) -> None:
-    """Add a node type (plugins call this before loading a graph)."""
-    NODE_TYPES[name] = import_path
 
 
 def resolve(type_name: str) -> str:

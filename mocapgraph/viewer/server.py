@@ -33,7 +33,8 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
-from ...messages import Envelope, Message
+from ..messages import Envelope, Message
+from ..messages.commands import VIEWER_COMMANDS
 from . import ASSET_DIR
 from .wire import EncodedRecord, build_bundle, encode_record
 
@@ -41,10 +42,7 @@ log = logging.getLogger(__name__)
 logging.getLogger("websockets").setLevel(logging.WARNING)  # not a line per page load
 
 #: commands the page may send, per channel (calibration node / bag player)
-COMMANDS: dict[str, tuple[str, ...]] = {
-    "calibration": ("find_base_pose", "capture_gym", "process"),
-    "player": ("play", "pause", "step", "seek"),
-}
+COMMANDS = VIEWER_COMMANDS  # what the page may send; the one list lives in messages/commands.py
 _SERVED_SUFFIXES = (".html", ".js", ".css")
 
 

@@ -17,8 +17,9 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..formats.wire_protocol import encode_binary, encode_text
+from ..kinematics.labels import missing_labels, place_labels
 from ..kinematics.synthetic_actor import CaptureOptions, SyntheticActor
-from .device_config import DeviceConfig, device_or_default
+from ..formats.device_file import DeviceConfig, device_or_default
 
 
 @dataclass
@@ -38,11 +39,12 @@ class SimulatedDevice:
                                     options=CaptureOptions(noise_mm=noise_mm, dropout_rate_hz=dropout_rate_hz))
         labels = list(self.actor.skeleton.marker_labels)
         self.channels = self.dev.channels or labels
-        low = {lab.lower(): i for i, lab in enumerate(labels)}
-        missing = [c for c in self.channels if c.lower() not in low]
+        # device channel -> layout marker, by the same label rule as every reader
+        where, _ = place_labels(self.channels, labels)
+        missing = missing_labels(self.channels, where)
         if missing:
             raise ValueError(f"device channels not in layout {layout!r}: {', '.join(missing[:5])}")
-        self.order = np.array([low[c.lower()] for c in self.channels], dtype=np.int64)
+        self.order = where
         self.rate_hz = float(rate_hz)
         self.start_frame = int(start_frame)
 

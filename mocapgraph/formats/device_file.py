@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..formats.axes import describe_rotation, to_world_rotation
-from ..launch.yaml_source import GraphError, LinedDict, load_yaml_file
+from .axes import describe_rotation, to_world_rotation
+from .yaml_source import GraphError, LinedDict, load_yaml_file
 
 DEVICE_DIR = Path(__file__).resolve().parents[2] / "graph_configs" / "devices"
 UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ...messages import Array, Envelope, Message, Scalar
+from ..messages import Array, Envelope, Message, Scalar
 
 MAGIC = b"MGV1"
 _WIRE = {"f": ("f4", np.float32), "b": ("u1", np.uint8)}

@@ -1,6 +1,6 @@
 """Glue shared by the calibration and solver nodes and the batch commands (no math here).
 
-- the kinematics :class:`~mocapgraph.kinematics.model.SkeletonModel` <-> the latched
+- the kinematics :class:`~mocapgraph.kinematics.model.ActorModel` <-> the latched
   ``SkeletonModel`` message, exactly (float64 arrays as they are; the rest as JSON in
   ``extra_json``, whose float repr round-trips), so a model sent over the bus solves to the very
   same joints as the file it came from;
@@ -14,17 +14,14 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
-from ..kinematics.model import JointQuality, ModelFileError
-from ..kinematics.model import SkeletonModel as KinModel
-from ..kinematics.skeleton import SkeletonDefinition
+from ..kinematics.model import ActorModel, JointQuality, ModelFileError
+from ..kinematics.labels import missing_labels, place_labels
 from ..kinematics.solver import SolverResult
-from ..messages import ActorPose
-from ..messages import SkeletonModel as ModelMsg
+from ..messages import ActorPose, SkeletonModel
 
 EXTRA_FORMAT = "mocapgraph.skeleton_model.extra/1"
 
@@ -52,7 +49,7 @@ def _farr(v: Any, shape: tuple[int, ...]) -> np.ndarray:
     return np.array(v, dtype=float).reshape(shape)  # None -> NaN
 
 
-def owner_limbs(model: KinModel) -> np.ndarray:
+def owner_limbs(model: ActorModel) -> np.ndarray:
     """int32[M] limb owning each marker, from the fit sets (own markers first, then shared).
 
     A marker that appears in several fit sets is owned by the limb where it is listed earliest
@@ -68,7 +65,7 @@ def owner_limbs(model: KinModel) -> np.ndarray:
     return out
 
 
-def model_to_message(model: KinModel, marker_limb: Sequence[int] | np.ndarray | None = None) -> ModelMsg:
+def model_to_message(model: ActorModel, marker_limb: Sequence[int] | np.ndarray | None = None) -> SkeletonModel:
     """The latched message of a calibrated model (``marker_limb``: owners from the layout)."""
     q = model.quality
     extra = {
@@ -88,7 +85,7 @@ def model_to_message(model: KinModel, marker_limb: Sequence[int] | np.ndarray | 
         "rate_hz": model.rate_hz,
     }
     ml = owner_limbs(model) if marker_limb is None else np.asarray(marker_limb, dtype=np.int32)
-    return ModelMsg(
+    return SkeletonModel(
         layout_name=model.layout, fingerprint=model.marker_fingerprint,
         marker_labels=list(model.marker_labels), limb_names=list(model.limb_names),
         joint_names=list(model.joint_names), marker_limb=ml,
@@ -101,7 +98,7 @@ def model_to_message(model: KinModel, marker_limb: Sequence[int] | np.ndarray | 
     )
 
 
-def model_from_message(msg: ModelMsg, source: str = "skeleton_model message") -> KinModel:
+def model_from_message(msg: SkeletonModel, source: str = "skeleton_model message") -> ActorModel:
     """The kinematics model carried by a message; ModelFileError if it is malformed."""
     try:
         extra = json.loads(msg.extra_json or "{}")
@@ -111,7 +108,7 @@ def model_from_message(msg: ModelMsg, source: str = "skeleton_model message") ->
         eq = extra["quality"]
         lm = np.array(extra["limb_markers"], dtype=np.int64).reshape(L, -1)
         jp = np.array(extra["limb_joint_points"], dtype=np.int64).reshape(L, -1)
-        model = KinModel(
+        model = ActorModel(
             layout=msg.layout_name, marker_labels=tuple(msg.marker_labels),
             limb_names=tuple(msg.limb_names), limb_parent=msg.limb_parent.astype(np.int64),
             limb_markers=lm, joint_names=tuple(msg.joint_names),
@@ -142,24 +139,7 @@ def model_from_message(msg: ModelMsg, source: str = "skeleton_model message") ->
 
 
 # ----- labels ------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ModelLabels:
-    """A model's layout name and marker labels, usable wherever a SkeletonDefinition's label
-    matching is wanted (``layout_markers``, :func:`marker_index`)."""
-
-    name: str
-    marker_labels: tuple[str, ...]
-
-    @property
-    def n_markers(self) -> int:
-        return len(self.marker_labels)
-
-    def match_labels(self, labels: list[str]) -> tuple[np.ndarray, list[str]]:
-        # Same rules as the layout (case, Vicon "Subject:" prefix), from one implementation.
-        return SkeletonDefinition.match_labels(self, labels)  # type: ignore[arg-type]
-
-
-def marker_index(model: KinModel, stream_layout: str, stream_labels: Sequence[str],
+def marker_index(model: ActorModel, stream_layout: str, stream_labels: Sequence[str],
                  source: str = "marker stream") -> np.ndarray:
     """int64[M]: for each model marker its index in the stream's labels.
 
@@ -167,8 +147,8 @@ def marker_index(model: KinModel, stream_layout: str, stream_labels: Sequence[st
     layouts named when they differ, the missing labels otherwise. A stream from another layout
     that still carries every model marker by label is accepted (the caller may note it).
     """
-    where, _ = ModelLabels(model.layout, tuple(model.marker_labels)).match_labels(list(stream_labels))
-    missing = [model.marker_labels[m] for m in np.flatnonzero(where < 0)]
+    where, _ = place_labels(model.marker_labels, list(stream_labels))
+    missing = missing_labels(model.marker_labels, where)
     if missing:
         if stream_layout and stream_layout != model.layout:
             raise ModelMismatchError(
@@ -191,7 +171,7 @@ def pose_message(res: SolverResult, actor: str, frame_number: int) -> ActorPose:
     )
 
 
-def missing_pose(model: KinModel, actor: str, frame_number: int) -> ActorPose:
+def missing_pose(model: ActorModel, actor: str, frame_number: int) -> ActorPose:
     """An ActorPose with every joint and limb missing (NaN + quality 0)."""
     J, L = len(model.joint_names), len(model.limb_names)
     return ActorPose(
@@ -202,7 +182,7 @@ def missing_pose(model: KinModel, actor: str, frame_number: int) -> ActorPose:
 
 
 # ----- quality report ----------------------------------------------------------------------------
-def quality_report(model: KinModel, min_rom_deg: float | None = None) -> dict[str, Any]:
+def quality_report(model: ActorModel, min_rom_deg: float | None = None) -> dict[str, Any]:
     """Per-joint calibration quality for people: residual mm, range of motion deg, reliable."""
     q = model.quality
     joints = []
@@ -224,7 +204,7 @@ def quality_report(model: KinModel, min_rom_deg: float | None = None) -> dict[st
             "warnings": list(model.warnings)}
 
 
-def quality_table(model: KinModel) -> str:
+def quality_table(model: ActorModel) -> str:
     """A fixed-width per-joint table (mm, deg) for the terminal."""
     rep = quality_report(model)
     w = max([len("joint")] + [len(r["joint"]) for r in rep["joints"]])

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ...bus import Input, Interface, Node, Output, Param
-from ...messages import (QUALITY_ESTIMATED, QUALITY_GOOD, QUALITY_MISSING, TRACK_INFERRED, TRACK_TRACKED,
+from ..bus import Input, Interface, Node, Output, Param
+from ..messages import (QUALITY_ESTIMATED, QUALITY_GOOD, QUALITY_MISSING, TRACK_INFERRED, TRACK_TRACKED,
                          ActorPose, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, Message, NodeCommand,
                          NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose, array)
 
@@ -122,7 +122,7 @@ class StagePerformer(Node):
         what = self.publish
         J = len(JOINT_NAMES)
         if "markers" in what:
-            self._ports["marker_layout"].publish(MarkerLayout(
+            self.bound_port("marker_layout").publish(MarkerLayout(
                 name="stage_performer", labels=[f"{self.actor}:M{i:02d}" for i in range(self.n_markers)],
                 limb_names=JOINT_NAMES, marker_limb=self.marker_joint, units_note="generated in metres, world",
                 source="stage performer"))
@@ -130,7 +130,7 @@ class StagePerformer(Node):
             bone = np.linalg.norm(REST - REST[np.maximum(JOINT_PARENT, 0)], axis=1)
             bone[JOINT_PARENT < 0] = np.nan
             M = self.n_markers
-            self._ports["skeleton_model"].publish(SkeletonModel(
+            self.bound_port("skeleton_model").publish(SkeletonModel(
                 layout_name="stage_performer", fingerprint="", marker_labels=[f"M{i:02d}" for i in range(M)],
                 limb_names=JOINT_NAMES, joint_names=JOINT_NAMES, marker_limb=self.marker_joint,
                 limb_parent=JOINT_PARENT, joint_limbs=np.stack([np.maximum(JOINT_PARENT, 0), np.arange(J)], 1),
@@ -139,15 +139,15 @@ class StagePerformer(Node):
                 base_joints=REST, bone_lengths=bone, hinge_axes=np.full((J, 3), np.nan),
                 joint_residual_rms=0.001 + 0.0013 * (np.arange(J) % 9), joint_rom=np.linspace(0.2, 1.8, J)))
         if "skeleton" in what:
-            self._ports["skeleton_info"].publish(SkeletonInfo(
+            self.bound_port("skeleton_info").publish(SkeletonInfo(
                 source="stage_performer", joint_names=JOINT_NAMES, joint_parent=JOINT_PARENT,
                 rest_offsets=REST - REST[np.maximum(JOINT_PARENT, 0)], units_note="generated in metres, world"))
         if "character" in what:
-            self._ports["character_info"].publish(CharacterInfo(
+            self.bound_port("character_info").publish(CharacterInfo(
                 character=self.actor, joint_names=JOINT_NAMES, joint_parent=JOINT_PARENT,
                 rest_offsets=REST - REST[np.maximum(JOINT_PARENT, 0)]))
         if "physics" in what:
-            self._ports["physics_scene"].publish(PhysicsScene(
+            self.bound_port("physics_scene").publish(PhysicsScene(
                 body_names=["crate", "ball", "torso", "l_thigh", "r_thigh"],
                 shapes=["box", "sphere", "capsule", "capsule", "capsule"],
                 sizes=[[0.3, 0.3, 0.3], [0.12, 0, 0], [0.12, 0.2, 0], [0.07, 0.2, 0], [0.07, 0.2, 0]]))
@@ -168,7 +168,7 @@ class StagePerformer(Node):
             missing, unseen = marker_state(f, self.n_markers)
             pos[missing] = np.nan
             valid = ~(missing | unseen)
-            self._ports["markers"].publish(MarkerFrame(
+            self.bound_port("markers").publish(MarkerFrame(
                 frame_number=f, rate_hz=self.rate_hz, positions=pos, valid=valid,
                 residual=np.where(valid, 0.0005, np.nan).astype(np.float32)), capture_ns=now)
         if "actor" in what:
@@ -176,7 +176,7 @@ class StagePerformer(Node):
             q[(f // 60 + np.arange(J)) % 7 == 0] = QUALITY_ESTIMATED
             q[np.isnan(joints[:, 0])] = QUALITY_MISSING
             quat = np.tile([1.0, 0, 0, 0], (J, 1))
-            self._ports["actor_pose"].publish(ActorPose(
+            self.bound_port("actor_pose").publish(ActorPose(
                 actor=self.actor, frame_number=f, joint_positions=joints, joint_quality=q, limb_orientations=quat,
                 limb_quality=q, limb_visible_markers=np.full(J, 3, np.int16)), capture_ns=now)
         if "skeleton" in what:
@@ -184,12 +184,12 @@ class StagePerformer(Node):
             if int(t) % 2 == 0:
                 state[[6, 9]] = TRACK_INFERRED
             quat = np.tile(Rotation.from_euler("z", heading).as_quat(scalar_first=True), (J, 1))
-            self._ports["skeleton_pose"].publish(SkeletonPose(
+            self.bound_port("skeleton_pose").publish(SkeletonPose(
                 source_id=self.actor, frame_number=f, joint_positions=joints, joint_orientations=quat,
                 tracking_state=state), capture_ns=now)
         if "character" in what:
             quat = np.tile([1.0, 0, 0, 0], (J, 1))
-            self._ports["character_pose"].publish(CharacterPose(
+            self.bound_port("character_pose").publish(CharacterPose(
                 character=self.actor, frame_number=f, root_position=joints[0], local_rotations=quat,
                 joint_positions=joints), capture_ns=now)
         if "physics" in what:
@@ -206,7 +206,7 @@ class StagePerformer(Node):
         quats = np.array([Rotation.from_euler("z", 0.4).as_quat(scalar_first=True),
                           [1.0, 0, 0, 0]] + [yaw.as_quat(scalar_first=True)] * 3)
         err = np.array([np.nan, np.nan, 0.01, 0.03 + 0.03 * math.sin(t), 0.08])
-        self._ports["physics_state"].publish(PhysicsState(sim_time_s=t, positions=pos, orientations=quats,
+        self.bound_port("physics_state").publish(PhysicsState(sim_time_s=t, positions=pos, orientations=quats,
                                                           tracking_error=err), capture_ns=now)
 
 
@@ -297,7 +297,7 @@ class CommandEcho(Node):
         else:
             progress = self._position() / self.duration_s
             data = {"position_s": self.t, "duration_s": self.duration_s}  # as the bag player reports
-        self._ports["status"].publish(NodeStatus(node=self.name, state=self.state, detail=self.detail,
+        self.bound_port("status").publish(NodeStatus(node=self.name, state=self.state, detail=self.detail,
                                                  progress=progress, data_json=json.dumps(data)))
 
 

@@ -1,5 +1,5 @@
 // WebSocket link to the visualizer node: bundle decoding, the stream store, acks and reconnects.
-// Bundle layout (see mocapgraph/nodes/viewer/wire.py): "MGV1", u32 json length, JSON, padding to 8,
+// Bundle layout (see mocapgraph/viewer/wire.py): "MGV1", u32 json length, JSON, padding to 8,
 // then array blocks at 8-byte aligned offsets from the start of the binary section.
 
 const ARRAY_TYPES = { f4: Float32Array, f8: Float64Array, u1: Uint8Array, i1: Int8Array, i2: Int16Array, i4: Int32Array };
