@@ -13,10 +13,10 @@ import numpy as np
 from .rigid import fit_rigid, gather_limb_markers
 
 if TYPE_CHECKING:  # for hints only: nothing of the model module is needed at run time
-    from .model import SkeletonModel
+    from .model import ActorModel
 
 
-def marker_residuals(model: SkeletonModel, markers: np.ndarray) -> np.ndarray:
+def marker_residuals(model: ActorModel, markers: np.ndarray) -> np.ndarray:
     """float[T,M] m for markers float[T,M,3] in the model's marker order; NaN where unseen or unfitted."""
     markers = np.asarray(markers, dtype=float)
     idx = np.asarray(model.limb_markers)

@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from ..kinematics.marker_residuals import marker_residuals
 
 if TYPE_CHECKING:  # for hints only: nothing of the model module is needed at run time
-    from ..kinematics.model import SkeletonModel
+    from ..kinematics.model import ActorModel
 
 RELIABLE = "#3f7fd9"
 UNRELIABLE = "#e8871e"
@@ -66,7 +66,7 @@ def _residual_plot(ax, labels: list[str], resid_mm: np.ndarray, rate_hz: float |
     return [(labels[i], float(per_marker[i])) for i in order]
 
 
-def _pose_view(ax, model: SkeletonModel, u: int, v: int, title: str) -> None:
+def _pose_view(ax, model: ActorModel, u: int, v: int, title: str) -> None:
     m, j = model.base_markers, model.joint_base
     ax.scatter(m[:, u], m[:, v], s=6, color="#999", label="markers")
     par = np.asarray(model.joint_parent)
@@ -94,7 +94,7 @@ def _png(fig: Figure) -> bytes:
 SIZES = {"joints": 3.4, "markers": 3.2, "pose": 5.0}  # figure heights, inches (10 wide)
 
 
-def _draw(fig, key: str, model: SkeletonModel, resid_mm: np.ndarray | None,
+def _draw(fig, key: str, model: ActorModel, resid_mm: np.ndarray | None,
           min_rom_deg: float | None) -> list[tuple[str, float]]:
     """Draw panel group ``key`` into a Figure or SubFigure; the worst markers for "markers"."""
     names = list(model.joint_names)
@@ -114,7 +114,7 @@ def _draw(fig, key: str, model: SkeletonModel, resid_mm: np.ndarray | None,
     return []
 
 
-def write_report(path: str | Path, model: SkeletonModel, markers: np.ndarray | None = None,
+def write_report(path: str | Path, model: ActorModel, markers: np.ndarray | None = None,
                  source: str = "", model_path: str = "", min_rom_deg: float | None = None) -> Path:
     """Write the report as ``.html`` (page with table and figures) or ``.png`` (the figures stacked).
 
@@ -145,7 +145,7 @@ def _fmt(v: float, nd: int) -> str:
     return "-" if not np.isfinite(v) else f"{v:.{nd}f}"
 
 
-def _html(model: SkeletonModel, pngs: dict[str, bytes], worst: list[tuple[str, float]], source: str,
+def _html(model: ActorModel, pngs: dict[str, bytes], worst: list[tuple[str, float]], source: str,
           model_path: str, min_rom_deg: float | None) -> str:
     e = html.escape
     q = model.quality
