@@ -153,7 +153,8 @@ def _html(model: ActorModel, pngs: dict[str, bytes], worst: list[tuple[str, floa
     for j, name in enumerate(model.joint_names):
         rel = bool(q.reliable[j])
         rows.append(
-            f'<tr class="{"ok" if rel else "bad"}"><td class="joint">{e(name)}</td><td class="method">{e(q.method[j])}</td>'
+            f'<tr class="{"ok" if rel else "bad"}"><td class="joint">{e(name)}</td>'
+            f'<td class="method">{e(q.method[j])}</td>'
             f'<td class="residual_mm">{_fmt(q.residual_rms[j] * 1000, 2)}</td>'
             f'<td class="rom_deg">{_fmt(np.degrees(q.range_of_motion[j]), 1)}</td>'
             f'<td class="frames">{int(q.n_frames[j])}</td>'

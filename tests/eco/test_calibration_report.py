@@ -42,7 +42,8 @@ def test_report_numbers_match_the_model_file_in_chromium(capture, tmp_path, caps
                 joint: r.querySelector('.joint').textContent, residual: r.querySelector('.residual_mm').textContent,
                 rom: r.querySelector('.rom_deg').textContent, reliable: r.querySelector('.reliable').textContent,
                 frames: r.querySelector('.frames').textContent}))""")
-            images = page.eval_on_selector_all("figure img", "imgs => imgs.map(i => [i.alt, i.naturalWidth, i.naturalHeight])")
+            images = page.eval_on_selector_all(
+                "figure img", "imgs => imgs.map(i => [i.alt, i.naturalWidth, i.naturalHeight])")
             layout = page.text_content("#layout")
             gym = page.text_content("#gym-frames")
             ARTIFACTS = ROOT / "artifacts"

@@ -84,7 +84,8 @@ nodes:
         assert q == rec["joint_quality"]
         for j, name in enumerate(JOINT_NAMES):
             want = rec["joint_positions"][j]
-            if want[0] is None or want[0] != want[0]:  # missing (the log writes NaN): flagged 0, never sent as a position (no 0,0,0, no NaN)
+            # missing (the log writes NaN): flagged 0, never sent as a position (no 0,0,0, no NaN)
+            if want[0] is None or want[0] != want[0]:
                 assert q[j] == 0 and f"{name}/position" not in frame and f"{name}/rotation" not in frame
                 missing_seen += 1
             else:
