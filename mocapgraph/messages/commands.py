@@ -7,6 +7,7 @@ from __future__ import annotations
 
 CALIBRATION_COMMANDS = ("find_base_pose", "capture_gym", "process", "reset", "save", "load")
 PLAYER_COMMANDS = ("play", "pause", "toggle", "step", "seek", "rate", "stop")
+RETARGET_COMMANDS = ("capture_rest_pose", "reset")
 
 #: channel -> commands the viewer page may send (buttons); a subset of the nodes' own lists
 VIEWER_COMMANDS: dict[str, tuple[str, ...]] = {

@@ -21,6 +21,8 @@ NODE_TYPES: dict[str, str] = {
     # actor: calibration (latched SkeletonModel) and the per-frame solver (ActorPose)
     "calibration": "mocapgraph.nodes.calibration:CalibrationNode",
     "frame_solver": "mocapgraph.nodes.frame_solver:FrameSolverNode",
+    # characters: retargeting (CharacterPose)
+    "retargeter": "mocapgraph.nodes.retargeter:RetargeterNode",
     "bag_recorder": "mocapgraph.nodes.bag_recorder:BagRecorder",
     "bag_player": "mocapgraph.nodes.bag_player:BagPlayer",
     "visualizer": "mocapgraph.nodes.visualizer:Visualizer",

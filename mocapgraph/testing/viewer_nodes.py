@@ -145,7 +145,7 @@ class StagePerformer(Node):
         if "character" in what:
             self.bound_port("character_info").publish(CharacterInfo(
                 character=self.actor, joint_names=JOINT_NAMES, joint_parent=JOINT_PARENT,
-                rest_offsets=REST - REST[np.maximum(JOINT_PARENT, 0)]))
+                rest_offsets=REST - REST[np.maximum(JOINT_PARENT, 0)], rest_rotations=np.tile([1.0, 0, 0, 0], (J, 1))))
         if "physics" in what:
             self.bound_port("physics_scene").publish(PhysicsScene(
                 body_names=["crate", "ball", "torso", "l_thigh", "r_thigh"],
@@ -191,7 +191,7 @@ class StagePerformer(Node):
             quat = np.tile([1.0, 0, 0, 0], (J, 1))
             self.bound_port("character_pose").publish(CharacterPose(
                 character=self.actor, frame_number=f, root_position=joints[0], local_rotations=quat,
-                joint_positions=joints), capture_ns=now)
+                joint_positions=joints, joint_quality=np.full(J, 2, np.int8)), capture_ns=now)
         if "physics" in what:
             self._publish_physics(t, joints, heading, now)
         self.frame += 1

@@ -43,7 +43,8 @@ export class Panel {
       this.seekDragging = false;
       this.send("player", "seek", { position_s: Number(seek.value) }, this.playerTarget, "Seek");
     });
-    for (const [id, key] of [["show-markers", "markers"], ["show-bones", "bones"], ["show-labels", "labels"], ["show-axes", "axes"]]) {
+    for (const [id, key] of [["show-markers", "markers"], ["show-bones", "bones"], ["show-labels", "labels"], ["show-axes", "axes"],
+                             ["show-characters", "characters"]]) {
       $(id).addEventListener("change", (e) => { this.scene.show[key] = e.target.checked; });
     }
     $("show-video").addEventListener("change", (e) => { this.video.enabled = e.target.checked; });

@@ -30,7 +30,7 @@ export class SceneBuilder {
   constructor() {
     this.batches = { sphere: new Batch(), cylinder: new Batch(), box: new Batch() };
     this.hidden = new Set(); // stream keys switched off in the panel
-    this.show = { markers: true, bones: true, labels: true, axes: true };
+    this.show = { markers: true, bones: true, labels: true, axes: true, characters: true };
     this.referenceTopics = new Set(); // drawn as a thin neutral ghost (ground truth), not by quality
   }
 
@@ -77,8 +77,7 @@ export class SceneBuilder {
         s.arrays.joint_quality.data, 0.032, "jointsDrawn");
       else if (s.type === "SkeletonPose") this._skeleton(s, rec, dim, out, companion(store, s, "SkeletonInfo"),
         s.arrays.tracking_state.data, 0.028, "skeletonJointsDrawn");
-      else if (s.type === "CharacterPose") this._skeleton(s, rec, dim, out, companion(store, s, "CharacterInfo"),
-        null, 0.022, "characterJointsDrawn");
+      else if (s.type === "CharacterPose") { if (this.show.characters) this._character(s, rec, dim, out, companion(store, s, "CharacterInfo")); }
       else if (s.type === "PhysicsState") this._bodies(s, rec, dim, out, companion(store, s, "PhysicsScene"));
       out.totals.bonesDrawn += rec.bones;
     }
@@ -159,6 +158,42 @@ export class SceneBuilder {
     const lift = rec.reference ? 0.5 : 0.28;
     const text = rec.name + (rec.reference ? " · reference" : "") + (rec.stale ? " (stale)" : "");
     if (top) out.labels.push({ key: s.key, text, pos: [top[0], top[1], top[2] + lift], reference: rec.reference });
+  }
+
+  // A retargeted character: solid bones in the character's own colour (one per character name),
+  // joints the retargeter flags estimated or missing drawn in the quality colours.
+  _character(s, rec, dim, out, info) {
+    const pos = s.arrays.joint_positions.data;
+    const n = s.arrays.joint_positions.shape[0];
+    const quality = s.arrays.joint_quality ? s.arrays.joint_quality.data : null;
+    rec.total = n;
+    const parent = info && info.arrays.joint_parent && info.arrays.joint_parent.shape[0] === n
+      ? info.arrays.joint_parent.data : null;
+    const tint = CHARACTER[hash(s.fields.character || s.key) % CHARACTER.length];
+    const counts = [0, 0, 0];
+    let top = null;
+    for (let i = 0; i < n; i++) {
+      if (!finite3(pos, i)) { counts[0]++; continue; }
+      const p = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
+      const q = quality ? quality[i] : 2;
+      counts[Math.max(0, Math.min(2, q))]++;
+      this.sphere(p, 0.026, q >= 2 ? tint : qualityColor(q), dim);
+      this._grow(p);
+      rec.points++;
+      if (!top || p[2] > top[2]) top = p;
+      const j = parent ? parent[i] : -1;
+      if (j >= 0 && j < n && finite3(pos, j)) {
+        const a = [pos[3 * j], pos[3 * j + 1], pos[3 * j + 2]];
+        const qb = quality ? Math.min(q, quality[j]) : 2;
+        this.bone(a, p, 0.021, qb >= 2 ? tint : qualityColor(qb), dim);   // solid: as thick as a limb
+        rec.bones++;
+      }
+    }
+    rec.quality = { good: counts[2], estimated: counts[1], missing: counts[0] };
+    out.totals.characterJointsDrawn += rec.points;
+    out.totals.actorsDrawn++;
+    const text = rec.name + (rec.stale ? " (stale)" : "");
+    if (top) out.labels.push({ key: s.key, text, pos: [top[0], top[1], top[2] + 0.28], reference: false });
   }
 
   _bodies(s, rec, dim, out, scene) {
