@@ -11,6 +11,7 @@ import pytest
 from mcap.reader import make_reader
 
 from foxglove_decode import message_class
+from mocapgraph.bag.foxglove_scene import QUALITY_COLORS
 from mocapgraph.bag.reader import BagReader
 from mocapgraph.bag.writer import BagWriter
 from mocapgraph.cli import main
@@ -98,7 +99,8 @@ def test_characters_physics_and_diagnostics_from_constructed_messages(tmp_path, 
     with BagWriter(src) as w:
         w.write("character_info", CharacterInfo(character="robot", joint_names=["root", "spine", "head"],
                                                 joint_parent=np.array([-1, 0, 1], np.int32),
-                                                rest_offsets=np.zeros((3, 3))), seq=1, capture_ns=1)
+                                                rest_offsets=np.zeros((3, 3)),
+                                                rest_rotations=np.tile([1.0, 0, 0, 0], (3, 1))), seq=1, capture_ns=1)
         w.write("physics_scene", PhysicsScene(body_names=["thigh", "box"], shapes=["capsule", "box"],
                                               sizes=np.array([[0.06, 0.2, 0], [0.2, 0.2, 0.2]])),
                 seq=1, capture_ns=1)
@@ -107,7 +109,8 @@ def test_characters_physics_and_diagnostics_from_constructed_messages(tmp_path, 
             jp = np.array([[0, 0, 1.0], [0, 0, 1.3], [0, 0.01 * t, 1.6]])
             w.write("character_pose", CharacterPose(character="robot", frame_number=t, root_position=jp[0],
                                                     local_rotations=np.tile([1.0, 0, 0, 0], (3, 1)),
-                                                    joint_positions=jp), seq=t + 1, capture_ns=ns)
+                                                    joint_positions=jp, joint_quality=np.array([2, 2, 1], np.int8)),
+                    seq=t + 1, capture_ns=ns)
             w.write("physics_state", PhysicsState(sim_time_s=t * 0.01, positions=np.array([[0, 0, 0.5], [1, 0, 0.2]]),
                                                   orientations=np.tile([1.0, 0, 0, 0], (2, 1)),
                                                   tracking_error=np.array([0.02, np.nan])), seq=t + 1, capture_ns=ns)
@@ -128,6 +131,9 @@ def test_characters_physics_and_diagnostics_from_constructed_messages(tmp_path, 
     assert len(chars) == T
     assert [round(u.entities[0].spheres[2].pose.position.y, 6) for _, _, u in chars] == [0.01 * t for t in range(T)]
     assert all(len(u.entities[0].lines[0].points) == 4 for _, _, u in chars)
+    # the retargeter's quality shows: the held head is drawn as estimated, not good
+    head = chars[0][2].entities[0].spheres[2].color
+    assert (head.r, head.g, head.b) == tuple(QUALITY_COLORS[1][:3])
     phys = got["/physics_state"]
     assert len(phys) == T
     e = phys[0][2].entities[0]
