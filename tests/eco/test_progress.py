@@ -52,7 +52,7 @@ def _commands(c, tmp: Path) -> dict[str, list[str]]:
     trunc = tmp / "cut.mcap"
     data = c.rom_bag.read_bytes()
     trunc.write_bytes(data[: int(len(data) * 0.7)])
-    return {
+    cmds = {
         "calibrating": ["calibrate", str(c.rom), "--layout", "kiip_full_body", "-o", str(tmp / "m.json")],
         "solving": ["solve", str(c.trial), "--model", str(c.model), "-o", str(tmp / "o.csv")],
         "converting": ["bag", "convert", str(c.rom), "-o", str(tmp / "b.mcap")],
@@ -60,6 +60,10 @@ def _commands(c, tmp: Path) -> dict[str, list[str]]:
         "recovering": ["bag", "recover", str(trunc), "-o", str(tmp / "rec.mcap")],
         "exporting": ["bag", "export-foxglove", str(c.rom_bag), "-o", str(tmp / "fox.mcap"), "-f"],
     }
+    bvh = (ROOT / ".." / "shared" / "data" / "bvh" / "cmu" / "131_01.bvh").resolve()
+    if bvh.exists():  # a real capture, read in place (left out where ../shared/data is absent)
+        cmds["retargeting"] = ["retarget", str(bvh), "--character", "standard_20", "-o", str(tmp / "r.bvh")]
+    return cmds
 
 
 # Every command in one process (the command's own main()), its stderr a pseudo-terminal.
