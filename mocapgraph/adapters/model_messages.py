@@ -79,7 +79,9 @@ def model_to_message(model: ActorModel, marker_limb: Sequence[int] | np.ndarray 
             "outlier_fraction": jsonable(np.asarray(q.outlier_fraction, dtype=float)),
             "reliable": np.asarray(q.reliable, dtype=bool).tolist(),
             "method": list(q.method),
+            "inputs": jsonable(list(q.inputs)),
         },
+        "static_only_markers": list(model.static_only_markers),
         "warnings": list(model.warnings),
         "n_gym_frames": int(model.n_gym_frames),
         "rate_hz": model.rate_hz,
@@ -124,7 +126,9 @@ def model_from_message(msg: SkeletonModel, source: str = "skeleton_model message
                 outlier_fraction=_farr(eq["outlier_fraction"], (J,)),
                 reliable=np.array(eq["reliable"], dtype=bool).reshape(J),
                 method=tuple(eq["method"]),
+                inputs=tuple(dict(v) for v in eq.get("inputs", ())),
             ),
+            static_only_markers=tuple(extra.get("static_only_markers", ())),
             warnings=tuple(extra.get("warnings", ())), n_gym_frames=int(extra.get("n_gym_frames", 0)),
             rate_hz=extra.get("rate_hz"), limb_joint_points=jp,
         )
@@ -148,7 +152,9 @@ def marker_index(model: ActorModel, stream_layout: str, stream_labels: Sequence[
     that still carries every model marker by label is accepted (the caller may note it).
     """
     where, _ = place_labels(model.marker_labels, list(stream_labels))
-    missing = missing_labels(model.marker_labels, where)
+    # Static-only markers (medial landmarks) may be absent: -1, always missing.
+    optional = {m.lower() for m in model.static_only_markers}
+    missing = [m for m in missing_labels(model.marker_labels, where) if m.lower() not in optional]
     if missing:
         if stream_layout and stream_layout != model.layout:
             raise ModelMismatchError(
@@ -192,13 +198,14 @@ def quality_report(model: ActorModel, min_rom_deg: float | None = None) -> dict[
         if not q.reliable[j]:
             warn.append(f"range of motion {rom:.1f} deg"
                         + (f" < {min_rom_deg:g} deg" if min_rom_deg is not None else "")
-                        + ": centre from the prior, move this joint more")
+                        + ": no reliable centre (move this joint more, or give landmarks / a regression)")
         joints.append({
             "joint": name, "method": q.method[j],
             "residual_mm": jsonable(round(float(q.residual_rms[j]) * 1000, 3)),
             "rom_deg": round(rom, 2), "frames": int(q.n_frames[j]),
             "outliers": jsonable(round(float(q.outlier_fraction[j]), 4)),
             "reliable": bool(q.reliable[j]), "warnings": warn,
+            "inputs": jsonable(q.inputs[j]) if j < len(q.inputs) else {},
         })
     return {"layout": model.layout, "gym_frames": int(model.n_gym_frames), "joints": joints,
             "warnings": list(model.warnings)}
@@ -208,9 +215,10 @@ def quality_table(model: ActorModel) -> str:
     """A fixed-width per-joint table (mm, deg) for the terminal."""
     rep = quality_report(model)
     w = max([len("joint")] + [len(r["joint"]) for r in rep["joints"]])
-    lines = [f"{'joint':<{w}}  {'method':<12} {'ROM deg':>8} {'resid mm':>9} {'frames':>7}  reliable"]
+    mw = max([12] + [len(r["method"]) for r in rep["joints"]])
+    lines = [f"{'joint':<{w}}  {'method':<{mw}} {'ROM deg':>8} {'resid mm':>9} {'frames':>7}  reliable"]
     for r in rep["joints"]:
         res = "-" if r["residual_mm"] is None else f"{r['residual_mm']:.2f}"
-        lines.append(f"{r['joint']:<{w}}  {r['method']:<12} {r['rom_deg']:>8.1f} {res:>9} {r['frames']:>7}  "
+        lines.append(f"{r['joint']:<{w}}  {r['method']:<{mw}} {r['rom_deg']:>8.1f} {res:>9} {r['frames']:>7}  "
                      f"{'yes' if r['reliable'] else 'NO'}")
     return "\n".join(lines)

@@ -131,22 +131,39 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if len(frames) not in (0, 1, len(args.files)):
         raise UserError(f"--frames given {len(frames)} times for {len(args.files)} files "
                         "(give it once for all files, or once per file)")
-    parts, rate = [], None
+    order = tuple(m.strip() for m in args.centres.split(",") if m.strip())
+    from ..kinematics.centres import METHODS
+
+    bad = [m for m in order if m not in METHODS]
+    if bad or not order:
+        raise UserError(f"--centres {args.centres!r}: expected a comma list of {', '.join(METHODS)}")
+    # Landmarks the layout names (medial knee, malleoli) may be in the first file (the static) only.
+    landmark = {definition.marker_labels[k] for pair in (getattr(definition, "joint_landmarks", ()) or ())
+                for k in pair}
+    parts, rate, names, inputs = [], None, [], []
     report = _report_path(args.report, args.output)
     bar = Progress("calibrating", unit="step", total=len(args.files) + 2 + (report is not None))
     absent_everywhere: set[str] | None = None
     for i, f in enumerate(args.files):
         inp = read_marker_input(f, args.topic, args.up)
         bar.advance()
+        inputs.append(inp)
         where, _ = definition.match_labels(list(inp.labels))
         absent = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
-        if absent and args.allow_missing:
-            print(f"note: {inp.path.name}: {len(absent)} layout markers absent (always missing): "
-                  f"{', '.join(absent)}")
+        static_only = [m for m in absent if i > 0 and m in landmark]
+        others = [m for m in absent if m not in static_only]
+        if others and args.allow_missing:
+            print(f"note: {inp.path.name}: {len(others)} layout markers absent (always missing): "
+                  f"{', '.join(others)}")
+        if static_only:
+            print(f"{inp.path.name}: lacks {len(static_only)} landmarks of {Path(args.files[0]).name}: "
+                  f"static-only, not needed later: {', '.join(static_only)}")
         absent_everywhere = set(absent) if absent_everywhere is None else absent_everywhere & set(absent)
+        if others and not args.allow_missing:  # --help tells of --allow-missing
+            raise UserError(f"{inp.path.name}: layout '{definition.name}' names markers the capture lacks: "
+                            f"{', '.join(others)}")
         try:
-            x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name,
-                               allow_missing=args.allow_missing)
+            x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name, allow_missing=True)
         except CalibrationError as exc:
             raise UserError(str(exc)) from None  # --help tells of --allow-missing
         if frames:
@@ -157,6 +174,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"{inp.path.name}: {len(x)} frames at {inp.rate_hz:g} Hz, {definition.n_markers} layout markers "
               f"({100 * (1 - seen.mean()):.1f} % missing samples)")
         parts.append(x)
+        names.append(inp.path.name)
         rate = rate or inp.rate_hz
     if absent_everywhere:
         gone = [m for m in definition.marker_labels if m in absent_everywhere]
@@ -164,12 +182,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                         "(the base pose needs each layout marker in at least one file; use a layout "
                         "without them)")
     markers = np.concatenate(parts)
+    subject = _subject(args, inputs[0])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
         try:
             model = calibrate(definition, markers, base_frame=args.base_frame, rate_hz=rate,
                               max_base_search_s=args.base_search_s, min_rom_deg=args.min_rom_deg,
-                              source=" + ".join(Path(f).name for f in args.files))
+                              source=" + ".join(Path(f).name for f in args.files), centre_order=order,
+                              max_residual_mm=args.max_residual_mm, subject=subject,
+                              parts=list(zip(names, [len(p) for p in parts])))
         except CalibrationError as exc:
             raise UserError(str(exc)) from None
         except IndexError:
@@ -177,6 +198,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     bar.advance()
     print(f"layout {definition.name}: {len(model.joint_names)} joints from {len(markers)} frames")
     print(quality_table(model))
+    for j, inp_j in enumerate(model.quality.inputs):
+        if "landmarks" in inp_j:
+            print(f"  {model.joint_names[j]}: midpoint of {' and '.join(inp_j['landmarks'])}")
+        elif "regression" in inp_j:
+            vals = ", ".join(f"{k[:-2]} {1000 * v:.1f} mm" for k, v in inp_j.items() if k.endswith("_m") and isinstance(v, float))
+            print(f"  {model.joint_names[j]}: {inp_j['regression']} ({vals}; subject from {inp_j.get('subject', '?')})")
     for w in caught:
         if issubclass(w.category, CalibrationWarning):
             print(f"warning: {w.message}")
@@ -209,6 +236,27 @@ def _report_path(arg: str | None, model_path: str) -> Path | None:
     return model.parent / p if p.parent == Path(".") else p
 
 
+def _subject(args: argparse.Namespace, first: MarkerInput):
+    """Subject measurements: a C3D's PROCESSING parameters, then --vsk, then --subject (each
+    overriding the one before); None when there are none."""
+    from ..kinematics.subject import Subject, SubjectError, parse_subject_args, read_c3d_processing, read_vsk
+
+    sub = Subject()
+    try:
+        if first.path.suffix.lower() == ".c3d":
+            sub = sub.merged(read_c3d_processing(first.path))
+        if args.vsk:
+            sub = sub.merged(read_vsk(args.vsk))
+        if args.subject:
+            sub = sub.merged(parse_subject_args(args.subject))
+    except SubjectError as exc:
+        raise UserError(str(exc)) from None
+    if not sub.empty:
+        known = ", ".join(f"{k} {1000 * v:.1f} mm" for k, v in sub.as_dict().items() if isinstance(v, float))
+        print(f"subject ({sub.source}): {known}")
+    return None if sub.empty else sub
+
+
 # ----- solve -------------------------------------------------------------------------------------
 def cmd_solve(args: argparse.Namespace) -> int:
     from ..kinematics.model import ModelFileError, load_model
@@ -236,7 +284,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
         print(f"note: {len(missing)} model markers absent from {inp.path.name} (always missing): {', '.join(missing)}")
     try:
         solver = FrameSolver(model, rate_hz=inp.rate_hz, max_gap_s=args.max_gap_s,
-                             enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None)
+                             enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None,
+                             fit=args.fit)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     res = _solve_chunks(solver, x, times)
@@ -352,6 +401,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="also write a report (per-joint residual and ROM bars, marker residuals over time, "
                         "joint centres on the base pose); a bare name goes next to the model file, "
                         "no name gives <model>_report.html")
+    p.add_argument("--centres", default="functional,anatomical,regression",
+                   help="joint-centre methods in order of preference, per joint the first that applies "
+                        "(functional: SCoRE/SARA; anatomical: layout landmarks; regression: Plug-in Gait / "
+                        "Harrington with subject measurements); e.g. regression,anatomical for Plug-in Gait")
+    p.add_argument("--max-residual-mm", type=float, default=10.0, help="functional centres with a larger residual are not trusted")
+    p.add_argument("--vsk", metavar="FILE", help="Vicon VSK subject file (leg lengths, knee/ankle widths, ...)")
+    p.add_argument("--subject", action="append", metavar="KEY=MM",
+                   help="subject measurement in mm, e.g. LeftLegLength=877,RightKneeWidth=139 (repeatable; "
+                        "overrides --vsk and a C3D's PROCESSING parameters)")
     p.add_argument("--allow-missing", action="store_true",
                    help="a layout marker absent from a file is missing there (named per file) instead of "
                         "an error; each marker must still be in some file")
@@ -367,6 +425,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-gap-s", type=float, default=0.1, help="longest gap predicted over, s (0: none)")
     p.add_argument("--filter", default="", choices=("", "one_euro", "constant_velocity"), help="joint filter")
     p.add_argument("--no-enforce-lengths", action="store_true", help="do not keep calibrated bone lengths")
+    p.add_argument("--fit", default="segment", choices=("segment", "global"),
+                   help="limb poses one by one (segment) or all together under the joint constraints (global)")
     p.add_argument("--allow-missing", action="store_true", help="solve even if some model markers are absent")
     p.add_argument("--actor", default="actor", help="actor name in bag output")
     p.add_argument("--topic", help="marker topic of a bag input (when it has several)")

@@ -38,8 +38,11 @@ class JointQuality:
     range_of_motion: np.ndarray  # rad, largest relative rotation between the two limbs covered
     n_frames: np.ndarray       # gym frames with both limbs visible
     outlier_fraction: np.ndarray  # share of frames down-weighted by the robust fit
-    reliable: np.ndarray       # bool: enough motion and well-posed centre
-    method: tuple[str, ...]    # "ball", "hinge", "ball+prior", "hinge+prior", "prior"
+    reliable: np.ndarray       # bool: a centre from a method that applies (never the prior)
+    # "ball", "hinge[+plane|+landmarks|+regression|+midplane]", "sphere" (functional),
+    # "landmarks" (anatomical), "regression:pig_hip" ..., "prior"
+    method: tuple[str, ...]
+    inputs: tuple[dict, ...] = ()  # per joint: what the method used (landmarks, measurements, m)
 
 
 @dataclass
@@ -70,6 +73,8 @@ class ActorModel:
     # int64[L,P]: joints whose centre (seen from the joint's other limb) is an extra fit point
     # of each limb (-1 padding); for limbs with only two markers (Plug-in Gait thigh).
     limb_joint_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
+    # Markers seen only in the static trial (medial landmarks): later trials need not have them.
+    static_only_markers: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.marker_fingerprint:
@@ -120,6 +125,7 @@ class ActorModel:
             "rate_hz": self.rate_hz,
             "warnings": list(self.warnings),
             "marker_labels": list(self.marker_labels),
+            "static_only_markers": list(self.static_only_markers),
             "base_markers": arr(self.base_markers, 7),
             "limbs": [
                 {
@@ -149,6 +155,7 @@ class ActorModel:
                         "outlier_fraction": arr(q.outlier_fraction[j : j + 1], 4)[0],
                         "reliable": bool(q.reliable[j]),
                         "method": q.method[j],
+                        "inputs": q.inputs[j] if j < len(q.inputs) else {},
                     },
                 }
                 for j, n in enumerate(self.joint_names)
@@ -207,11 +214,13 @@ class ActorModel:
                     outlier_fraction=np.array([f(q["outlier_fraction"]) for q in qs], dtype=float),
                     reliable=np.array([q["reliable"] for q in qs], dtype=bool),
                     method=tuple(q["method"] for q in qs),
+                    inputs=tuple(dict(q.get("inputs", {})) for q in qs),
                 ),
                 warnings=tuple(d.get("warnings", ())),
                 n_gym_frames=int(d.get("n_gym_frames", 0)),
                 rate_hz=d.get("rate_hz"),
                 limb_joint_points=jpts,
+                static_only_markers=tuple(d.get("static_only_markers", ())),
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ModelFileError(f"{source}: malformed skeleton model ({exc.__class__.__name__}: {exc})") from None

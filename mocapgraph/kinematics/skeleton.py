@@ -49,6 +49,10 @@ class SkeletonDefinition:
     """Per limb: indices of markers owned by an adjacent limb but also in this limb's fit set."""
     limb_joint_points: tuple[tuple[int, ...], ...] = field(default=())
     """Per limb: joint indices whose centre may serve as an extra rigid-fit point."""
+    joint_landmarks: tuple[tuple[int, ...], ...] = field(default=())
+    """Per joint: the two landmark marker indices whose midpoint is its anatomical centre, or ()."""
+    joint_regression: tuple = field(default=())
+    """Per joint: a layout.Regression with marker roles as marker indices, or None."""
     description: str = ""
     source: str = "<dict>"
 
@@ -85,7 +89,14 @@ class SkeletonDefinition:
         joint_hinge = np.array([lb.joint_type == "hinge" for lb in lay.limbs[1:]], dtype=bool)
         shared = tuple(tuple(midx[m.lower()] for m in lb.shared) for lb in lay.limbs)
         jpts = tuple(tuple(dict.fromkeys(jidx[n] for n in lb.joint_points)) for lb in lay.limbs)
+        landmarks = tuple(tuple(midx[m.lower()] for m in lb.landmarks) for lb in lay.limbs[1:])
+        regression = tuple(
+            None if lb.regression is None else type(lb.regression)(
+                lb.regression.method, lb.regression.side,
+                {k: midx[v.lower()] for k, v in lb.regression.markers.items()})
+            for lb in lay.limbs[1:])
         return cls(
+            joint_landmarks=landmarks, joint_regression=regression,
             name=lay.name, limb_names=limb_names, limb_parent=limb_parent,
             joint_names=joint_names, joint_limbs=joint_limbs, joint_parent=joint_parent,
             joint_hinge=joint_hinge, marker_labels=tuple(labels),

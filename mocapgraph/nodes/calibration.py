@@ -38,6 +38,7 @@ from ..kinematics.labels import missing_labels, place_labels
 from ..kinematics.model import ActorModel, ModelFileError, load_model, save_model
 from ..kinematics.skeleton import SkeletonDefinition
 from ..messages.commands import CALIBRATION_COMMANDS
+from ..kinematics.subject import SubjectError, read_vsk
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
 from ..messages import SkeletonModel
 from ..adapters.model_messages import jsonable, model_to_message, quality_report
@@ -77,6 +78,8 @@ class CalibrationNode(Node):
     auto = Param(False, "on start (without a model file to load): find base pose, capture gym, process")
     min_rom_deg = Param(25.0, "joints moving less than this are reported unreliable, deg", minimum=0.0)
     status_rate_hz = Param(2.0, "periodic status rate, Hz", minimum=0.1)
+    centres = Param("functional,anatomical,regression", "joint-centre methods in order of preference")
+    subject_file = Param("", "Vicon VSK with the subject's measurements (regression centres); '' none")
 
     # ----- life cycle ---------------------------------------------------------------------------
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
@@ -286,9 +289,11 @@ class CalibrationNode(Node):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
             try:
+                subject = read_vsk(self.subject_file) if self.subject_file else None
                 model = calibrate(self.definition, frames, base_frame=0, rate_hz=rate,
-                                  min_rom_deg=self.min_rom_deg, source="gym capture")
-            except CalibrationError as exc:
+                                  min_rom_deg=self.min_rom_deg, source="gym capture", subject=subject,
+                                  centre_order=tuple(m.strip() for m in self.centres.split(",") if m.strip()))
+            except (CalibrationError, SubjectError) as exc:
                 self._error(str(exc))
                 return
         # The published model is the file form (rounded as saved), so a later run that loads the

@@ -42,6 +42,8 @@ class FrameSolverNode(Node):
     filter = Param("", "temporal filter on joints: '', one_euro, constant_velocity", choices=FILTERS)
     enforce_lengths = Param(True, "keep calibrated bone lengths (Kiip), outward from the root")
     actor = Param("actor", "actor name carried in every ActorPose")
+    fit = Param("segment", "limb poses: segment (each by itself) or global (together under the joints)",
+                choices=("segment", "global"))
     model_file = Param("", "model JSON loaded at start instead of waiting for skeleton_model")
 
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
@@ -107,10 +109,11 @@ class FrameSolverNode(Node):
             self.log.warning("model layout '%s' used on marker layout '%s' (every marker found by label)",
                              self.model.layout, layout.name)
         self.where = where
+        self.absent = where < 0  # static-only markers the stream does not carry
         self.n_stream = len(layout.labels)
         self.identity = bool(len(where) == self.n_stream and (where == np.arange(len(where))).all())
         self.solver = FrameSolver(self.model, max_gap_s=self.max_gap_s, enforce_lengths=self.enforce_lengths,
-                                  filter=self.filter or None)
+                                  filter=self.filter or None, fit=self.fit)
         self._last_t = -np.inf
         self.log.info("solving %d joints of layout '%s' (%s) from %d markers", len(self.model.joint_names),
                       self.model.layout, self.model_source, len(where))
@@ -132,7 +135,7 @@ class FrameSolverNode(Node):
             self.actor_pose.publish(missing_pose(self.model, self.actor, frame.frame_number), env.capture_ns)
             return
         x = pos if self.identity else pos[self.where]
-        seen = np.isfinite(x).all(1)
+        seen = np.isfinite(x).all(1) & ~self.absent
         if frame.valid.shape == (pos.shape[0],):
             seen &= frame.valid if self.identity else frame.valid[self.where]
         if not seen.all():

@@ -21,8 +21,10 @@ NODE_TYPES: dict[str, str] = {
     # actor: calibration (latched SkeletonModel) and the per-frame solver (ActorPose)
     "calibration": "mocapgraph.nodes.calibration:CalibrationNode",
     "frame_solver": "mocapgraph.nodes.frame_solver:FrameSolverNode",
-    # characters: retargeting (CharacterPose)
+    # characters: retargeting (CharacterPose), a ground-truth character source, physics
     "retargeter": "mocapgraph.nodes.retargeter:RetargeterNode",
+    "synthetic_character": "mocapgraph.nodes.synthetic_character:SyntheticCharacterNode",
+    "physics_tracker": "mocapgraph.nodes.physics_tracker:PhysicsTrackerNode",
     "bag_recorder": "mocapgraph.nodes.bag_recorder:BagRecorder",
     "bag_player": "mocapgraph.nodes.bag_player:BagPlayer",
     "visualizer": "mocapgraph.nodes.visualizer:Visualizer",

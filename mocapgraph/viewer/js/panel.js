@@ -172,13 +172,18 @@ export class Panel {
     const res = model.arrays.joint_residual_rms ? model.arrays.joint_residual_rms.data : null;
     const rom = model.arrays.joint_rom ? model.arrays.joint_rom.data : null;
     const given = data.joint_quality || {};
-    const rows = [el("tr", {}, el("th", { text: "joint" }), el("th", { text: "residual mm" }), el("th", { text: "ROM °" }), el("th", { text: "" }))];
+    // The model's own verdict: per-joint method and reliability (a centre from the prior is never good).
+    const mq = (parseJson(model.fields.extra_json || "{}") || {}).quality || {};
+    const rows = [el("tr", {}, el("th", { text: "joint" }), el("th", { text: "method" }), el("th", { text: "residual mm" }), el("th", { text: "ROM °" }), el("th", { text: "" }))];
     names.forEach((name, i) => {
       const mm = res ? res[i] * 1000 : NaN;
-      const q = name in given ? Number(given[name]) : !Number.isFinite(mm) ? 0 : mm < 5 ? 2 : mm < 12 ? 1 : 0;
-      const dot = el("span", { class: "qdot", title: ["poor", "fair", "good"][q] || "" });
+      let q = name in given ? Number(given[name]) : !Number.isFinite(mm) ? 0 : mm < 5 ? 2 : mm < 12 ? 1 : 0;
+      const unreliable = Array.isArray(mq.reliable) && mq.reliable[i] === false;
+      if (unreliable) q = 0;
+      const dot = el("span", { class: "qdot", title: unreliable ? "unreliable" : ["poor", "fair", "good"][q] || "" });
       dot.style.background = css(q >= 2 ? GOOD : q === 1 ? ESTIMATED : MISSING);
-      rows.push(el("tr", {}, el("td", { text: name }), el("td", { text: fmt(mm) }), el("td", { text: fmt(rom ? rom[i] * 180 / Math.PI : NaN, 0) }), el("td", {}, dot)));
+      const method = Array.isArray(mq.method) ? String(mq.method[i] ?? "") : "";
+      rows.push(el("tr", { "data-reliable": unreliable ? "no" : "yes" }, el("td", { text: name }), el("td", { text: method }), el("td", { text: fmt(mm) }), el("td", { text: fmt(rom ? rom[i] * 180 / Math.PI : NaN, 0) }), el("td", {}, dot)));
     });
     table.replaceChildren(...rows);
   }
