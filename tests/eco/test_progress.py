@@ -59,6 +59,7 @@ def _commands(c, tmp: Path) -> dict[str, list[str]]:
         "scanning": ["bag", "info", str(c.rom_bag)],
         "recovering": ["bag", "recover", str(trunc), "-o", str(tmp / "rec.mcap")],
         "exporting": ["bag", "export-foxglove", str(c.rom_bag), "-o", str(tmp / "fox.mcap"), "-f"],
+        "building": ["posture-db", "build", "synthetic:walk", "-o", str(tmp / "db.npz")],
     }
     bvh = (ROOT / ".." / "shared" / "data" / "bvh" / "cmu" / "131_01.bvh").resolve()
     if bvh.exists():  # a real capture, read in place (left out where ../shared/data is absent)
