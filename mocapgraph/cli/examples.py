@@ -11,6 +11,7 @@ import argparse
 
 EXAMPLES: dict[str, list[tuple[str, str]]] = {
     "launch": [("graph_configs/demo.yaml", "the demo: synthetic actor, calibration, solver, viewer"),
+               ("split.yaml --machine capture", "only the nodes with machine: capture, connected to the others'"),
                ("graph_configs/lab_c3d.yaml capture:=trial.c3d", "a lab graph with an arg overridden")],
     "graph check": [("graph_configs/lab_serial.yaml", "validate without starting anything")],
     "graph show": [("graph_configs/demo.yaml", "the graph as text"),
@@ -27,7 +28,10 @@ EXAMPLES: dict[str, list[tuple[str, str]]] = {
     "bag info": [("session.mcap", "duration, topics, rates, gaps"), ("session.mcap --fast --json", "index only")],
     "bag convert": [("trial.c3d -o trial.mcap", "a C3D (or TRC, BVH, Kinect CSV) into a bag"),
                     ("session.mcap -o markers.trc --units mm", "a bag's markers back to TRC")],
-    "bag recover": [("crashed.mcap -o saved.mcap", "every whole chunk of a cut bag")],
+    "bag recover": [("crashed.mcap -o saved.mcap", "every whole chunk of a cut bag"),
+                    ("crashed.mcap -o saved.mcap --force", "replacing an earlier recovery")],
+    "keys generate": [("keys", "keys/graph.key and keys/graph.key_secret for a graph's security: section"),
+                      ("keys --name render_pc", "a second pair, e.g. one per machine")],
     "bag export-foxglove": [("session.mcap -o session.foxglove.mcap", "for Foxglove's 3D and Plot panels"),
                             ("session.mcap -o scene.mcap --topics markers actor_pose", "two topics only")],
     "calibrate": [("static.c3d rom.c3d --layout plug_in_gait -o model.json", "static then range of motion"),
