@@ -26,7 +26,7 @@ class Recorder:
         self.writer = writer
         self.flush_s = flush_s
         self._next_flush = time.monotonic() + flush_s
-        self._last_seq: dict[tuple[str, str], int] = {}
+        self._last_seq: dict[tuple[str, str], tuple[int, int]] = {}  # (seq, publish ns)
         self.lost: dict[str, int] = {}
         self.received = 0
         self.duplicates = 0
@@ -45,17 +45,18 @@ class Recorder:
                 self.rejected += 1
                 return False
         key = (env.topic, env.sender)
-        last = self._last_seq.get(key, 0)
+        last, last_pub = self._last_seq.get(key, (0, 0))
         seq = env.seq
-        if seq == last or (0 < seq < last and seq != 1):
+        # A resend repeats the publish stamp too; a restarted sender's new latched value does not.
+        if (seq == last and env.publish_ns == last_pub) or (0 < seq < last and seq != 1):
             self.duplicates += 1
             return False
-        if seq < last:
+        if seq <= last:
             self.restarts += 1
         elif last and seq > last + 1:
             self.lost[env.topic] = self.lost.get(env.topic, 0) + seq - last - 1
             self.writer.set_losses(self.lost)
-        self._last_seq[key] = seq
+        self._last_seq[key] = (seq, env.publish_ns)
         self.writer.write_frames(frames, log_ns, env)
         self.received += 1
         return True
