@@ -34,6 +34,7 @@ class LaunchedGraph:
         self.master = f"ipc://{tmp / ('master-' + uuid.uuid4().hex[:8])}"
         self.env = dict(os.environ, MOCAPGRAPH_MASTER=self.master, PYTHONUNBUFFERED="1")
         self.lines: list[str] = []
+        self.line_times: list[float] = []  # monotonic time each line was read, s
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mocapgraph", "launch", str(graph_file), *args],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=self.env,
@@ -44,6 +45,7 @@ class LaunchedGraph:
 
     def _read(self) -> None:
         for raw in iter(self.proc.stdout.readline, b""):
+            self.line_times.append(time.monotonic())
             self.lines.append(raw.decode(errors="replace").rstrip())
 
     @property
