@@ -66,7 +66,11 @@ class Recorder:
         now = time.monotonic() if now is None else now
         if now >= self._next_flush:
             self.writer.flush()
-            self._next_flush = now + self.flush_s
+            # On the schedule, not from now: a caller that ticks every 50 ms would otherwise
+            # stretch every period by up to a tick (0.30 s for 0.25 s).
+            self._next_flush += self.flush_s
+            if self._next_flush <= now:
+                self._next_flush = now + self.flush_s
 
     def close(self) -> list[Path]:
         self.writer.set_losses(self.lost)
