@@ -170,14 +170,23 @@ export class Panel {
     const names = model.fields.joint_names;
     const res = model.arrays.joint_residual_rms ? model.arrays.joint_residual_rms.data : null;
     const rom = model.arrays.joint_rom ? model.arrays.joint_rom.data : null;
-    const given = data.joint_quality || {};
+    // The calibration node's report (data_json.joints): per joint reliable, residual_mm, rom_deg,
+    // warnings. A joint it calls unreliable is shown so, whatever its residual.
+    const report = new Map((Array.isArray(data.joints) ? data.joints : []).map((j) => [j.joint, j]));
     const rows = [el("tr", {}, el("th", { text: "joint" }), el("th", { text: "residual mm" }), el("th", { text: "ROM °" }), el("th", { text: "" }))];
     names.forEach((name, i) => {
-      const mm = res ? res[i] * 1000 : NaN;
-      const q = name in given ? Number(given[name]) : !Number.isFinite(mm) ? 0 : mm < 5 ? 2 : mm < 12 ? 1 : 0;
-      const dot = el("span", { class: "qdot", title: ["poor", "fair", "good"][q] || "" });
+      const r = report.get(name);
+      const mm = r && r.residual_mm != null ? Number(r.residual_mm) : res ? res[i] * 1000 : NaN;
+      const deg = r && r.rom_deg != null ? Number(r.rom_deg) : rom ? rom[i] * 180 / Math.PI : NaN;
+      const reliable = !r || r.reliable !== false;
+      const q = !reliable || !Number.isFinite(mm) ? 0 : mm < 5 ? 2 : mm < 12 ? 1 : 0;
+      const title = reliable ? ["poor", "fair", "good"][q] : "unreliable";
+      const dot = el("span", { class: "qdot", title });
+      dot.dataset.reliable = String(reliable);
       dot.style.background = css(q >= 2 ? GOOD : q === 1 ? ESTIMATED : MISSING);
-      rows.push(el("tr", {}, el("td", { text: name }), el("td", { text: fmt(mm) }), el("td", { text: fmt(rom ? rom[i] * 180 / Math.PI : NaN, 0) }), el("td", {}, dot)));
+      const row = el("tr", {}, el("td", { text: name }), el("td", { text: fmt(mm) }), el("td", { text: fmt(deg, 0) }), el("td", {}, dot));
+      if (r && r.warnings && r.warnings.length) row.title = r.warnings.join("; ");
+      rows.push(row);
     });
     table.replaceChildren(...rows);
   }
