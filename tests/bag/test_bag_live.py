@@ -208,7 +208,10 @@ nodes:
     # 720 frames at 240 Hz: 3 s or more on a busy machine, so 12 chunks or more, closed by time
     # (far below the size limit)
     assert len(chunks) >= 11
-    assert FLUSH_S - 0.01 <= np.median(spacing) <= FLUSH_S + FLUSH_SLACK_S
+    # On schedule (no drift): late flushes are followed by early ones, so the median holds the
+    # period within 30 ms even on a busy machine (measured 250-251 ms); one stretched by the 50 ms
+    # tick each time would be 300 ms.
+    assert FLUSH_S - 0.01 <= np.median(spacing) <= FLUSH_S + 0.03
     assert spans.max() <= FLUSH_S + 2 * FLUSH_SLACK_S
 
 
@@ -301,7 +304,6 @@ nodes:
     m = fetch_manifest(g.master)
     assert m["topics"]["replayed"]["type"] == "MarkerFrame"
     sub = subscribe(m, ["replayed", "marker_layout", "player_status"])
-    time.sleep(0.3)
 
     sent = [0]
 
@@ -312,38 +314,48 @@ nodes:
         cmd.send_multipart(encode("player_command", NodeCommand(target="player", command=command,
                                                                 args_json=json.dumps(args)), sent[0], time.time_ns()))
 
-    def collect(seconds: float) -> list:
-        out, t_end = [], time.monotonic() + seconds
+    got: list = []
+
+    def collect_until(cond, timeout: float = 15.0) -> list:
+        """Messages from now on until ``cond(messages)`` holds (waits on events, not a fixed time)."""
+        out, t_end = [], time.monotonic() + timeout
         while time.monotonic() < t_end:
             if sub.poll(20):
                 out.append(decode(sub.recv_multipart()))
-        return out
+                if cond(out):
+                    return out
+        raise AssertionError(f"timed out; got {[(e.topic, getattr(m, 'state', '')) for e, m in out][-10:]}")
 
     def frames(msgs):
         return [m.frame_number for e, m in msgs if e.topic == "replayed"]
 
-    def last_status(msgs):
+    def statuses(msgs):
         import json
 
-        st = [m for e, m in msgs if e.topic == "player_status"][-1]
-        return st.state, json.loads(st.data_json)
+        return [(m.state, json.loads(m.data_json)) for e, m in msgs if e.topic == "player_status"]
 
-    got = collect(0.6)
-    assert frames(got) == [] and last_status(got)[0] == "paused"  # nothing played yet...
-    assert [e.topic for e, _ in got].count("marker_layout") == 1  # ...but the latched layout reached us
+    # Two status reports while paused (~0.4 s apart): nothing played yet, but the latched layout
+    # reached us.
+    got = collect_until(lambda ms: len(statuses(ms)) >= 2 and any(e.topic == "marker_layout" for e, _ in ms))
+    assert frames(got) == [] and statuses(got)[-1][0] == "paused"
+    assert [e.topic for e, _ in got].count("marker_layout") == 1
     send("step")
     send("step")
-    got = collect(0.4)
+    got = collect_until(lambda ms: len(frames(ms)) >= 2 and statuses(ms)
+                        and statuses(ms)[-1][1]["position_s"] > 0)
     assert frames(got) == [0, 1]
     send("seek", position_s=0.5)
-    got = collect(0.3)
-    state, data = last_status(got)
-    assert state == "paused" and data["position_s"] == pytest.approx(0.5)
+    got = collect_until(lambda ms: statuses(ms) and statuses(ms)[-1][1]["position_s"] == pytest.approx(0.5))
+    assert statuses(got)[-1][0] == "paused" and frames(got) == []
+    pacer = baseline_lateness_ms(0.01, 1.0)  # the machine's wake-up lateness meanwhile
     send("play")
-    got = collect(0.8)
+    got = collect_until(lambda ms: statuses(ms) and statuses(ms)[-1][0] == "finished")
+    base = np.array(json.loads(pacer.communicate(timeout=30)[0]))
     assert frames(got) == list(range(50, 100))
-    state, data = last_status(got)
-    assert state == "finished" and data["sent"] == 53 and data["lag_p50_ms"] < 2
+    state, data = statuses(got)[-1]
+    print(f"player lag p50 {data['lag_p50_ms']:.3f} ms; machine baseline p50 {np.median(base):.3f} ms")
+    # ~0.1 ms on a quiet machine; judged against the baseline, as in the round trip above
+    assert data["sent"] == 53 and data["lag_p50_ms"] < 2.0 + 3 * np.median(base)
     sub.close(0)
     cmd.close(0)
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 
 import numpy as np
 import zmq
@@ -56,9 +58,14 @@ nodes:
     params: {{path: "{bag}", topics: [markers]}}
 """)
     g.wait_ready()
+    # `bag record` too: its own accounting (the recorder node's is gated by the runtime's first)
+    cli_bag = tmp_path / "cli.mcap"
+    record = subprocess.Popen([sys.executable, "-m", "mocapgraph", "bag", "record", "-o", str(cli_bag), "markers",
+                               "--duration", "6"], env=g.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                              text=True)
     subscribed = 0
-    while subscribed < 2:  # the logger and the recorder
-        assert pub.poll(10000), "a subscriber never subscribed"
+    while subscribed < 3:  # the logger, the recorder node and `bag record`
+        assert pub.poll(20000), "a subscriber never subscribed"
         subscribed += pub.recv() == b"\x01" + topic_frame("markers")
     sent: dict[int, list[bytes]] = {}
     for seq, resend in SENT:
@@ -74,9 +81,12 @@ nodes:
     recs = read_jsonl(log)
     assert [r["seq"] for r in recs] == DELIVERED
     assert [r["msg"]["frame_number"] for r in recs] == DELIVERED  # the frames themselves, not a resend
-    with BagReader(bag) as r:
-        assert [e.seq for e, _ in r.decoded("markers")] == DELIVERED
-        assert r.summary().losses == {"markers": GAPS}
+    out, _ = record.communicate(timeout=30)
+    assert record.returncode == 0, out
+    for path in (bag, cli_bag):
+        with BagReader(path) as r:
+            assert [e.seq for e, _ in r.decoded("markers")] == DELIVERED, path
+            assert r.summary().losses == {"markers": GAPS}, path
     pub.close(0)
 
 
