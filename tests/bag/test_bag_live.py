@@ -203,7 +203,7 @@ nodes:
     starts = np.array([c.message_start_time for c in chunks], np.int64) / 1e9
     spans = np.array([c.message_end_time - c.message_start_time for c in chunks], np.int64) / 1e9
     spacing = np.diff(starts)
-    print(f"{len(chunks)} chunks over 3 s: spacing median {np.median(spacing) * 1e3:.0f} ms, "
+    print(f"{len(chunks)} chunks: spacing median {np.median(spacing) * 1e3:.0f} ms, mean {np.mean(spacing) * 1e3:.1f} ms, "
           f"max {spacing.max() * 1e3:.0f} ms; span max {spans.max() * 1e3:.0f} ms")
     # 720 frames at 240 Hz: 3 s or more on a busy machine, so 12 chunks or more, closed by time
     # (far below the size limit)
@@ -212,6 +212,9 @@ nodes:
     # period within 30 ms even on a busy machine (measured 250-251 ms); one stretched by the 50 ms
     # tick each time would be 300 ms.
     assert FLUSH_S - 0.01 <= np.median(spacing) <= FLUSH_S + 0.03
+    # and on average exactly the period: the last flush's lateness spread over all the periods
+    # (a schedule restarted from each late flush drifts: 273-300 ms measured)
+    assert np.mean(spacing) <= FLUSH_S + 0.012
     assert spans.max() <= FLUSH_S + 2 * FLUSH_SLACK_S
 
 
