@@ -2,6 +2,7 @@
 
 Into a bag (so any file can be replayed through a graph):
 - C3D / TRC -> latched ``MarkerLayout`` on ``marker_layout`` + ``MarkerFrame`` on ``markers``;
+  a C3D's ROTATION group (segment poses) also -> ``skeleton_info`` + ``skeleton_pose``;
 - BVH / Kinect CSV -> latched ``SkeletonInfo`` on ``skeleton_info`` + ``SkeletonPose`` on
   ``skeleton_pose``.
 Capture, publish and log stamps are the file's frame times (``start_ns`` + time from the first
@@ -40,6 +41,7 @@ OUTPUT_KINDS = {".csv": "csv", ".trc": "trc", ".c3d": "c3d", ".bvh": "bvh"}
 BVH_UNITS_M = 0.01  # BVH written in centimetres
 # world = BVH_TO_WORLD @ bvh (Y-up BVH, character facing +Z; see formats.bvh_file)
 from ..formats.bvh_file import BVH_TO_WORLD, BvhMotion, bvh_to_skeleton, read_bvh, write_bvh  # noqa: E402
+from ..formats.c3d_segments import read_c3d_segments  # noqa: E402
 
 
 @dataclass
@@ -129,9 +131,13 @@ def skeleton_to_bag(trial: SkeletonTrial, writer: BagWriter, *, source: str, sta
 
 
 def file_to_bag(src: str | Path, dst: str | Path, *, compression: str = "lz4", start_ns: int = 0,
-                progress: Progress | None = None) -> ConvertReport:
-    """Convert a C3D, TRC, BVH or Kinect CSV file into a bag (kind from the extension)."""
+                progress: Progress | None = None, up_axis: str | None = None) -> ConvertReport:
+    """Convert a C3D, TRC, BVH or Kinect CSV file into a bag (kind from the extension).
+
+    up_axis: a marker file's up axis (None/"auto": what the file says; see read_c3d/read_trc).
+    """
     from ..formats.c3d_file import read_c3d
+    from ..formats.c3d_segments import c3d_segment_count
     from ..formats.kinect_csv import read_kinect_csv
     from ..formats.trc_file import read_trc
 
@@ -143,8 +149,10 @@ def file_to_bag(src: str | Path, dst: str | Path, *, compression: str = "lz4", s
     if not src.is_file():
         raise BagError(src, "no such file")
     try:
+        if kind == "c3d" and c3d_segment_count(src) > 0:
+            return _c3d_with_segments_to_bag(src, dst, compression, start_ns, progress, up_axis)
         if kind in ("c3d", "trc"):
-            trial = read_c3d(src) if kind == "c3d" else read_trc(src)
+            trial = read_c3d(src, up_axis=up_axis) if kind == "c3d" else read_trc(src, up_axis=up_axis)
             times = None
             t_file = trial.extra.get("time_s") if kind == "trc" else None
             if t_file is not None and len(t_file) == trial.n_frames and np.all(np.isfinite(t_file)) \
@@ -172,6 +180,29 @@ def file_to_bag(src: str | Path, dst: str | Path, *, compression: str = "lz4", s
     if progress is not None:
         progress(1, 1)
     return ConvertReport(src, dst, kind, topics, notes)
+
+
+def _c3d_with_segments_to_bag(src: Path, dst: Path, compression: str, start_ns: int,
+                              progress: Progress | None, up_axis: str | None) -> ConvertReport:
+    """A C3D with a ROTATION group: its segment poses on skeleton_info + skeleton_pose, and its
+    markers (when it has any) on marker_layout + markers, both from ``start_ns``."""
+    from ..formats.c3d_file import inspect_c3d, read_c3d
+
+    seg = read_c3d_segments(src, up_axis=up_axis)
+    seg.timestamps_ns = seg.timestamps_ns - seg.timestamps_ns[0]
+    trial = read_c3d(src, up_axis=up_axis) if inspect_c3d(src).n_points > 0 else None
+    notes = [f"{seg.n_joints} segments x {seg.n_frames} frames @ {seg.rate_hz:.4g} Hz from the ROTATION "
+             f"group ({'; '.join(seg.conversions)})"] + list(seg.notes)
+    topics: dict[str, int] = {}
+    with _writer(dst, compression, src, "c3d") as w:
+        if trial is not None:
+            notes = [trial.summary()] + list(trial.notes) + notes
+            topics.update(marker_layout=1, markers=markers_to_bag(trial, w, start_ns=start_ns, progress=progress))
+        topics.update(skeleton_info=1,
+                      skeleton_pose=skeleton_to_bag(seg, w, source="c3d_segments", start_ns=start_ns))
+    if progress is not None:
+        progress(1, 1)
+    return ConvertReport(src, dst, "c3d", topics, notes)
 
 
 def _writer(dst: Path, compression: str, src: Path, kind: str) -> BagWriter:

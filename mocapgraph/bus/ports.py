@@ -10,7 +10,9 @@ from typing import Any
 
 from ..messages import Message
 
-PARAM_KINDS = ("bool", "int", "float", "str", "list", "dict")
+#: "file" is a str naming an input file: the graph check resolves it and refuses a missing or
+#: unreadable one (mocapgraph.bus.input_files); "" means "not given" unless ``required``
+PARAM_KINDS = ("bool", "int", "float", "str", "list", "dict", "file")
 
 
 class ParamError(ValueError):
@@ -26,7 +28,10 @@ def _kind_of(value: Any) -> str:
 
 @dataclass(frozen=True)
 class Param:
-    """A typed parameter with a default, a doc line (give units) and optional bounds/choices."""
+    """A typed parameter with a default, a doc line (give units) and optional bounds/choices.
+
+    required: for kind "file", an empty value is an error of the graph check.
+    """
 
     default: Any
     doc: str
@@ -35,6 +40,7 @@ class Param:
     minimum: float | None = None
     maximum: float | None = None
     name: str = ""
+    required: bool = False
 
     def __post_init__(self) -> None:
         if not self.kind:
@@ -51,7 +57,7 @@ class Param:
             (k == "bool" and isinstance(value, bool))
             or (k == "int" and isinstance(value, int) and not isinstance(value, bool))
             or (k == "float" and isinstance(value, (int, float)) and not isinstance(value, bool))
-            or (k == "str" and isinstance(value, str))
+            or (k in ("str", "file") and isinstance(value, str))
             or (k == "list" and isinstance(value, list))
             or (k == "dict" and isinstance(value, dict))
         )

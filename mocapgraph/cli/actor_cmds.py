@@ -5,6 +5,8 @@ The same code as the live nodes: label matching (:mod:`mocapgraph.nodes.model_me
 (batch ``solve`` runs the very temporal stage ``step`` runs live) and the ActorPose conversion.
 
 Inputs: C3D, TRC, or a bag (.mcap, its MarkerFrame topic + latched MarkerLayout).
+Times: ``time_s`` columns keep the input's own clock (a TRC's Time column; C3D frame n at
+(n - 1) / rate), so a trial starting 0.23 s into the capture starts at 0.23 there too.
 Outputs of ``solve``: CSV (one row per frame: frame, time_s, then per joint x/y/z in metres, world
 frame Z up, empty where missing, and quality 0 missing / 1 estimated / 2 good), TRC of the joint centres, or
 a bag with the latched ``skeleton_model`` and one ``actor_pose`` per frame.
@@ -35,18 +37,33 @@ class MarkerInput:
     rate_hz: float
     frame_numbers: np.ndarray
     layout_name: str = ""
+    times_s: np.ndarray | None = None  # float[T] s on the file's own clock (None: from frame numbers)
+
+    def times(self) -> np.ndarray:
+        """float[T] seconds: the file's own times, else frame numbers / rate from the first frame."""
+        if self.times_s is not None:
+            return self.times_s
+        return (self.frame_numbers - self.frame_numbers[0]) / self.rate_hz
 
 
-def read_marker_input(path: str, topic: str | None = None) -> MarkerInput:
-    """A C3D, TRC or bag file as markers; UserError (one line) when it cannot be read."""
+def read_marker_input(path: str, topic: str | None = None, up: str = "auto") -> MarkerInput:
+    """A C3D, TRC or bag file as markers; UserError (one line) when it cannot be read.
+
+    up: the file's up axis ("auto": what the file says, see ``--up``); bags are already in
+    world axes, so anything but "auto" is refused for them.
+    """
     from ..bag.errors import BagError
     from ..formats import FormatError, read_markers
 
     p = Path(path)
     if not p.exists():
         raise UserError(f"{path}: no such file")
+    times = None
     try:
         if p.suffix.lower() == ".mcap":
+            if up != "auto":
+                raise UserError(f"{p.name}: --up {up} applies to C3D and TRC files; a bag is already "
+                                "in world axes (Z up)")
             from ..bag.convert import bag_to_marker_trial
             from ..bag.reader import BagReader
 
@@ -58,15 +75,19 @@ def read_marker_input(path: str, topic: str | None = None) -> MarkerInput:
                     for _env, m in reader.decoded(lay[0]):
                         name = m.name
         else:
-            trial = read_markers(p)
+            trial = read_markers(p, up_axis=up)
+            times = trial.file_times_s
             name = ""
+            for note in trial.notes:
+                if note.startswith("duplicate label"):
+                    print(f"warning: {p.name}: {note}")
     except (FormatError, BagError) as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:
         raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
     T = trial.positions.shape[0]
     return MarkerInput(p, list(trial.labels), trial.positions, float(trial.rate_hz),
-                       trial.first_frame + np.arange(T), name)
+                       trial.first_frame + np.arange(T), name, times)
 
 
 def parse_frames(spec: str, n: int, source: str) -> slice:
@@ -110,12 +131,20 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UserError(f"--frames given {len(frames)} times for {len(args.files)} files "
                         "(give it once for all files, or once per file)")
     parts, rate = [], None
+    absent_everywhere: set[str] | None = None
     for i, f in enumerate(args.files):
-        inp = read_marker_input(f, args.topic)
+        inp = read_marker_input(f, args.topic, args.up)
+        where, _ = definition.match_labels(list(inp.labels))
+        absent = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+        if absent and args.allow_missing:
+            print(f"note: {inp.path.name}: {len(absent)} layout markers absent (always missing): "
+                  f"{', '.join(absent)}")
+        absent_everywhere = set(absent) if absent_everywhere is None else absent_everywhere & set(absent)
         try:
-            x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name)
+            x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name,
+                               allow_missing=args.allow_missing)
         except CalibrationError as exc:
-            raise UserError(str(exc)) from None
+            raise UserError(str(exc)) from None  # --help tells of --allow-missing
         if frames:
             x = x[parse_frames(frames[i] if len(frames) > 1 else frames[0], len(x), inp.path.name)]
         seen = np.isfinite(x).all(-1)
@@ -125,6 +154,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               f"({100 * (1 - seen.mean()):.1f} % missing samples)")
         parts.append(x)
         rate = rate or inp.rate_hz
+    if absent_everywhere:
+        gone = [m for m in definition.marker_labels if m in absent_everywhere]
+        raise UserError(f"layout '{definition.name}' markers absent from every file: {', '.join(gone)} "
+                        "(the base pose needs each layout marker in at least one file; use a layout "
+                        "without them)")
     markers = np.concatenate(parts)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
@@ -162,19 +196,18 @@ def cmd_solve(args: argparse.Namespace) -> int:
         model = load_model(args.model)
     except ModelFileError as exc:
         raise UserError(str(exc)) from None
-    inp = read_marker_input(args.trial, args.topic)
+    inp = read_marker_input(args.trial, args.topic, args.up)
     where, missing = _place(model, inp, args.allow_missing)
     x = np.concatenate([inp.positions, np.full(inp.positions.shape[:1] + (1, 3), np.nan)], axis=1)
     x = x[:, np.where(where >= 0, where, inp.positions.shape[1])]
-    numbers = inp.frame_numbers
+    numbers, times = inp.frame_numbers, inp.times()
     if args.frames:
         sl = parse_frames(args.frames, len(x), inp.path.name)
-        x, numbers = x[sl], numbers[sl]
+        x, numbers, times = x[sl], numbers[sl], times[sl]
     if not np.isfinite(x).all(-1).any():
         raise UserError(f"{inp.path.name}: no model marker is visible in any frame (all NaN)")
     if missing:
         print(f"note: {len(missing)} model markers absent from {inp.path.name} (always missing): {', '.join(missing)}")
-    times = (numbers - numbers[0]) / inp.rate_hz
     try:
         solver = FrameSolver(model, rate_hz=inp.rate_hz, max_gap_s=args.max_gap_s,
                              enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None)
@@ -198,7 +231,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
             try:
                 write_trc(out, MarkerTrial(labels=list(model.joint_names), positions=res.joints, residuals=None,
                                            rate_hz=inp.rate_hz, first_frame=int(numbers[0]),
-                                           source=f"joint centres solved from {inp.path.name}"))
+                                           source=f"joint centres solved from {inp.path.name}",
+                                           extra={"time_s": times}))
             except FormatError as exc:
                 raise UserError(str(exc)) from None
         else:
@@ -270,6 +304,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--base-search-s", type=float, default=10.0, help="seconds searched for a base pose")
     p.add_argument("--min-rom-deg", type=float, default=25.0, help="joints moving less are unreliable, deg")
     p.add_argument("--topic", help="marker topic of bag inputs (when a bag has several)")
+    p.add_argument("--allow-missing", action="store_true",
+                   help="a layout marker absent from a file is missing there (named per file) instead of "
+                        "an error; each marker must still be in some file")
+    _add_up(p)
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("solve", help="solve a marker trial with a calibrated model",
@@ -284,4 +322,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-missing", action="store_true", help="solve even if some model markers are absent")
     p.add_argument("--actor", default="actor", help="actor name in bag output")
     p.add_argument("--topic", help="marker topic of a bag input (when it has several)")
+    _add_up(p)
     p.set_defaults(func=cmd_solve)
+
+
+UP_HELP = ("the input files' up axis, made world Z: auto = what each file says (C3D POINT:Y_SCREEN, else Z; "
+           "TRC: Y, the OpenSim convention)")
+
+
+def _add_up(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--up", choices=("auto", "y", "z"), default="auto", type=str.lower, help=UP_HELP)

@@ -406,7 +406,8 @@ def cmd_convert(args: argparse.Namespace) -> int:
             elif dst.suffix.lower() == ".mcap":
                 if src.suffix.lower() not in INPUT_KINDS:
                     raise UserError(f"{src}: converts into a bag from {', '.join(sorted(INPUT_KINDS))}")
-                rep = file_to_bag(src, dst, compression=args.compression, start_ns=args.start_ns, progress=bar)
+                rep = file_to_bag(src, dst, compression=args.compression, start_ns=args.start_ns, progress=bar,
+                                  up_axis=args.up)
             else:
                 raise UserError("one side of a conversion is a bag (.mcap): FILE.c3d OUT.mcap or BAG.mcap OUT.trc")
     except BagError as exc:
@@ -480,6 +481,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--units", choices=["mm", "m", "cm"], default="mm", help="TRC/C3D output units")
     p.add_argument("--compression", choices=["lz4", "none"], default="lz4")
     p.add_argument("--start-ns", type=int, default=0, help="capture stamp of the first frame, ns")
+    p.add_argument("--up", choices=("auto", "y", "z"), default="auto", type=str.lower,
+                   help="a C3D/TRC input's up axis, made world Z (auto: POINT:Y_SCREEN, else Z; TRC: Y)")
     p.set_defaults(func=cmd_convert)
 
     p = bs.add_parser("recover", help="save every whole chunk of a truncated or unfinished bag")

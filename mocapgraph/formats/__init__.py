@@ -7,6 +7,7 @@ the file and the fault.
 
 Markers: :func:`read_c3d`, :func:`write_c3d`, :func:`read_trc`, :func:`write_trc`,
 :func:`read_markers` (by extension) -> :class:`MarkerTrial`.
+Segment poses: :func:`read_c3d_segments` (a C3D's ROTATION group) -> :class:`SkeletonTrial`.
 Skeletons: :func:`read_bvh` -> :class:`BvhMotion` (``forward_kinematics``), :func:`write_bvh`,
 :func:`bvh_to_skeleton` and :func:`read_kinect_csv` -> :class:`SkeletonTrial`.
 Devices: :mod:`mocapgraph.formats.wire_protocol` (text and binary marker frames).
@@ -17,6 +18,7 @@ from pathlib import Path
 
 from .bvh_file import BvhMotion, bvh_to_skeleton, read_bvh, write_bvh
 from .c3d_file import read_c3d, write_c3d
+from .c3d_segments import c3d_segment_count, read_c3d_segments
 from .errors import FormatError
 from .kinect_csv import (KINECT_V1_JOINTS, KINECT_V1_PARENTS, KINECT_V2_JOINTS,
                          KINECT_V2_PARENTS, read_kinect_csv)
@@ -48,5 +50,6 @@ def write_markers(path: str | Path, trial: MarkerTrial, **options) -> None:
 
 __all__ = ["BvhMotion", "FormatError", "KINECT_V1_JOINTS", "KINECT_V1_PARENTS",
            "KINECT_V2_JOINTS", "KINECT_V2_PARENTS", "MarkerTrial", "SkeletonTrial",
-           "bvh_to_skeleton", "read_bvh", "read_c3d", "read_kinect_csv", "read_markers",
+           "bvh_to_skeleton", "c3d_segment_count", "read_bvh", "read_c3d", "read_c3d_segments",
+           "read_kinect_csv", "read_markers",
            "read_trc", "write_bvh", "write_c3d", "write_markers", "write_trc"]

@@ -1,6 +1,8 @@
 """Axis conventions: turning a file's up/forward axes into the world frame (Z up, X forward).
 
-An axis is written as a signed letter: "+X", "-z", "Y" (sign defaults to +).
+An axis is written as a signed letter: "+X", "-z", "Y" (sign defaults to +). An empty or
+absent value means "not given" (:func:`optional_axis` returns None); only a non-empty value that
+is not an axis is an error.
 """
 from __future__ import annotations
 
@@ -10,10 +12,11 @@ _LETTERS = "XYZ"
 
 
 def parse_axis(spec: str) -> np.ndarray:
-    """Unit vector for "+X" / "-Y" / "z"...; ValueError for anything else."""
+    """Unit vector for "+X" / "-Y" / "z"...; ValueError for anything else (empty included)."""
     s = str(spec).strip().upper()
     sign = 1.0
-    if s[:1] in "+-":
+    # s[:1] is "" for an empty string, and "" in "+-" is True: test the length first
+    if len(s) > 1 and s[0] in "+-":
         sign = -1.0 if s[0] == "-" else 1.0
         s = s[1:]
     if len(s) != 1 or s not in _LETTERS:
@@ -21,6 +24,24 @@ def parse_axis(spec: str) -> np.ndarray:
     v = np.zeros(3)
     v[_LETTERS.index(s)] = sign
     return v
+
+
+def optional_axis(spec: str | None) -> np.ndarray | None:
+    """Like :func:`parse_axis`, but None, "" (and whitespace) mean "not given" -> None."""
+    if spec is None or not str(spec).strip():
+        return None
+    return parse_axis(spec)
+
+
+UP_CHOICES = ("auto", "x", "y", "z", "+x", "-x", "+y", "-y", "+z", "-z")
+
+
+def up_option(value: str | None) -> str | None:
+    """A user's up-axis choice ("auto", "", None, "y", "-Z"...) -> "+Y"-style name, or None for
+    "auto" (the file's own declaration, else the format's convention). ValueError otherwise."""
+    if value is None or str(value).strip().lower() in ("", "auto"):
+        return None
+    return axis_name(parse_axis(value))
 
 
 def axis_name(v: np.ndarray) -> str:

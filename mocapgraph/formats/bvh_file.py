@@ -16,8 +16,13 @@ world frame happens in :meth:`BvhMotion.forward_kinematics`:
   human. The choice is written in ``motion.conversions``.
 * Rotations: a joint's rotation channels, in file order, are intrinsic rotations:
   "Zrotation Xrotation Yrotation" is R = Rz @ Rx @ Ry, i.e. scipy's ``from_euler("ZXY")``.
-  Any order per joint is allowed (CMU mixes ZYX and ZXY). Position channels on a joint add
-  to its offset.
+  Any order per joint is allowed (CMU mixes ZYX and ZXY).
+* Offsets and position channels (the rule of Blender's importer and MotionBuilder): a joint's
+  OFFSET is its rest position in the parent frame; a position channel is that coordinate's
+  absolute value in the parent frame, so it REPLACES the offset's component (it is not added
+  to it). A root with OFFSET 0 90 0 and Yposition 90 stands at 90, not 180; the rest pose
+  (:meth:`BvhMotion.rest_positions`) keeps every offset. Axes without a position channel keep
+  the offset's component.
 * End sites are joints without channels, named ``<parent>_End`` (``is_end_site`` marks them).
 """
 from __future__ import annotations
@@ -102,14 +107,19 @@ class BvhMotion:
         """Per joint the intrinsic Euler order of its rotation channels ("ZXY"...; "" if none)."""
         return ["".join(c[0] for c in ch if c.endswith("rotation")) for ch in self.channels]
 
-    def forward_kinematics(self, frames: slice | np.ndarray | None = None
-                           ) -> tuple[np.ndarray, np.ndarray]:
+    def forward_kinematics(self, frames: slice | np.ndarray | None = None,
+                           values: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """World joint positions [T, J, 3] (metres) and orientations [T, J, 4] (w, x, y, z).
 
-        World frame: Z up, X forward (the character's rest-pose facing), Y left. Vectorised
-        over frames; the Python loop runs over joints only.
+        World frame: Z up, X forward (the character's rest-pose facing), Y left. Position
+        channels replace offset components (module doc). ``values`` [T, C] replaces the file's
+        channel values (e.g. a rest pose). Vectorised over frames; the Python loop runs over
+        joints only.
         """
-        vals = self.values if frames is None else self.values[frames]
+        if values is None:
+            vals = self.values if frames is None else self.values[frames]
+        else:
+            vals = np.asarray(values, dtype=np.float64).reshape(-1, self.n_channels)
         T, J = vals.shape[0], self.n_joints
         Rg = np.empty((T, J, 3, 3))
         pg = np.empty((T, J, 3))
@@ -130,7 +140,7 @@ class BvhMotion:
             local_t = np.broadcast_to(self.offsets[j], (T, 3)).copy()
             for k, name in enumerate(ch):
                 if name.endswith("position"):
-                    local_t[:, "XYZ".index(name[0])] += vals[:, c0 + k]
+                    local_t[:, "XYZ".index(name[0])] = vals[:, c0 + k]
             R = local_R[j]
             p = self.parents[j]
             if p < 0:
@@ -142,14 +152,22 @@ class BvhMotion:
         A = BVH_TO_WORLD
         pos = np.einsum("ij,tkj->tki", A * self.scale, pg)
         Rw = A @ Rg @ A.T
-        quat = Rotation.from_matrix(Rw.reshape(-1, 3, 3)).as_quat(scalar_first=True)
+        # products of rotation matrices: valid by construction, no SVD projection needed
+        quat = Rotation.from_matrix(Rw.reshape(-1, 3, 3), assume_valid=True).as_quat(scalar_first=True)
         return pos, quat.reshape(T, J, 4)
 
+    def rest_values(self) -> np.ndarray:
+        """[C] channel values of the rest pose: rotations 0, positions equal to the offsets."""
+        rest = np.zeros(self.n_channels)
+        for j, ch in enumerate(self.channels):
+            for k, name in enumerate(ch):
+                if name.endswith("position"):
+                    rest[self.channel_start[j] + k] = self.offsets[j, "XYZ".index(name[0])]
+        return rest
+
     def rest_positions(self) -> np.ndarray:
-        """[J, 3] world positions (metres) with every channel at 0."""
-        zero = BvhMotion(self.names, self.parents, self.offsets, self.channels, self.is_end_site,
-                         self.frame_time_s, np.zeros((1, self.n_channels)), self.scale)
-        return zero.forward_kinematics()[0][0]
+        """[J, 3] world positions (metres) of the rest pose (every offset, no rotation)."""
+        return self.forward_kinematics(values=self.rest_values()[None])[0][0]
 
 
 def guess_scale(offsets: np.ndarray, parents: np.ndarray) -> tuple[float, str, float]:

@@ -19,6 +19,13 @@ What the reader does to the data, every time saying so in ``trial.conversions``:
   samples below the floor) the sign is flipped and a note says so (Qualisys QTM writes
   Y_SCREEN = -Z for Z-up data). Forward is the file's +X (its +Y when X is up).
 * Points coded missing (negative residual, or exactly 0,0,0) -> NaN.
+* Duplicate labels: the first keeps its name, later ones get ``_2``, ``_3``... with a note
+  naming both point indices (:mod:`mocapgraph.formats.labels` says why).
+* Frame count: the header's first/last frame, unless POINT:FRAMES disagrees and the data
+  block holds POINT:FRAMES frames (ezc3d's rule; a note says which was used).
+* A ROTATION group (segment poses, markerless systems) is not markers: a note names it and
+  :mod:`mocapgraph.formats.c3d_segments` reads it; a file with no points at all is refused, saying
+  whether it holds segment poses instead.
 * Unlabelled points (``*NNN`` or empty labels) are left out unless ``include_unlabelled``.
   PhoeniX ``ChannelNNN`` names are kept as markers: those are active LEDs identified by the
   hardware, so the name is a stable identity, not an anonymous trajectory.
@@ -36,8 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .axes import axis_name, default_forward, describe_rotation, parse_axis, to_world_rotation
+from .axes import (axis_name, default_forward, describe_rotation, optional_axis, parse_axis,
+                   to_world_rotation, up_option)
 from .errors import FormatError
+from .labels import unique_labels
 from .marker_trial import MarkerTrial
 
 UNIT_TO_M = {"mm": 1e-3, "millimeter": 1e-3, "millimeters": 1e-3, "millimetre": 1e-3,
@@ -72,6 +81,15 @@ class C3DLayout:
     frames_in_file: int
     parameters: list[str] = field(default_factory=list)  # "GROUP:NAME" in file order
     notes: list[str] = field(default_factory=list)
+    #: "GROUP:NAME" -> value of every single-number integer/float parameter (int16 read unsigned,
+    #: as C3D frame counts are)
+    scalars: dict[str, float] = field(default_factory=dict)
+    frames_source: str = "header"  # where n_frames came from: "header" or "POINT:FRAMES"
+
+    @property
+    def n_frames(self) -> int:
+        """Point frames the file holds, as used by the reader."""
+        return self.last_frame - self.first_frame + 1
 
 
 def inspect_c3d(path: str | Path) -> C3DLayout:
@@ -105,6 +123,7 @@ def inspect_c3d(path: str | Path) -> C3DLayout:
 
     groups: dict[int, str] = {}
     params: list[str] = []
+    scalars: dict[str, float] = {}
     i = poff + 4
     while True:
         if i + 2 > size:
@@ -134,6 +153,12 @@ def inspect_c3d(path: str | Path) -> C3DLayout:
             content_end = j + 4 + ndim + abs(ptype) * n
             if content_end >= size:
                 raise FormatError(path, f"file is truncated inside parameter {full}")
+            if n == 1 and ptype in (1, 2, 4):
+                at = j + 4 + ndim
+                fmt = {1: "B", 2: "H", 4: "f"}[ptype]
+                val = float(struct.unpack(end + fmt, raw[at:at + abs(ptype)])[0])
+                # DEC floats share IEEE's layout with an exponent bias larger by 2
+                scalars[full] = val / 4.0 if (ptype == 4 and proc == 85) else val
             content_end += 1 + raw[content_end]  # description
             if ptype not in (-1, 1, 2, 4):
                 raise FormatError(path, f"{full} parameter is broken (unknown data type {ptype})")
@@ -155,8 +180,30 @@ def inspect_c3d(path: str | Path) -> C3DLayout:
     avail = max(size - data_start, 0)
     frames_in_file = avail // frame_bytes if frame_bytes else 0
     layout = C3DLayout(n_points, n_analog, first, last, float_data, data_start, frame_bytes,
-                       frames_in_file, params)
-    expected = last - first + 1
+                       frames_in_file, params, scalars=scalars)
+    header_n = last - first + 1
+    param_n = scalars.get("POINT:FRAMES")
+    expected = header_n
+    if param_n is not None and param_n >= 1 and int(param_n) == param_n and int(param_n) != header_n \
+            and frame_bytes:
+        # Header and POINT:FRAMES disagree. The parameter is what ezc3d (and most writers) use,
+        # and the only place for counts over 65535; the header's uint16 last frame is the one
+        # writers get wrong (an Optotrak export promising 1149 frames while holding 29). Use
+        # the parameter when the data block holds that many frames, else report the cut.
+        pn = int(param_n)
+        if frames_in_file >= pn:
+            layout.last_frame = first + pn - 1
+            layout.frames_source = "POINT:FRAMES"
+            if last < _MAX_HEADER_FRAMES:
+                layout.notes.append(f"header frames {first}..{last} ({header_n}) disagree with "
+                                    f"POINT:FRAMES {pn}; used POINT:FRAMES (the data block holds "
+                                    f"{frames_in_file} frames)")
+            return layout
+        if frames_in_file < header_n:
+            raise FormatError(path, f"file is truncated: data block holds {frames_in_file} frames, "
+                                    f"POINT:FRAMES promises {pn} and the header {header_n}")
+        layout.notes.append(f"POINT:FRAMES {pn} is more than the data block holds "
+                            f"({frames_in_file}); used the header's {header_n}")
     if frame_bytes and last < _MAX_HEADER_FRAMES and expected > 0:
         # One frame short with the file ending exactly on a frame boundary is a writer's
         # off-by-one in the header (PhoeniX golfswing.c3d); anything else is a cut file.
@@ -287,23 +334,31 @@ def _classify(raw: _Raw) -> dict[str, str]:
 
 def _resolve_up(raw: _Raw, pts_marker: np.ndarray, up_axis: str | None,
                 notes: list[str]) -> tuple[str, str, str]:
-    """(up, forward, why) in file axes."""
-    if up_axis is not None:
-        up = axis_name(parse_axis(up_axis))
-        return up, default_forward(up), "as requested"
-    ys = raw.strings.get("Y_SCREEN", [""])
-    ys = ys[0] if ys else ""
+    """(up, forward, why) in file axes.
+
+    ``up_axis`` (None/""/"auto" = not given) wins; else POINT:Y_SCREEN; else +Z. An absent or
+    empty Y_SCREEN is "not given", not an error; one that names no axis is noted and ignored.
+    """
+    requested = up_option(up_axis)
+    if requested is not None:
+        return requested, default_forward(requested), "as requested"
+    ys = (raw.strings.get("Y_SCREEN") or [""])[0]
+    declared = None
     try:
-        up = axis_name(parse_axis(ys))
-        why = f"from POINT:Y_SCREEN={ys}"
+        declared = optional_axis(ys)
     except ValueError:
-        up, why = "+Z", "assumed (no usable POINT:Y_SCREEN)"
+        notes.append(f"POINT:Y_SCREEN {ys!r} names no axis; ignored")
+    if declared is not None:
+        up, why, said = axis_name(declared), f"from POINT:Y_SCREEN={ys}", "POINT:Y_SCREEN says"
+    else:
+        up, why, said = "+Z", "assumed: no usable POINT:Y_SCREEN", "assumed"
+        notes.append("no usable POINT:Y_SCREEN; Z up assumed (set up_axis / --up if the file is Y-up)")
     v = parse_axis(up)
     h = pts_marker.reshape(-1, 3) @ v
     h = h[~np.isnan(h)]
     if h.size >= 10 and np.mean(h < 0) > 0.9:
         flipped = axis_name(-v)
-        notes.append(f"POINT:Y_SCREEN says {up} is up but {100 * np.mean(h < 0):.0f}% of marker "
+        notes.append(f"{said} {up} is up but {100 * np.mean(h < 0):.0f}% of marker "
                      f"samples lie below 0 along it; used {flipped} as up")
         up, why = flipped, f"{why}, sign corrected from the marker heights"
     return up, default_forward(up), why
@@ -322,14 +377,31 @@ def read_c3d(path: str | Path, *, include_unlabelled: bool = False, up_axis: str
     layout = inspect_c3d(path)
     raw, notes = _load(path)
     notes = layout.notes + notes + raw.notes
+    if raw.points.shape[0] > layout.n_frames > 0:
+        # the c3d package goes by the header; what is past the chosen count is padding
+        notes.append(f"{raw.backend} returned {raw.points.shape[0]} frames; kept the "
+                     f"{layout.n_frames} of {layout.frames_source}")
+        raw.points, raw.residuals = raw.points[:layout.n_frames], raw.residuals[:layout.n_frames]
     T = raw.points.shape[0]
     M = raw.points.shape[1]
     labels = list(raw.labels[:M]) + [""] * max(0, M - len(raw.labels))
     if len(raw.labels) < M:
         notes.append(f"POINT:LABELS names {len(raw.labels)} of {M} points; the rest are unlabelled")
     labels = [lab if lab else f"*{k}" for k, lab in enumerate(labels)]
+    labels, dup_notes = unique_labels(labels)
+    notes += dup_notes
     if T == 0:
         raise FormatError(path, "file holds no point frames")
+    n_seg = int(layout.scalars.get("ROTATION:USED", 0))
+    if M == 0:
+        if n_seg > 0:
+            raise FormatError(path, f"holds no markers, only {n_seg} segment poses in its ROTATION group: "
+                                    "read it as a skeleton (node c3d_segment_reader; bag convert writes "
+                                    "skeleton_pose)")
+        raise FormatError(path, "holds no 3-D points (POINT:USED is 0)")
+    if n_seg > 0:
+        notes.append(f"also holds {n_seg} segment poses in its ROTATION group (node c3d_segment_reader "
+                     "reads them)")
 
     conversions: list[str] = []
     pts = raw.points.copy()

@@ -15,6 +15,10 @@ converts to the world frame with the tracked person facing +X (toward the sensor
 Y to the person's left: (x, y, z)_world = (-z, -x, y)_camera, a proper rotation; the origin
 stays at the sensor (``ground="feet"`` moves Z = 0 to the floor estimated from the feet).
 Positions of not-tracked joints (state 0) become NaN; inferred ones are kept and flagged.
+A sample with camera z < 0 lies behind the sensor, which the depth camera cannot see: whatever
+state the file gives it, it is made not tracked (state 0, NaN) and counted in
+``trial.extra["behind_sensor"]`` and a note. So is z == 0 with a state other than 0 (on the
+sensor itself; 0, 0, 0 with state 0 is how the SDK writes an untracked joint, not a fault).
 """
 from __future__ import annotations
 
@@ -102,6 +106,13 @@ def read_kinect_csv(path: str | Path, *, ground: str = "sensor") -> SkeletonTria
     if np.any((state != 0) & (state != 1) & (state != 2)):
         raise FormatError(path, "Kinect CSV tracking state outside 0/1/2")
     state = state.astype(np.int8)
+    behind = (cam[..., 2] <= 0) & (state != NOT_TRACKED)  # impossible for a depth camera
+    n_behind = int(behind.sum())
+    if n_behind:
+        state[behind] = NOT_TRACKED
+        t_bad = np.flatnonzero(behind.any(axis=1))
+        notes.append(f"{n_behind} joint samples lie behind the sensor (camera z <= 0) in "
+                     f"{t_bad.size} frames (first on data line {t_bad[0] + 1}); marked not tracked")
     ts = ticks * TICK_NS
     if np.any(np.diff(ts) <= 0):
         notes.append("time stamps are not strictly increasing")
@@ -133,4 +144,5 @@ def read_kinect_csv(path: str | Path, *, ground: str = "sensor") -> SkeletonTria
     return SkeletonTrial(names=list(names), parents=np.array(parents), positions=pos,
                          tracking_state=state, timestamps_ns=ts, rate_hz=rate,
                          source=str(path), conversions=conversions, notes=notes,
-                         extra={"kinect_version": 2 if n_joints == 25 else 1})
+                         extra={"kinect_version": 2 if n_joints == 25 else 1,
+                                "behind_sensor": n_behind})

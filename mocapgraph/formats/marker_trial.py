@@ -84,6 +84,19 @@ class MarkerTrial:
         return np.arange(self.n_frames, dtype=np.float64) / self.rate_hz
 
     @property
+    def file_times_s(self) -> np.ndarray:
+        """float64 [T] seconds on the file's own clock: its time column when it has one (TRC
+        ``Time``, kept in ``extra["time_s"]``), else frame ``first_frame`` at
+        ``(first_frame - 1) / rate_hz`` (C3D frame 1 is t = 0; a 0-based first frame 0 is t = 0
+        too), so a trial that starts 0.23 s into the capture says so."""
+        t = self.extra.get("time_s")
+        if t is not None:
+            t = np.asarray(t, dtype=np.float64)
+            if t.shape == (self.n_frames,) and np.all(np.isfinite(t)):
+                return t
+        return (max(self.first_frame - 1, 0) + np.arange(self.n_frames, dtype=np.float64)) / self.rate_hz
+
+    @property
     def timestamps_ns(self) -> np.ndarray:
         """int64 [T] nanoseconds since the first frame (rounded)."""
         return np.round(np.arange(self.n_frames) * (1e9 / self.rate_hz)).astype(np.int64)
@@ -152,7 +165,10 @@ class MarkerTrial:
         """New trial holding frames [start, stop) (0-based indices into this trial)."""
         sl = slice(start, stop)
         first = self.first_frame + (range(self.n_frames)[sl].start if self.n_frames else 0)
-        return replace(self, positions=self.positions[sl].copy(),
+        extra = dict(self.extra)
+        if extra.get("time_s") is not None and len(extra["time_s"]) == self.n_frames:
+            extra["time_s"] = np.asarray(extra["time_s"])[sl].copy()
+        return replace(self, positions=self.positions[sl].copy(), extra=extra,
                        residuals=self.residuals[sl].copy(), first_frame=first,
                        model_outputs={k: v[sl].copy() for k, v in self.model_outputs.items()},
                        conversions=list(self.conversions), notes=list(self.notes))

@@ -14,7 +14,8 @@ Layout of a well-formed file (tab separated)::
 row with one tab between names, fewer names than data columns (the rest are named
 ``Marker<k>``), trailing empty columns, a missing X1/Y1/Z1 row or blank line, DataRate
 missing or 0 (CameraRate used), NumFrames/NumMarkers disagreeing with the data (the data
-wins, with a note), blank or ``nan`` fields for missing values (-> NaN).
+wins, with a note), blank or ``nan`` fields for missing values (-> NaN), duplicate names (later ones suffixed
+``_2``... with a note, see :mod:`mocapgraph.formats.labels`).
 
 OpenSim is Y-up with X forward; the reader converts to the world frame (Z up, X forward):
 (x, y, z)_world = (x, -z, y)_file, and units (mm, cm, m) to metres, saying so in
@@ -28,8 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .axes import axis_name, default_forward, describe_rotation, parse_axis, to_world_rotation
+from .axes import axis_name, default_forward, describe_rotation, parse_axis, to_world_rotation, up_option
 from .errors import FormatError
+from .labels import unique_labels
 from .marker_trial import MarkerTrial
 
 _UNITS = {"mm": 1e-3, "millimeters": 1e-3, "cm": 1e-2, "m": 1.0, "meters": 1.0, "in": 0.0254}
@@ -49,10 +51,11 @@ def _float(tok: str) -> float:
     return float(tok)  # "nan"/"NaN" parse; anything else raises ValueError
 
 
-def read_trc(path: str | Path, *, up_axis: str = "+Y") -> MarkerTrial:
+def read_trc(path: str | Path, *, up_axis: str | None = "+Y") -> MarkerTrial:
     """Read a TRC file into a :class:`MarkerTrial` (metres, Z-up world).
 
-    up_axis: the file's up axis, "+Y" for OpenSim files (default).
+    up_axis: the file's up axis; "+Y" for OpenSim files (default; None, "" or "auto" mean the
+    same: a TRC header does not say).
     Raises FormatError (one line naming the file) for a broken header or data.
     """
     path = Path(path)
@@ -136,6 +139,8 @@ def read_trc(path: str | Path, *, up_axis: str = "+Y") -> MarkerTrial:
     if len(names) < M:
         notes.append(f"names row names {len(names)} of {M} markers; others named Marker<k>")
         names = names + [f"Marker{k + 1}" for k in range(len(names), M)]
+    names, dup_notes = unique_labels(names, "marker")
+    notes += dup_notes
 
     T = len(data_rows)
     arr = np.full((T, 2 + 3 * M), np.nan)
@@ -163,7 +168,7 @@ def read_trc(path: str | Path, *, up_axis: str = "+Y") -> MarkerTrial:
     scale = _UNITS[unit]
     if scale != 1.0:
         conversions.append(f"units {unit} -> m")
-    up = axis_name(parse_axis(up_axis))
+    up = up_option(up_axis) or "+Y"
     R = to_world_rotation(up, default_forward(up))
     if not np.allclose(R, np.eye(3)):
         conversions.append(f"{up}-up -> Z-up ({describe_rotation(R)})")
@@ -185,8 +190,9 @@ def write_trc(path: str | Path, trial: MarkerTrial, *, units: str = "mm",
               up_axis: str = "+Y", decimals: int = 6) -> None:
     """Write ``trial`` as an OpenSim TRC (Y up by default, ``units`` mm or m).
 
-    Missing samples are written as blank fields; ``read_trc`` of the result gives back the
-    trial (to the written precision).
+    Missing samples are written as blank fields; the Time column is ``trial.file_times_s`` (the
+    source's own clock). ``read_trc`` of the result gives back the trial (to the written
+    precision).
     """
     if units not in _UNITS:
         raise ValueError(f"units must be one of {sorted(_UNITS)}")
@@ -204,10 +210,11 @@ def write_trc(path: str | Path, trial: MarkerTrial, *, units: str = "mm",
            "\t\t" + "\t".join(f"X{k + 1}\tY{k + 1}\tZ{k + 1}" for k in range(M)),
            ""]
     fmt = f"{{:.{decimals}f}}"
+    times = trial.file_times_s.tolist()  # the trial's own clock: a late start stays late
     flat = file_pts.reshape(T, 3 * M)
     for t in range(T):
         cells = ["" if math.isnan(v) else fmt.format(v) for v in flat[t].tolist()]
-        out.append(f"{trial.first_frame + t}\t{t / rate:.6f}\t" + "\t".join(cells))
+        out.append(f"{trial.first_frame + t}\t{times[t]:.6f}\t" + "\t".join(cells))
     try:
         path.write_text("\n".join(out) + "\n", encoding="utf-8")
     except OSError as e:

@@ -12,6 +12,7 @@ from typing import Any
 import networkx as nx
 
 from ..bus.node import DIAGNOSTICS_TOPIC, Node, NodeConfigError
+from ..bus.input_files import InputFileError, check_input_file
 from ..bus.ports import Interface
 from ..messages.registry import UnknownTypeError, all_types, lookup
 from ..nodes.registry import NODE_TYPES, resolve
@@ -87,8 +88,22 @@ def _blame_key(spec: NodeSpec, port: str, default_topic: str) -> str:
     return "remap" if port in spec.remap or default_topic in spec.remap else "type"
 
 
-def check_graph(spec: GraphSpec) -> CheckedGraph:
-    """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault."""
+def _check_files(ns: NodeSpec, iface: Interface, params: dict[str, Any]) -> None:
+    """Every ``kind="file"`` param names a file this machine can read (GraphError otherwise)."""
+    for key, p in iface.params.items():
+        if p.kind != "file" or (not params.get(key) and not p.required):
+            continue
+        try:
+            check_input_file(params[key])
+        except InputFileError as exc:
+            raise ns.error(f"params.{key}", str(exc)) from None
+
+
+def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
+    """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault.
+
+    check_files: also check that input-file params name readable files (off for drawing a graph).
+    """
     seen: dict[str, NodeSpec] = {}
     resolved: list[ResolvedNode] = []
     for ns in spec.nodes:
@@ -110,6 +125,8 @@ def check_graph(spec: GraphSpec) -> CheckedGraph:
         except NodeConfigError as exc:
             key = str(exc).split("'")[1] if "'" in str(exc) else ""
             raise ns.error(f"params.{key}" if key else "params", str(exc)) from None
+        if check_files:
+            _check_files(ns, iface, params)
         known = set(iface.inputs) | set(iface.outputs) | {p.topic for p in iface.inputs.values()} | {
             p.topic for p in iface.outputs.values()}
         for key in ns.remap:

@@ -11,17 +11,15 @@ from .marker_source import MarkerFilePlayer
 class C3DReader(MarkerFilePlayer):
     """Replays a C3D file as ``markers`` + latched ``marker_layout``.
 
-    Units (POINT:UNITS) become metres and the file's up axis (POINT:Y_SCREEN, or ``up_axis``)
+    Units (POINT:UNITS) become metres and the file's up axis (``up_axis``; 'auto' = POINT:Y_SCREEN, else Z)
     becomes world Z; samples coded missing (negative residual or exactly 0,0,0) become NaN with
     valid False. Capture stamps are file time from the moment playback starts. A missing,
     truncated or broken file is reported in one line and the node exits with code 1.
     """
 
     summary = "replay a C3D file's markers (real time or faster, loop, frame range, unit/axis conversion)"
-    up_axis = Param("", "the file's up axis ('+Y', 'Z', ...); '' = from POINT:Y_SCREEN, else Z",
-                    choices=("", "+X", "-X", "+Y", "-Y", "+Z", "-Z", "X", "Y", "Z"))
     include_unlabelled = Param(False, "also pass unlabelled points (*NNN, empty labels) as markers "
                                       "(with a layout they are reported as unplaced)")
 
     def read_trial(self, path: Path) -> MarkerTrial:
-        return read_c3d(path, include_unlabelled=self.include_unlabelled, up_axis=self.up_axis or None)
+        return read_c3d(path, include_unlabelled=self.include_unlabelled, up_axis=self.up_axis)

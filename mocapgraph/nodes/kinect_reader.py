@@ -3,6 +3,7 @@ SkeletonPose frames, at the recording's own time stamps (dropped frames stay gap
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from ..bus import Param
 from ..formats import SkeletonTrial, read_kinect_csv
@@ -16,7 +17,9 @@ class KinectReader(SkeletonFilePlayer):
     Camera space becomes the world frame with the person facing +X, Z up (origin at the sensor,
     or on the floor with ``ground: feet``; a ``device`` file can then place the sensor in the
     room). Tracking state per joint: 2 tracked, 1 inferred (position kept), 0 not tracked
-    (position NaN). Frames are sent at their recorded time stamps, so dropped frames stay gaps.
+    (position NaN); samples behind the sensor (camera z < 0) are not tracked, and their number
+    is ``behind_sensor`` in the reader status. Frames are sent at their recorded time stamps,
+    so dropped frames stay gaps.
     ``rest_offsets`` in skeleton_info are observed (median bone length along the mean bone
     direction): a Kinect stream has no rest pose.
     """
@@ -34,6 +37,11 @@ class KinectReader(SkeletonFilePlayer):
             raise SourceError(f"{path.name}: is a Kinect {found} recording ({trial.n_joints} joints), "
                               f"the graph expects {self.version}")
         return trial
+
+    def status_data(self) -> dict[str, Any]:
+        d = super().status_data()
+        d["behind_sensor"] = int(self.trial.extra.get("behind_sensor", 0)) if hasattr(self, "trial") else 0
+        return d
 
     def source_kind(self, trial: SkeletonTrial) -> str:
         return f"kinect_v{trial.extra.get('kinect_version', 2)}"

@@ -141,8 +141,16 @@ class MarkerSourceNode(SourceNode):
                              capture_ns=int(capture_ns))
 
 
+#: values the ``up_axis`` parameter takes: "auto" ("" too, for older graphs) or a signed axis
+UP_AXIS_CHOICES = ("auto", "") + tuple(f"{s}{a}" for a in "XYZxyz" for s in ("", "+", "-"))
+
+
 class MarkerFilePlayer(FilePlayback, MarkerSourceNode):
     """Replays a MarkerTrial (C3D, TRC) in real time or faster; subclasses only read the file."""
+
+    up_axis = Param("auto", "the file's up axis, made world Z: 'auto' = what the file says (C3D "
+                            "POINT:Y_SCREEN, else Z; TRC: Y, the OpenSim convention), or x, y, z "
+                            "with an optional sign ('+Y', '-z')", choices=UP_AXIS_CHOICES)
 
     #: False for formats without per-sample residuals (their MarkerTrial holds 0): sent as NaN
     has_residuals = True
@@ -167,7 +175,9 @@ class MarkerFilePlayer(FilePlayback, MarkerSourceNode):
         self.frame_numbers = trial.first_frame + np.arange(trial.n_frames)
         self.rate_hz = trial.rate_hz
         for note in trial.notes:
-            self.log.info("%s: %s", path.name, note)
+            # a renamed duplicate changes what a layout sees: worth a warning, not an info line
+            level = self.log.warning if note.startswith("duplicate label") else self.log.info
+            level("%s: %s", path.name, note)
 
     def announce(self) -> None:
         self.publish_layout(self.lmap, self.units_note, self.source)

@@ -17,6 +17,7 @@ NODE_TYPES: dict[str, str] = {
     "lsl_reader": "mocapgraph.nodes.lsl_reader:LSLReader",
     "kinect_reader": "mocapgraph.nodes.kinect_reader:KinectReader",
     "bvh_player": "mocapgraph.nodes.bvh_player:BVHPlayer",
+    "c3d_segment_reader": "mocapgraph.nodes.c3d_segment_reader:C3DSegmentReader",
     # actor: calibration (latched SkeletonModel) and the per-frame solver (ActorPose)
     "calibration": "mocapgraph.nodes.calibration:CalibrationNode",
     "frame_solver": "mocapgraph.nodes.frame_solver:FrameSolverNode",

@@ -93,7 +93,8 @@ class SkeletonFilePlayer(FilePlayback):
 
     def emit(self, index: int, capture_ns: int) -> None:
         self.skeleton_pose.publish(SkeletonPose(
-            source_id=self.source_id, frame_number=int(index), joint_positions=self.positions[index],
+            source_id=self.source_id, frame_number=int(self.frame_numbers[index]),
+            joint_positions=self.positions[index],
             joint_orientations=self.orientations[index], tracking_state=self.tracking[index]),
             capture_ns=capture_ns)
 

@@ -21,12 +21,12 @@ from typing import Any
 import numpy as np
 
 from ..bus import Node, Output, Param
+from ..bus.input_files import PROJECT_ROOT, InputFileError, resolve_input_file  # noqa: F401 (re-export)
 from ..formats import FormatError
 from ..kinematics.layout import LayoutError
 from ..messages import Diagnostics, NodeStatus
 from .device_config import DeviceConfigError
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
 STATUS_PERIOD_S = 1.0
 
 
@@ -40,18 +40,12 @@ INPUT_ERRORS = (FormatError, LayoutError, DeviceConfigError, SourceError)
 
 def resolve_data_path(path: str) -> Path:
     """A data file named in a graph: absolute, relative to the working directory, or relative to
-    the project root (so ``../shared/data/...`` works from anywhere). SourceError if absent."""
-    if not path:
-        raise SourceError("no file given (set the 'file' parameter)")
-    p = Path(path).expanduser()
-    if p.is_absolute() or p.exists():
-        if not p.exists():
-            raise SourceError(f"{p}: file not found")
-        return p
-    alt = PROJECT_ROOT / p
-    if alt.exists():
-        return alt
-    raise SourceError(f"{path}: file not found (looked in {Path.cwd()} and {PROJECT_ROOT})")
+    the project root (so ``../shared/data/...`` works from anywhere). SourceError if absent.
+    The graph check applies the same rule (:mod:`mocapgraph.bus.input_files`)."""
+    try:
+        return resolve_input_file(path)
+    except InputFileError as exc:
+        raise SourceError(str(exc) if path else "no file given (set the 'file' parameter)") from None
 
 
 class SourceNode(Node):
@@ -210,7 +204,8 @@ class FilePlayback(SourceNode):
     ``self.rate_hz``), ``announce()`` (publish latched definitions) and ``emit(index, capture_ns)``.
     """
 
-    file = Param("", "file to play; relative paths are tried from the working directory, then the project root")
+    file = Param("", "file to play; relative paths are tried from the working directory, then the project root "
+                     "(the graph check refuses a missing or unreadable one)", kind="file", required=True)
     loop = Param(False, "start again at start_frame after end_frame (capture stamps keep increasing)")
     rate_scale = Param(1.0, "playback speed: 1 = the file's own rate, 2 = twice as fast, 0 = as fast as possible",
                        minimum=0.0)
@@ -226,8 +221,10 @@ class FilePlayback(SourceNode):
         super().__init__(name, params, wiring)
         self.load_error = ""
         self.playback: Playback | None = None
+        self.path: Path | None = None  # the file read, resolved (shown in the status)
         try:  # before the graph starts, so playback begins the moment it does
-            self.load(resolve_data_path(self.file))
+            self.path = resolve_data_path(self.file)
+            self.load(self.path)
         except INPUT_ERRORS as exc:
             self.load_error = str(exc)
         except OSError as exc:
@@ -283,4 +280,7 @@ class FilePlayback(SourceNode):
 
     def status_data(self) -> dict[str, Any]:
         pb = self.playback
-        return {"frames_sent": pb.k, "passes": pb.passes} if pb else {}
+        d: dict[str, Any] = {"file": str(self.path.resolve()) if self.path is not None else self.file}
+        if pb:
+            d.update(frames_sent=pb.k, passes=pb.passes)
+        return d

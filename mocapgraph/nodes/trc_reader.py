@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..bus import Param
 from ..formats import MarkerTrial, read_trc
 from .marker_source import MarkerFilePlayer
 
@@ -11,14 +10,12 @@ from .marker_source import MarkerFilePlayer
 class TRCReader(MarkerFilePlayer):
     """Replays a TRC file as ``markers`` + latched ``marker_layout``.
 
-    The header's units become metres and the file's up axis (``up_axis``, +Y for OpenSim files)
+    The header's units become metres and the file's up axis (``up_axis``; 'auto' = +Y, OpenSim's convention)
     becomes world Z; blank or ``nan`` fields are missing markers. A missing file or a broken
     header is reported in one line and the node exits with code 1.
     """
 
     summary = "replay a TRC file's markers (real time or faster, loop, frame range, unit/axis conversion)"
-    up_axis = Param("+Y", "the file's up axis; +Y for OpenSim files, +Z for files exported Z-up",
-                    choices=("+X", "-X", "+Y", "-Y", "+Z", "-Z", "X", "Y", "Z"))
 
     has_residuals = False  # TRC carries positions only
 

@@ -60,9 +60,12 @@ def test_every_shipped_graph_passes_the_check(capsys) -> None:
                 included.add((g.parent / target).resolve())
     graphs = [g for g in graphs if g.resolve() not in included]
     assert graphs
+    have_data = (REPO / ".." / "shared" / "data").is_dir()
     for g in graphs:
         code = main(["graph", "check", str(g)])
         out = capsys.readouterr()
+        if code == 2 and not have_data and "shared/data" in out.err and "file not found" in out.err:
+            continue  # a lab graph's default capture, absent from this checkout: refused rightly
         assert code == 0, f"{g}: {out.err}"
 
 

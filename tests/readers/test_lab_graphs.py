@@ -30,7 +30,8 @@ READERS = ["synthetic_actor", "c3d_reader", "trc_reader", "serial_reader", "udp_
 
 @pytest.mark.parametrize("group", [MARKER_LABS, SKELETON_LABS])
 def test_lab_graphs_check_and_differ_only_in_the_reader(group) -> None:
-    graphs = {name: check_graph(load_graph(CONFIGS / f"{name}.yaml")) for name in group}
+    # wiring only: the capture files (../shared/data) are the other tests' business
+    graphs = {name: check_graph(load_graph(CONFIGS / f"{name}.yaml"), check_files=False) for name in group}
     shapes = {}
     for name, g in graphs.items():
         reader = g.node("reader")
@@ -94,12 +95,27 @@ def test_swapping_the_reader_gives_frames_of_the_same_layout(launch_graph, tmp_p
         assert z[head].min() > z[toes].max() + 1.0                   # head above toes in both
 
 
-def test_missing_capture_file_is_reported_and_the_rest_keeps_running(launch_graph, tmp_path) -> None:
+def test_missing_capture_file_stops_the_launch_before_any_process(launch_graph, tmp_path) -> None:
     g = launch_graph(logged_graph("lab_c3d", tmp_path, f"capture: {tmp_path / 'nope.c3d'}",
                                   f"session_log: {tmp_path / 's.jsonl'}"))
+    assert g.proc.wait(30) == 2
+    g.stop()
+    lines = [ln for ln in g.lines if ln.strip()]
+    assert len(lines) == 1, g.output
+    # the include's line that sets the param: file:line: key: message
+    assert lines[0].startswith(f"mocapgraph: {CONFIGS / 'lab_c3d.yaml'}:")
+    assert ": nodes[reader].params.file: " in lines[0] and "nope.c3d: file not found" in lines[0]
+    assert not (tmp_path / "s.jsonl").exists()                # nothing ran
+
+
+def test_broken_capture_file_is_reported_and_the_rest_keeps_running(launch_graph, tmp_path) -> None:
+    broken = tmp_path / "broken.c3d"
+    broken.write_bytes(bytes([2, 0x50]) + b"\x07" * 2000)     # a header, then garbage
+    g = launch_graph(logged_graph("lab_c3d", tmp_path, f"capture: {broken}",
+                                  f"session_log: {tmp_path / 's.jsonl'}"))
     g.wait_ready(30)
-    line = g.wait_for("nope.c3d")
-    assert "[reader] ERROR" in line and "not found" in line
+    line = g.wait_for("broken.c3d:")
+    assert "[reader] ERROR" in line
     g.wait_for("node reader exited with code 1")
     pids = {n["name"]: n["pid"] for n in fetch_manifest(g.master)["nodes"]}
     time.sleep(0.3)
