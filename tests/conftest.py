@@ -67,8 +67,9 @@ class LaunchedGraph:
     def wait_ready(self, timeout: float = 20.0) -> None:
         self.wait_for("nodes ready in", timeout)
 
-    def cli(self, *args: str, timeout: float = 20.0) -> subprocess.CompletedProcess:
-        """Run another `mocapgraph` command against this graph."""
+    def cli(self, *args: str, timeout: float = 90.0) -> subprocess.CompletedProcess:
+        """Run another `mocapgraph` command against this graph (the time-out is a deadline against
+        hangs: a heavily loaded machine takes seconds to start an interpreter)."""
         return subprocess.run([sys.executable, "-m", "mocapgraph", *args], env=self.env, capture_output=True,
                               text=True, timeout=timeout)
 

@@ -168,11 +168,13 @@ def replay_and_check(bag, rate, recorded, recorded_pub) -> str | None:
     # On a quiet machine the player's p90 is ~0.3 ms and the baseline's ~0.1 ms (benchmarks/bags.py);
     # with four busy loops on the two cores the baseline's p90 reaches 8-13 ms and the player's 12-21
     # ms (it works for every message, so it is preempted more). So the player is judged against
-    # the baseline: three times its lateness plus 1-2 ms, and no drift between the two halves of
-    # the replay beyond the baseline's median (arrival also waits for this test process). Ignoring
+    # the baseline: a few times its lateness plus 1-2 ms, and no drift between the two halves of
+    # the replay beyond the baseline's lateness (arrival also waits for this test process). Ignoring
     # the rate, or a rate 10 % off, drifts by 25-750 ms; sending in bursts is late by 100s of ms.
-    ok = (np.median(sent_err) < 1.0 + 3 * b50 and np.percentile(sent_err, 90) < 2.0 + 3 * b90
-          and drift < 1.0 + 2 * b50 and np.median(arrive_err) < 2.0 + 3 * b50)
+    # The baseline process has its own luck on a very busy machine (load 20: p50 3.9 ms beside a
+    # player at 13 ms, then 12 ms beside 14 ms), so each bound takes both of its percentiles.
+    ok = (np.median(sent_err) < 1.0 + 2 * b50 + b90 and np.percentile(sent_err, 90) < 2.0 + 4 * b90
+          and drift < 1.0 + 2 * b50 + b90 and np.median(arrive_err) < 2.0 + 2 * b50 + 2 * b90)
     return None if ok else text
 
 
@@ -396,7 +398,7 @@ def test_terminal_keys_step_and_quit(tmp_path):
     os.close(slave)
     out = b""
 
-    def read_until(text: bytes, timeout: float = 10.0) -> None:
+    def read_until(text: bytes, timeout: float = 60.0) -> None:  # a deadline against hangs
         nonlocal out
         t_end = time.monotonic() + timeout
         while text not in out and time.monotonic() < t_end:

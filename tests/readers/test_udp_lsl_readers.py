@@ -105,7 +105,7 @@ def test_lsl_wrong_channel_count_is_refused_then_the_right_stream_is_read(run_no
     try:
         n = run_node("lsl_reader", {"stream_name": name, "device": "example_lsl_mocap", "layout": "plug_in_gait",
                                     "resolve_s": 0.1})
-        n.wait_for(lambda: any("36 channels" in s.detail for s in n.messages("reader_status")), timeout=30,
+        n.wait_for(lambda: any("36 channels" in s.detail for s in n.messages("reader_status")), timeout=90,
                    what="the wrong stream refused")
         assert any("36 channels, expected 117" in r.getMessage() and r.levelname == "ERROR"
                    for r in caplog.records)
@@ -113,7 +113,7 @@ def test_lsl_wrong_channel_count_is_refused_then_the_right_stream_is_read(run_no
         right = simulate_lsl(name, "plug_in_gait", "example_lsl_mocap", count=400)
         try:
             recs = n.wait_for(lambda: n.records("markers") if len(n.records("markers")) >= 40 else None,
-                              timeout=30, what="frames from the right stream")
+                              timeout=90, what="frames from the right stream")
         finally:
             right.kill()
             right.wait()
