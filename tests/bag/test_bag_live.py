@@ -280,7 +280,10 @@ nodes:
     assert set(s.topics) == {"markers", "marker_layout"}
     assert len(layouts) == 1 and layouts[0].labels[0] == "P0"  # latched: resent to the late joiner
     seqs = np.array([e.seq for e in envs])
-    assert np.all(np.diff(seqs) == 1) and 180 < len(seqs) < 300
+    # every frame of a one-second stretch of the stream (however fast a busy machine let the
+    # pattern publish: 179 frames seen at load 13, 240 when quiet)
+    span_s = (envs[-1].publish_ns - envs[0].publish_ns) / 1e9
+    assert np.all(np.diff(seqs) == 1) and 0.8 < span_s < 1.3 and len(seqs) > 100, (len(seqs), span_s)
     assert s.metadata["mocapgraph"]["writer"] == "bag record"
     assert s.metadata["mocapgraph"]["graph"].endswith("graph_0.yaml")
     bad = g.cli("bag", "record", "nosuchtopic", "--duration", "0.1")
