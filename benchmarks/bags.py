@@ -39,7 +39,7 @@ from mocapgraph.bag.recover import recover
 from mocapgraph.bag.writer import BagWriter
 from mocapgraph.messages import MarkerFrame, MarkerLayout, decode_envelope, encode
 from mocapgraph.messages.codec import topic_frame
-from mocapgraph.nodes.test_pattern import pattern_positions
+from mocapgraph.testing.marker_pattern import pattern_positions
 
 N_MARKERS = 64
 RATE = 240.0

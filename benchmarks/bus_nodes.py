@@ -47,14 +47,14 @@ class BenchSender(Node):
             self._send()
 
     def _burst(self) -> None:
-        self.cancel_timer(self._burst_timer)
+        self._burst_timer.cancel()
         for _ in range(self.count - 1):
             self._send()
         # The last one once the queues drained: every loss before it shows as a sequence gap.
         self._last_timer = self.add_timer(1.0, self._last, first_delay_s=0.3)
 
     def _last(self) -> None:
-        self.cancel_timer(self._last_timer)
+        self._last_timer.cancel()
         self._send()
 
     def on_back(self, msg: MarkerFrame) -> None:

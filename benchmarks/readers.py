@@ -136,7 +136,7 @@ def main() -> int:
             print(f"  skipped: {DATA} is absent")
         print(f"2. real-time replay at 240 Hz for {args.seconds:g} s (load now {os.getloadavg()[0]:.2f})")
         jitter(tmp, "baseline: marker_test_pattern node, 240 Hz, 39 markers (bus timers only)",
-               "mocapgraph.nodes.test_pattern:MarkerTestPattern", {"rate_hz": 240.0, "n_markers": 39},
+               "mocapgraph.testing.marker_pattern:MarkerTestPattern", {"rate_hz": 240.0, "n_markers": 39},
                240.0, args.seconds)
         c3d = tmp / "synthetic_240hz.c3d"
         write_240hz_c3d(c3d, args.seconds)

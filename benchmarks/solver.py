@@ -4,7 +4,8 @@ Prints: live single-frame solve rate (FrameSolver.step, one core), batch solve r
 trial (FrameSolver.solve), calibration time for 60 s of gym at 120 Hz, and the per-frame latency
 through a launched graph (synthetic_actor reader at 240 Hz -> frame_solver node): from the
 reader publishing a MarkerFrame to the solver publishing its ActorPose, and on to a subscriber.
-Targets (issue 5): live >= 2000 frames/s, batch >= 20000 frames/s.
+Targets (issue 5): live >= 2000 frames/s, batch >= 20000 frames/s. Issue 10: the global fit's
+live and batch rates beside the segment-wise ones (ratio in the same run), and both accuracies.
 Run: .venv/bin/python benchmarks/solver.py [--graph-seconds 20] [--no-graph]
 """
 from __future__ import annotations
@@ -141,6 +142,18 @@ def main() -> None:
     n = len(perf)
     print(f"batch solve, {n} frames, gaps on: {_rate(lambda: FrameSolver(model).solve(perf), n):8.0f} frames/s (target 20000)")
     print(f"batch solve, {n} frames, gaps off:{_rate(lambda: FrameSolver(model, max_gap_s=0).solve(perf), n):8.0f} frames/s")
+    # The global fit beside the segment-wise one, measured in the same run (ratio = cost of the fit).
+    seg_live = _rate(lambda: live(), n_live)
+    glob_live = _rate(lambda: live(fit="global"), n_live)
+    print(f"live step, global fit:            {glob_live:8.0f} frames/s (target 2000; segment-wise "
+          f"{seg_live:.0f} in this run, ratio {glob_live / seg_live:.2f})")
+    seg_b = _rate(lambda: FrameSolver(model).solve(perf), n)
+    glob_b = _rate(lambda: FrameSolver(model, fit="global").solve(perf), n)
+    print(f"batch solve, global fit:          {glob_b:8.0f} frames/s (segment-wise {seg_b:.0f}, ratio {glob_b / seg_b:.2f})")
+    truth = cap.joint_centres[cap.phase_slice("performance")]
+    for fit in ("segment", "global"):
+        e = np.linalg.norm(FrameSolver(model, fit=fit).solve(perf).joints - truth, axis=-1)
+        print(f"accuracy, {fit:<8} fit vs ground truth: mean {1000 * e.mean():.2f} mm, max {1000 * e.max():.2f} mm")
     if not opts.no_graph:
         graph_latency(opts.graph_seconds)
 

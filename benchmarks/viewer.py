@@ -51,7 +51,7 @@ def cpu_percent(pid: int, seconds: float) -> float:
 
 def encoding_figures(n_markers: int) -> None:
     from mocapgraph.messages import Envelope, MarkerFrame
-    from mocapgraph.nodes.viewer.wire import build_bundle, encode_record
+    from mocapgraph.viewer.wire import build_bundle, encode_record
 
     rng = np.random.default_rng(0)
     pos = rng.normal(size=(n_markers, 3))

@@ -307,7 +307,7 @@ def bag_to_skeleton_frames(reader: BagReader, topic: str | None = None,
             P.append(m.joint_positions)
             Q.append(m.joint_orientations)
         else:
-            q, p = _character_world(m, parents, rest)
+            q, p = _character_world(m, parents, np.asarray(info.rest_rotations, np.float64))
             P.append(p)
             Q.append(q)
         stamps.append(env.capture_ns)
@@ -322,10 +322,10 @@ def bag_to_skeleton_frames(reader: BagReader, topic: str | None = None,
                           np.asarray(stamps, np.int64), tname, topic)
 
 
-def _character_world(m: CharacterPose, parents: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World orientations from CharacterPose local rotations (child = parent * local, world axes)."""
+def _character_world(m: CharacterPose, parents: np.ndarray, rest_rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World orientations from CharacterPose local rotations (child = parent * rest * local)."""
     J = len(parents)
-    local = Rotation.from_quat(m.local_rotations, scalar_first=True).as_matrix()
+    local = (Rotation.from_quat(rest_rot, scalar_first=True) * Rotation.from_quat(m.local_rotations, scalar_first=True)).as_matrix()
     world = np.empty((J, 3, 3))
     for j in topological_order(parents):
         p = parents[j]

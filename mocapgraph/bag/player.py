@@ -23,7 +23,6 @@ late joiners (the bus's XPUB resend).
 from __future__ import annotations
 
 import re
-import struct
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -31,16 +30,12 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from ..messages.codec import HEADER
+from ..messages.codec import (header_capture_ns, header_latched, header_sender, header_seq, set_header_publish_ns,
+                              set_header_seq)
 from .errors import BagError
 from .framing import header_of
 from .reader import BagReader, RawMessage, TopicInfo
 
-SEQ_AT = 10  # byte offset of the u64 sequence number in the codec header
-CAPTURE_AT = 18
-PUBLISH_AT = 26
-_Q = struct.Struct("<Q")
-_q = struct.Struct("<q")
 DEFAULT_EXCLUDE = ("diagnostics",)
 LAG_WINDOW = 8192
 LATCHED_GRACE_NS = 100_000_000
@@ -48,7 +43,7 @@ LATCHED_GRACE_NS = 100_000_000
 
 def set_publish_stamp(header: bytearray, now_ns: int | None = None) -> None:
     """Write the publish stamp (now) into a codec header frame in place."""
-    _q.pack_into(header, PUBLISH_AT, time.time_ns() if now_ns is None else now_ns)
+    set_header_publish_ns(header, time.time_ns() if now_ns is None else now_ns)
 
 
 @dataclass
@@ -292,12 +287,12 @@ class Playback:
             return []
         now = self.clock()
         out = [self._pop(now)]
-        cap = _q.unpack_from(out[0].frames[1], CAPTURE_AT)[0]
+        cap = header_capture_ns(out[0].frames[1])
         while True:
             nxt = self._peek()
             if nxt is None:
                 break
-            if _q.unpack_from(header_of(nxt[1].data), CAPTURE_AT)[0] != cap:
+            if header_capture_ns(header_of(nxt[1].data)) != cap:
                 break
             out.append(self._pop(now))
         self._pause_bag_ns = out[-1].bag_ns
@@ -346,10 +341,9 @@ class Playback:
         topic = self.remap.get(raw.topic, raw.topic)
         frames = raw.frames(topic)
         header = bytearray(frames[1])
-        tlen, slen = struct.unpack_from("<HH", header, 6)
-        sender = bytes(header[HEADER.size + tlen:HEADER.size + tlen + slen])
+        sender = header_sender(header)
         key = (raw.topic, sender)
-        seq = _Q.unpack_from(header, SEQ_AT)[0]
+        seq = header_seq(header)
         if gen != self._out_gen:
             # the first message of a new pass or after a seek: continue every stream's numbering
             # from the last one sent
@@ -359,10 +353,10 @@ class Playback:
         if off is None:
             off = self._seq_offset[key] = (self._seq_last[key] + 1 - seq) if key in self._seq_last else 0
         if off:
-            _Q.pack_into(header, SEQ_AT, seq + off)
+            set_header_seq(header, seq + off)
         self._seq_last[key] = seq + off
         frames[1] = header
-        return Outgoing(topic, frames, bool(header[3] & 1), t, due)
+        return Outgoing(topic, frames, header_latched(header), t, due)
 
     def record_sent(self, items: list[Outgoing], sent_at: float) -> None:
         """Account messages the caller has just sent (lag statistics, achieved rate)."""

@@ -22,8 +22,9 @@ from mcap.records import Channel, Metadata
 from mcap.stream_reader import MAGIC_SIZE, StreamReader
 
 from ..messages import Envelope, Message, decode_envelope, decode_payload
-from ..messages.codec import HEADER, DecodeError
+from ..messages.codec import DecodeError, header_sender, header_seq
 from ..messages.registry import UnknownTypeError, lookup
+from ..messages.sequence import DUPLICATE, sequence_gap
 from .errors import BagError
 from .framing import MESSAGE_ENCODING, header_of, unpack_frames
 from .writer import META_INFO, META_LOSSES
@@ -339,16 +340,16 @@ class BagReader:
                 continue
             try:
                 head = header_of(raw.data)
-                seq = struct.unpack_from("<Q", head, 10)[0]
-                tlen, slen = struct.unpack_from("<HH", head, 6)
-                sender = bytes(head[HEADER.size + tlen:HEADER.size + tlen + slen]).decode(errors="replace")
+                seq = header_seq(head)
+                sender = header_sender(head).decode(errors="replace")
             except (struct.error, IndexError):
                 continue
             key = (raw.topic, sender)
-            prev = last_seq.get(key)
-            if prev is not None and seq > prev + 1:
-                seq_gaps[raw.topic] = seq_gaps.get(raw.topic, 0) + seq - prev - 1
-            last_seq[key] = seq
+            lost = sequence_gap(last_seq.get(key, 0), seq)
+            if lost > 0:
+                seq_gaps[raw.topic] = seq_gaps.get(raw.topic, 0) + lost
+            if lost != DUPLICATE:
+                last_seq[key] = seq
             t = raw.publish_ns or raw.log_ns  # the sender's clock: free of the recorder's own delays
             times.setdefault(raw.topic, []).append(t)
             first.setdefault(raw.topic, t)

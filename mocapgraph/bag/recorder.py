@@ -14,6 +14,7 @@ from typing import Sequence
 
 from ..messages import Envelope, decode_envelope
 from ..messages.codec import DecodeError
+from ..messages.sequence import DUPLICATE, RESTART, sequence_gap
 from .writer import BagWriter
 
 FLUSH_PERIOD_S = 0.25
@@ -46,17 +47,17 @@ class Recorder:
                 return False
         key = (env.topic, env.sender)
         last, last_pub = self._last_seq.get(key, (0, 0))
-        seq = env.seq
         # A resend repeats the publish stamp too; a restarted sender's new latched value does not.
-        if (seq == last and env.publish_ns == last_pub) or (0 < seq < last and seq != 1):
+        lost = sequence_gap(last, env.seq, env.publish_ns == last_pub)
+        if lost == DUPLICATE:
             self.duplicates += 1
             return False
-        if seq <= last:
+        if lost == RESTART:
             self.restarts += 1
-        elif last and seq > last + 1:
-            self.lost[env.topic] = self.lost.get(env.topic, 0) + seq - last - 1
+        elif lost:
+            self.lost[env.topic] = self.lost.get(env.topic, 0) + lost
             self.writer.set_losses(self.lost)
-        self._last_seq[key] = (seq, env.publish_ns)
+        self._last_seq[key] = (env.seq, env.publish_ns)
         self.writer.write_frames(frames, log_ns, env)
         self.received += 1
         return True

@@ -19,7 +19,6 @@ every 0.25 s so that a killed recorder loses at most that much (``bag recover`` 
 from __future__ import annotations
 
 import json
-import os
 import platform
 import time
 from datetime import datetime, timezone
@@ -252,15 +251,3 @@ def _free_path(path: Path, on_exists: str) -> Path:
         if not cand.exists():
             return cand
         n += 1
-
-
-def fsync_path(path: Path) -> None:
-    """Best effort: push a finished file to disk (used after recover)."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-    except OSError:
-        pass

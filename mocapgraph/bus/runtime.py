@@ -6,26 +6,14 @@ so no node outlives its launcher, even one killed with SIGKILL.
 """
 from __future__ import annotations
 
-import ctypes
 import importlib
 import json
 import logging
-import signal
 import sys
 from typing import Any
 
-from .node import LOG_FORMAT, Node, NodeConfigError, Wiring, install_signal_handlers
-
-PR_SET_PDEATHSIG = 1
-
-
-def die_with_parent() -> None:
-    """Linux: SIGTERM this process when its parent exits (preexec hook of the launcher)."""
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass  # not Linux: the runtime's own parent-pid check is the fallback
+from .node import LOG_FORMAT, Node, NodeConfigError, install_signal_handlers
+from .protocol import Wiring, die_with_parent  # noqa: F401  (die_with_parent: the launcher's preexec hook)
 
 
 def load_class(spec: str) -> type[Node]:

@@ -1,8 +1,7 @@
 """Per-edge statistics: rate from sender stamps, latency, sequence gaps, rejects.
 
-An edge is one (topic, sending node) pair seen by one subscriber. Sequence numbers are per
-sender and topic and start at 1, so a restarted sender (seq back to 1) is a new stream, not loss;
-a repeat of the last sequence number with its publish stamp is a latched resend, dropped.
+An edge is one (topic, sending node) pair seen by one subscriber; its sequence numbers are read
+by the one rule in `messages.sequence`.
 """
 from __future__ import annotations
 
@@ -10,6 +9,8 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from ..messages.sequence import DUPLICATE, RESTART, sequence_gap
 
 WINDOW = 512
 # The launcher prefixes each line with the receiving node's name.
@@ -36,20 +37,16 @@ class EdgeStats:
 
     def accept(self, seq: int, publish_ns: int, now_ns: int) -> bool:
         """Record one arrival; False when it is a duplicate (a latched resend) to be dropped."""
-        last = self.last_seq
-        # A resend is the same bytes (same publish stamp); a restarted sender's latched value has
-        # the old sequence number 1 but a new stamp, and must be delivered.
-        if (seq == last and publish_ns == self.last_publish_ns) or (0 < seq < last and seq != 1):
+        lost = sequence_gap(self.last_seq, seq, publish_ns == self.last_publish_ns)
+        if lost == DUPLICATE:
             self.duplicates += 1
             return False
-        if seq <= last:  # the sender restarted
+        if lost == RESTART:
             self.restarts += 1
             log.info("%s from %s: the sender restarted (sequence %d after %d): a new stream, not loss",
-                     self.topic, self.sender, seq, last)
-        elif last and seq > last + 1:
-            self.gaps += seq - last - 1
-        elif not last and seq > 1 and self.received == 0:
-            pass  # joined a running stream: earlier messages were never ours to lose
+                     self.topic, self.sender, seq, self.last_seq)
+        else:
+            self.gaps += lost
         self.last_seq = seq
         self.last_publish_ns = publish_ns
         self.received += 1

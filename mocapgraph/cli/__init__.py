@@ -6,7 +6,8 @@ import sys
 from importlib import import_module
 
 # Command-family modules inside this package, each with register(subparsers).
-COMMAND_MODULES = ("graph_cmds", "topic_cmds", "bag_cmds", "actor_cmds", "device_cmds")
+COMMAND_MODULES = ("graph_cmds", "topic_cmds", "bag_cmds", "actor_cmds", "device_cmds", "retarget_cmds",
+                   "physics_cmds")
 
 
 class UserError(Exception):

@@ -1,6 +1,6 @@
 """``mocapgraph calibrate`` and ``mocapgraph solve``: the actor pipeline on files, batch.
 
-The same code as the live nodes: label matching (:mod:`mocapgraph.nodes.model_messages`),
+The same code as the live nodes: label matching (:mod:`mocapgraph.adapters.model_messages`),
 :func:`~mocapgraph.kinematics.calibration.calibrate`, :class:`~mocapgraph.kinematics.solver.FrameSolver`
 (batch ``solve`` runs the very temporal stage ``step`` runs live) and the ActorPose conversion.
 
@@ -123,26 +123,43 @@ def _definition(layout: str):
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate, layout_markers
     from ..kinematics.model import save_model
-    from ..nodes.model_messages import quality_table
+    from ..adapters.model_messages import quality_table
 
     definition = _definition(args.layout)
     frames = args.frames or []
     if len(frames) not in (0, 1, len(args.files)):
         raise UserError(f"--frames given {len(frames)} times for {len(args.files)} files "
                         "(give it once for all files, or once per file)")
-    parts, rate = [], None
+    order = tuple(m.strip() for m in args.centres.split(",") if m.strip())
+    from ..kinematics.centres import METHODS
+
+    bad = [m for m in order if m not in METHODS]
+    if bad or not order:
+        raise UserError(f"--centres {args.centres!r}: expected a comma list of {', '.join(METHODS)}")
+    # Landmarks the layout names (medial knee, malleoli) may be in the first file (the static) only.
+    landmark = {definition.marker_labels[k] for pair in (getattr(definition, "joint_landmarks", ()) or ())
+                for k in pair}
+    parts, rate, names, inputs = [], None, [], []
     absent_everywhere: set[str] | None = None
     for i, f in enumerate(args.files):
         inp = read_marker_input(f, args.topic, args.up)
+        inputs.append(inp)
         where, _ = definition.match_labels(list(inp.labels))
         absent = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
-        if absent and args.allow_missing:
-            print(f"note: {inp.path.name}: {len(absent)} layout markers absent (always missing): "
-                  f"{', '.join(absent)}")
+        static_only = [m for m in absent if i > 0 and m in landmark]
+        others = [m for m in absent if m not in static_only]
+        if others and args.allow_missing:
+            print(f"note: {inp.path.name}: {len(others)} layout markers absent (always missing): "
+                  f"{', '.join(others)}")
+        if static_only:
+            print(f"{inp.path.name}: lacks {len(static_only)} landmarks of {Path(args.files[0]).name}: "
+                  f"static-only, not needed later: {', '.join(static_only)}")
         absent_everywhere = set(absent) if absent_everywhere is None else absent_everywhere & set(absent)
+        if others and not args.allow_missing:  # --help tells of --allow-missing
+            raise UserError(f"{inp.path.name}: layout '{definition.name}' names markers the capture lacks: "
+                            f"{', '.join(others)}")
         try:
-            x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name,
-                               allow_missing=args.allow_missing)
+            x = layout_markers(definition, inp.labels, inp.positions, source=inp.path.name, allow_missing=True)
         except CalibrationError as exc:
             raise UserError(str(exc)) from None  # --help tells of --allow-missing
         if frames:
@@ -153,6 +170,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"{inp.path.name}: {len(x)} frames at {inp.rate_hz:g} Hz, {definition.n_markers} layout markers "
               f"({100 * (1 - seen.mean()):.1f} % missing samples)")
         parts.append(x)
+        names.append(inp.path.name)
         rate = rate or inp.rate_hz
     if absent_everywhere:
         gone = [m for m in definition.marker_labels if m in absent_everywhere]
@@ -160,18 +178,27 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                         "(the base pose needs each layout marker in at least one file; use a layout "
                         "without them)")
     markers = np.concatenate(parts)
+    subject = _subject(args, inputs[0])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CalibrationWarning)
         try:
             model = calibrate(definition, markers, base_frame=args.base_frame, rate_hz=rate,
                               max_base_search_s=args.base_search_s, min_rom_deg=args.min_rom_deg,
-                              source=" + ".join(Path(f).name for f in args.files))
+                              source=" + ".join(Path(f).name for f in args.files), centre_order=order,
+                              max_residual_mm=args.max_residual_mm, subject=subject,
+                              parts=list(zip(names, [len(p) for p in parts])))
         except CalibrationError as exc:
             raise UserError(str(exc)) from None
         except IndexError:
             raise UserError(f"--base-frame {args.base_frame} is outside the {len(markers)} frames") from None
     print(f"layout {definition.name}: {len(model.joint_names)} joints from {len(markers)} frames")
     print(quality_table(model))
+    for j, inp_j in enumerate(model.quality.inputs):
+        if "landmarks" in inp_j:
+            print(f"  {model.joint_names[j]}: midpoint of {' and '.join(inp_j['landmarks'])}")
+        elif "regression" in inp_j:
+            vals = ", ".join(f"{k[:-2]} {1000 * v:.1f} mm" for k, v in inp_j.items() if k.endswith("_m") and isinstance(v, float))
+            print(f"  {model.joint_names[j]}: {inp_j['regression']} ({vals}; subject from {inp_j.get('subject', '?')})")
     for w in caught:
         if issubclass(w.category, CalibrationWarning):
             print(f"warning: {w.message}")
@@ -183,11 +210,32 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _subject(args: argparse.Namespace, first: MarkerInput):
+    """Subject measurements: a C3D's PROCESSING parameters, then --vsk, then --subject (each
+    overriding the one before); None when there are none."""
+    from ..kinematics.subject import Subject, SubjectError, parse_subject_args, read_c3d_processing, read_vsk
+
+    sub = Subject()
+    try:
+        if first.path.suffix.lower() == ".c3d":
+            sub = sub.merged(read_c3d_processing(first.path))
+        if args.vsk:
+            sub = sub.merged(read_vsk(args.vsk))
+        if args.subject:
+            sub = sub.merged(parse_subject_args(args.subject))
+    except SubjectError as exc:
+        raise UserError(str(exc)) from None
+    if not sub.empty:
+        known = ", ".join(f"{k} {1000 * v:.1f} mm" for k, v in sub.as_dict().items() if isinstance(v, float))
+        print(f"subject ({sub.source}): {known}")
+    return None if sub.empty else sub
+
+
 # ----- solve -------------------------------------------------------------------------------------
 def cmd_solve(args: argparse.Namespace) -> int:
     from ..kinematics.model import ModelFileError, load_model
     from ..kinematics.solver import FrameSolver
-    from ..nodes.model_messages import marker_index
+    from ..adapters.model_messages import marker_index
 
     out = Path(args.output)
     if out.suffix.lower() not in OUTPUT_KINDS:
@@ -210,7 +258,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
         print(f"note: {len(missing)} model markers absent from {inp.path.name} (always missing): {', '.join(missing)}")
     try:
         solver = FrameSolver(model, rate_hz=inp.rate_hz, max_gap_s=args.max_gap_s,
-                             enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None)
+                             enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None,
+                             fit=args.fit)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     res = solver.solve(x, times)
@@ -246,13 +295,14 @@ def cmd_solve(args: argparse.Namespace) -> int:
 def _place(model, inp: MarkerInput, allow_missing: bool) -> tuple[np.ndarray, list[str]]:
     """Model marker -> input column (-1 absent); UserError for another layout or absent markers."""
     from ..kinematics.model import ModelFileError
-    from ..nodes.model_messages import ModelLabels, marker_index
+    from ..adapters.model_messages import marker_index
+    from ..kinematics.labels import missing_labels, place_labels
 
     try:
         return marker_index(model, inp.layout_name, inp.labels, source=inp.path.name), []
     except ModelFileError as exc:
-        where, _ = ModelLabels(model.layout, tuple(model.marker_labels)).match_labels(inp.labels)
-        missing = [model.marker_labels[m] for m in np.flatnonzero(where < 0)]
+        where, _ = place_labels(model.marker_labels, inp.labels)
+        missing = missing_labels(model.marker_labels, where)
         if not allow_missing or not (where >= 0).any():
             raise UserError(f"{exc}" + ("" if allow_missing else "; --allow-missing solves without them")) from None
         return where, missing
@@ -276,7 +326,7 @@ def _write_csv(out: Path, model, res, numbers: np.ndarray, times: np.ndarray) ->
 def _write_bag(out: Path, model, res, numbers: np.ndarray, times: np.ndarray, actor: str, inp: MarkerInput) -> None:
     from ..bag.errors import BagError
     from ..bag.writer import BagWriter, base_metadata
-    from ..nodes.model_messages import model_to_message, pose_message
+    from ..adapters.model_messages import model_to_message, pose_message
 
     stamps = np.round(times * 1e9).astype(np.int64)
     try:
@@ -304,6 +354,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--base-search-s", type=float, default=10.0, help="seconds searched for a base pose")
     p.add_argument("--min-rom-deg", type=float, default=25.0, help="joints moving less are unreliable, deg")
     p.add_argument("--topic", help="marker topic of bag inputs (when a bag has several)")
+    p.add_argument("--centres", default="functional,anatomical,regression",
+                   help="joint-centre methods in order of preference, per joint the first that applies "
+                        "(functional: SCoRE/SARA; anatomical: layout landmarks; regression: Plug-in Gait / "
+                        "Harrington with subject measurements); e.g. regression,anatomical for Plug-in Gait")
+    p.add_argument("--max-residual-mm", type=float, default=10.0, help="functional centres with a larger residual are not trusted")
+    p.add_argument("--vsk", metavar="FILE", help="Vicon VSK subject file (leg lengths, knee/ankle widths, ...)")
+    p.add_argument("--subject", action="append", metavar="KEY=MM",
+                   help="subject measurement in mm, e.g. LeftLegLength=877,RightKneeWidth=139 (repeatable; "
+                        "overrides --vsk and a C3D's PROCESSING parameters)")
     p.add_argument("--allow-missing", action="store_true",
                    help="a layout marker absent from a file is missing there (named per file) instead of "
                         "an error; each marker must still be in some file")
@@ -319,6 +378,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-gap-s", type=float, default=0.1, help="longest gap predicted over, s (0: none)")
     p.add_argument("--filter", default="", choices=("", "one_euro", "constant_velocity"), help="joint filter")
     p.add_argument("--no-enforce-lengths", action="store_true", help="do not keep calibrated bone lengths")
+    p.add_argument("--fit", default="segment", choices=("segment", "global"),
+                   help="limb poses one by one (segment) or all together under the joint constraints (global)")
     p.add_argument("--allow-missing", action="store_true", help="solve even if some model markers are absent")
     p.add_argument("--actor", default="actor", help="actor name in bag output")
     p.add_argument("--topic", help="marker topic of a bag input (when it has several)")

@@ -117,51 +117,18 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 # ----- play --------------------------------------------------------------------------------------------
-class _ManifestServer:
-    """Answers manifest requests for a standalone player, so topic echo / bag record find it."""
+def _player_manifest(node, file: str) -> "Manifest":
+    """The manifest a standalone player serves, so topic echo / bag record find it."""
+    from ..launch.manifest import Manifest, NodeEntry
 
-    def __init__(self, master: str, manifest: dict) -> None:
-        self.manifest = manifest
-        ctx = zmq.Context.instance()
-        self.sock = ctx.socket(zmq.REP)
-        self.sock.setsockopt(zmq.LINGER, 0)
-        if master.startswith("ipc://"):
-            Path(master[6:]).parent.mkdir(parents=True, exist_ok=True)
-        self.sock.bind(master)
-        self.master = master
-
-    def serve(self) -> None:
-        while True:
-            try:
-                self.sock.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            self.sock.send_string(json.dumps(self.manifest))
-
-    def close(self) -> None:
-        self.sock.close(0)
-        if self.master.startswith("ipc://"):
-            try:
-                os.unlink(self.master[6:])
-            except OSError:
-                pass
-
-
-def _player_manifest(node, file: str) -> dict:
-    topics: dict[str, Any] = {}
+    ep = node.wiring.pub_endpoint
+    m = Manifest(graph=f"bag play {file}")
     for name, decl in node.iface.outputs.items():
-        port = node.output_ports[name]
-        topics[port.topic] = {"type": decl.type_name, "subscribers": [],
-                              "publishers": [{"node": node.name, "endpoint": node.wiring.pub_endpoint,
-                                              "latched": decl.is_latched}]}
-    topics["diagnostics"] = {"type": "Diagnostics", "subscribers": [],
-                             "publishers": [{"node": node.name, "endpoint": node.wiring.pub_endpoint, "latched": False}]}
-    return {"graph": f"bag play {file}", "launcher_pid": os.getpid(),
-            "nodes": [{"name": node.name, "type": "bag_player", "class": "mocapgraph.nodes.bag_player:BagPlayer",
-                       "pid": os.getpid(), "endpoint": node.wiring.pub_endpoint, "params": node.params,
-                       "inputs": {}, "outputs": {n: p.topic for n, p in node.output_ports.items()},
-                       "restarts": 0, "running": True}],
-            "topics": topics}
+        m.add_publisher(node.output_ports[name].topic, decl.type_name, node.name, ep, decl.is_latched)
+    m.add_publisher("diagnostics", "Diagnostics", node.name, ep)
+    m.nodes = [NodeEntry(node.name, "bag_player", "mocapgraph.nodes.bag_player:BagPlayer", os.getpid(), ep,
+                         node.params, {}, {n: p.topic for n, p in node.output_ports.items()})]
+    return m
 
 
 class _Keys:
@@ -193,8 +160,7 @@ class _Keys:
 def cmd_play(args: argparse.Namespace) -> int:
     from ..bag.player import parse_remaps
     from ..bus.node import NodeConfigError, Wiring
-    from ..launch.manifest import NoGraphError, fetch_manifest
-    from ..launch.supervisor import default_master
+    from ..launch.manifest import ManifestBusyError, ManifestServer, NoGraphError, default_master, fetch_manifest
     from ..nodes.bag_player import BagPlayer
 
     try:
@@ -234,9 +200,10 @@ def cmd_play(args: argparse.Namespace) -> int:
             print(f"note: a graph already serves {master}; this player is reachable at {wiring.pub_endpoint} only")
         except NoGraphError:
             try:
-                server = _ManifestServer(master, _player_manifest(node, args.file))
-            except zmq.ZMQError:
+                server = ManifestServer(master)
+            except ManifestBusyError:
                 server = None
+            manifest = _player_manifest(node, args.file)
     for topic, why in pb.skipped.items():
         print(f"not playing {topic}: {why}")
     played = ", ".join(f"{outputs[t]['topic']} [{i.type_name}]" for t, i in pb.topics.items())
@@ -260,7 +227,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         while not stop["flag"] and not node.stopping:
             node.spin_once(0.02)
             if server is not None:
-                server.serve()
+                server.serve(lambda: manifest)
             for k in keys.read():
                 if k == " ":
                     node.handle("toggle")

@@ -9,9 +9,9 @@ from . import UserError
 
 
 def _sim(args: argparse.Namespace):
-    from ..nodes.device_config import DeviceConfigError
+    from ..formats.device_file import DeviceConfigError
     from ..kinematics.layout import LayoutError
-    from ..nodes.device_simulator import SimulatedDevice
+    from ..testing.device_simulator import SimulatedDevice
 
     try:
         return SimulatedDevice(args.layout, args.device, args.rate, args.seed, args.noise_mm)
@@ -20,7 +20,7 @@ def _sim(args: argparse.Namespace):
 
 
 def cmd_serial(args: argparse.Namespace) -> int:
-    from ..nodes.device_simulator import open_pty, run_serial
+    from ..testing.device_simulator import open_pty, run_serial
 
     sim = _sim(args)
     if args.port == "pty":
@@ -46,7 +46,7 @@ def cmd_serial(args: argparse.Namespace) -> int:
 
 
 def cmd_udp(args: argparse.Namespace) -> int:
-    from ..nodes.device_simulator import run_udp
+    from ..testing.device_simulator import run_udp
 
     sim = _sim(args)
     host, _, port = args.to.rpartition(":")
@@ -57,7 +57,7 @@ def cmd_udp(args: argparse.Namespace) -> int:
 
 
 def cmd_lsl(args: argparse.Namespace) -> int:
-    from ..nodes.device_simulator import run_lsl
+    from ..testing.device_simulator import run_lsl
 
     sim = _sim(args)
     print(f"LSL outlet '{args.name}' ({args.type}): {3 * len(sim.channels)} channels at {args.rate:g} Hz",

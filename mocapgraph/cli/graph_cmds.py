@@ -9,7 +9,7 @@ from typing import Any
 
 from ..launch.check import CheckedGraph, check_graph, load_node_class
 from ..launch.graph import load_graph
-from ..launch.yaml_source import GraphError, parse_value
+from ..formats.yaml_source import GraphError, parse_value
 from ..nodes.registry import NODE_TYPES
 from . import UserError
 
@@ -36,6 +36,9 @@ def cmd_launch(args: argparse.Namespace) -> int:
     from ..launch.supervisor import run_graph
 
     graph = load_checked(args.file, args.args)
+    if graph.spec.expects:
+        raise UserError(f"{args.file}: a piece meant for inclusion: it expects "
+                        f"{', '.join(e.topic for e in graph.spec.expects)} from the graph that includes it")
     return run_graph(graph, master=args.master)
 
 
@@ -54,6 +57,22 @@ def to_text(graph: CheckedGraph) -> str:
             lines.append(f"    <- {topic} [{n.iface.inputs[port].type_name}]")
         for port, topic in n.outputs.items():
             lines.append(f"    -> {topic} [{types[topic]}]")
+    lines.append("edges (publisher -> topic [type] -> subscribers)")
+    pubs: dict[str, list[str]] = {}
+    subs: dict[str, list[str]] = {}
+    for n in graph.nodes:
+        for topic in n.outputs.values():
+            pubs.setdefault(topic, []).append(n.name)
+        for topic in n.inputs.values():
+            subs.setdefault(topic, []).append(n.name)
+    for ext in graph.spec.external:
+        pubs.setdefault(ext.topic, []).append(f"external {ext.endpoint}")
+    for exp in graph.spec.expects:
+        pubs.setdefault(exp.topic, []).append("(the includer)")
+    pubs.setdefault("diagnostics", []).append("(every node)")
+    for topic in sorted(set(pubs) | set(subs)):
+        lines.append(f"  {', '.join(pubs.get(topic, ['(nobody)']))} -> {topic} [{types.get(topic, '*')}] -> "
+                     f"{', '.join(sorted(set(subs.get(topic, [])))) or '(nobody)'}")
     return "\n".join(lines)
 
 

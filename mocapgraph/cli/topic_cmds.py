@@ -11,6 +11,7 @@ import zmq
 from ..launch.manifest import NoGraphError, fetch_manifest, subscribe, topic_entry
 from ..messages import DecodeError, decode, decode_envelope
 from ..messages.registry import UnknownTypeError, lookup
+from ..messages.sequence import DUPLICATE, sequence_gap
 from . import UserError
 
 
@@ -106,10 +107,10 @@ def cmd_hz(args: argparse.Namespace) -> int:
                 env = decode_envelope(sock.recv_multipart())
             except DecodeError:
                 continue
-            prev = last_seq.get(env.sender)
-            if prev is not None and env.seq > prev + 1:
-                gaps += env.seq - prev - 1
-            last_seq[env.sender] = env.seq
+            lost = sequence_gap(last_seq.get(env.sender, 0), env.seq)
+            if lost != DUPLICATE:
+                gaps += max(lost, 0)
+                last_seq[env.sender] = env.seq
             stamps.append(env.publish_ns)
             stamps = stamps[-args.window:]
         if time.monotonic() >= next_report:

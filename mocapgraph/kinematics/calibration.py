@@ -18,7 +18,11 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mocapgraph.kinematics.model import JointQuality, SkeletonModel
+from mocapgraph.kinematics.centres import DEFAULT_ORDER, METHODS, Candidate, CentreCandidates
+from mocapgraph.kinematics.consistency import cluster_changes
+from mocapgraph.kinematics.labels import missing_labels, place_labels
+from mocapgraph.kinematics.model import JointQuality, ActorModel
+from mocapgraph.kinematics.subject import Subject
 from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
 
 # Directions of the 6-D offset space whose eigenvalue (relative to the largest) is below this
@@ -26,6 +30,10 @@ from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_mark
 _NULL_TOL = 1e-9
 # For joints with too little motion, every direction weaker than this is fixed by the prior.
 _LOW_MOTION_TOL = 1e-2
+
+
+# Largest slide (m) of a hinge centre along its axis by the perpendicular-to-the-parent rule.
+_MAX_AXIAL_SHIFT = 0.04
 
 
 class CalibrationError(ValueError):
@@ -49,8 +57,8 @@ def layout_markers(
     capture lacks raise CalibrationError naming them, or become NaN with ``allow_missing``.
     """
     positions = np.asarray(positions, dtype=float)
-    where, _ = definition.match_labels(list(labels))
-    missing = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+    where, _ = place_labels(definition.marker_labels, list(labels))
+    missing = missing_labels(definition.marker_labels, where)
     if missing and not allow_missing:
         raise CalibrationError(
             f"{source}: layout '{definition.name}' names markers the capture lacks: {', '.join(missing)}")
@@ -112,10 +120,91 @@ def _check_definition(definition: Any, markers: np.ndarray, source: str) -> np.n
     return idx
 
 
+# Share of frames farthest from the mean orientation left out of the range of motion, so that
+# a few glitched frames (a marker swap) do not pass for motion.
+_ROM_TRIM = 0.02
+
+
+# Frames averaged (moving window) before the range is taken: marker noise on a small cluster
+# jitters its orientation by degrees, and the largest pairwise angle of raw frames measures the
+# noise's extremes, not the motion (a still subject with 1 mm noise "moved" 5-20 deg).
+_ROM_SMOOTH = 15
+
+
+def _moving_mean(x: np.ndarray, n: int = _ROM_SMOOTH) -> np.ndarray:
+    """Centred moving mean of rows of x [N,D] over n frames (shorter at the ends)."""
+    if x.shape[0] < 3 or n < 2:
+        return x
+    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    i = np.arange(x.shape[0])
+    lo, hi = np.maximum(i - n // 2, 0), np.minimum(i + n // 2 + 1, x.shape[0])
+    return (c[hi] - c[lo]) / (hi - lo)[:, None]
+
+
+def _swing_range(u: np.ndarray, max_samples: int = 240) -> float:
+    """Largest angle (rad) between any two of the unit directions u [N,3] (smoothed, trimmed)."""
+    if u.shape[0] < 2:
+        return 0.0
+    u = _moving_mean(u)
+    u /= np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
+    mean = u.mean(0)
+    dev = u @ (mean / max(np.linalg.norm(mean), 1e-12))
+    u = u[dev >= np.quantile(dev, _ROM_TRIM)]
+    sel = u[np.linspace(0, u.shape[0] - 1, min(max_samples, u.shape[0])).astype(int)]
+    return float(np.arccos((sel @ sel.T).clip(-1.0, 1.0).min()))
+
+
+def joint_range_of_motion(definition: Any, markers: np.ndarray, fit: Any | None = None) -> np.ndarray:
+    """Range of motion (rad) of every joint from markers float[T,M,3] (layout order, metres).
+
+    Measured from the markers alone, never through joint points: a limb with a rigid fit of its
+    own (>= 3 markers) gives the largest relative rotation to the other limb; a limb with fewer
+    (a Plug-in Gait thigh: THI, KNE) gives the swing of its marker pair seen in the other limb's
+    frame, a lower bound that ignores the twist about the pair. A fit through an estimated joint
+    point would turn that point's noise into rotation (a still subject would "move" 30-180 deg).
+    """
+    markers = np.asarray(markers, dtype=float)
+    idx = np.asarray(definition.limb_marker_index())
+    if fit is None:
+        ref = gather_limb_markers(markers[0], idx)
+        fit = fit_rigid(ref, gather_limb_markers(markers, idx), (idx >= 0).astype(float))
+    jl = np.asarray(definition.joint_limbs)
+    rom = np.zeros(len(jl))
+    # Relative rotations of every joint's two limbs in one conversion (identity where unseen).
+    both_all = fit.valid[:, jl[:, 0]] & fit.valid[:, jl[:, 1]]                      # [T,J]
+    rel = np.swapaxes(fit.rotation[:, jl[:, 0]], -1, -2) @ fit.rotation[:, jl[:, 1]]
+    rel = np.where(both_all[..., None, None], rel, np.eye(3))
+    q_all = Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_quat(scalar_first=True).reshape(rel.shape[:2] + (4,))
+    for j, (a, b) in enumerate(jl):
+        both = np.flatnonzero(both_all[:, j])
+        own_a, own_b = (idx[a] >= 0).sum() >= MIN_MARKERS, (idx[b] >= 0).sum() >= MIN_MARKERS
+        if own_a and own_b:
+            if both.size:
+                rom[j] = _range_of_motion(q_all[both, j])
+            continue
+        frame_l, pair_l = (a, b) if own_a else (b, a)
+        pair = idx[pair_l][idx[pair_l] >= 0][:2]
+        if pair.size < 2:
+            continue
+        v = markers[:, pair[1]] - markers[:, pair[0]]
+        ok = fit.valid[:, frame_l] & np.isfinite(v).all(-1)
+        u = np.einsum("tji,tj->ti", fit.rotation[ok, frame_l], v[ok])
+        u /= np.maximum(np.linalg.norm(u, axis=-1, keepdims=True), 1e-12)
+        rom[j] = _swing_range(u)
+    return rom
+
+
 def _range_of_motion(q_rel: np.ndarray, max_samples: int = 240) -> float:
-    """Largest rotation angle (rad) between any two of the relative orientations (wxyz [N,4])."""
+    """Largest rotation angle (rad) between any two of the relative orientations (wxyz [N,4]),
+    leaving out the ``_ROM_TRIM`` share farthest from their mean."""
     if q_rel.shape[0] < 2:
         return 0.0
+    q_rel = q_rel * np.where(q_rel @ q_rel[0] < 0, -1.0, 1.0)[:, None]  # one hemisphere to average
+    q_rel = _moving_mean(q_rel)
+    q_rel /= np.linalg.norm(q_rel, axis=-1, keepdims=True)
+    mean = q_rel.mean(0)
+    closeness = np.abs(q_rel @ (mean / max(np.linalg.norm(mean), 1e-12)))  # cos(half angle from the mean)
+    q_rel = q_rel[closeness >= np.quantile(closeness, _ROM_TRIM)]
     sel = q_rel[np.linspace(0, q_rel.shape[0] - 1, min(max_samples, q_rel.shape[0])).astype(int)]
     dots = np.abs(sel @ sel.T).clip(0.0, 1.0)
     return float(2.0 * np.arccos(dots.min()))
@@ -166,19 +255,39 @@ def calibrate(
     huber_k: float = 3.0,
     irls_iterations: int = 8,
     source: str = "capture",
-) -> SkeletonModel:
-    """Build a SkeletonModel from float[T,M,3] markers (layout order, metres, NaN = unseen).
+    centre_order: Sequence[str] = DEFAULT_ORDER,
+    max_residual_mm: float = 10.0,
+    subject: Subject | None = None,
+    parts: Sequence[tuple[str, int]] | None = None,
+) -> ActorModel:
+    """Build an ActorModel from float[T,M,3] markers (layout order, metres, NaN = unseen).
 
     definition: a SkeletonDefinition (name, limb/joint/marker names and indices).
     base_frame: the base pose frame; by default the first frame with every marker visible,
     searched within ``max_base_search_s`` (needs ``rate_hz``; otherwise the whole capture).
     All frames (base pose included) are the gym motion. Joints whose two limbs rotate less than
-    ``min_rom_deg`` relative to each other get a CalibrationWarning naming them and a centre
-    from the prior; if no joint moved enough, CalibrationError.
+    ``min_rom_deg`` relative to each other get no functional centre; if no joint moved enough
+    and none has landmarks or a regression either, CalibrationError.
+
+    Per joint the centre's method is the first of ``centre_order`` that applies: "functional"
+    (SCoRE/SARA, or a sphere fit for joint points: range >= min_rom_deg and residual <=
+    ``max_residual_mm``), "anatomical" (the layout's landmark pair, midpoint over the static
+    frames), "regression" (the layout's Plug-in Gait / Harrington regression with ``subject``);
+    else the prior (a centre between the limbs, flagged unreliable). A functional hinge's place
+    along its axis comes from its landmarks, else its regression, else the plane of its
+    neighbours, else the mid-plane of the markers.
+    parts: (file name, frame count) of concatenated captures: the first is the static trial
+    (landmarks, regressions); markers absent from every later part are static-only (the model
+    does not need them later); cluster distances changing by more than 3 mm between parts are
+    reported as warnings naming the markers.
     """
     markers = np.asarray(markers, dtype=float)
     idx = _check_definition(definition, markers, source)
     labels = tuple(definition.marker_labels)
+    bad = [m for m in centre_order if m not in METHODS]
+    if bad:
+        raise CalibrationError(f"{source}: unknown centre method {bad[0]!r} (known: {', '.join(METHODS)})")
+    n_static = int(parts[0][1]) if parts else markers.shape[0]
     if base_frame is None:
         max_frames = int(round(max_base_search_s * rate_hz)) if (rate_hz and max_base_search_s) else None
         base_frame = find_base_pose(markers, labels, max_frames, source)
@@ -196,9 +305,38 @@ def calibrate(
     names = tuple(definition.joint_names)
     hinge = np.asarray(definition.joint_hinge, dtype=bool)
     jpts = _joint_points(definition)
+    # Range of motion from the markers' own fits, before any joint point enters a fit.
+    rom = joint_range_of_motion(definition, markers, fit)
+    low = rom < np.radians(min_rom_deg)
+    cands = CentreCandidates(definition, markers, slice(0, n_static), subject)
+    if low.all() and not cands.has_any():
+        hint = ("; the layout's regression centres need subject measurements (a VSK, a C3D's PROCESSING "
+                "parameters or --subject)" if any(r is not None for r in cands.regressions) else "")
+        raise CalibrationError(
+            f"{source}: gym capture has almost no motion (every joint below {min_rom_deg:g} deg): "
+            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in range(len(rom))) + hint)
+    max_res = max_residual_mm / 1000.0
+    chosen: dict[int, np.ndarray] = {}
+    picked: dict[int, tuple[str, float, bool, dict]] = {}  # joint -> method, residual, reliable, inputs
+
+    def pick(j: int, functional: Candidate | None, cur_fit: Any) -> Candidate:
+        """The first method of centre_order that gives joint j a centre; else the prior."""
+        for m in centre_order:
+            if m == "functional" and functional is not None and not low[j] and functional.spread <= max_res:
+                picked[j] = (functional.method, functional.spread, True, functional.inputs)
+                return functional
+            got = (cands.anatomical(j, cur_fit) if m == "anatomical"
+                   else cands.regression(j, cur_fit, chosen) if m == "regression" else None)
+            if got is not None:
+                picked[j] = (got.method, got.spread, True, got.inputs)
+                return got
+        fallback = functional if functional is not None else None
+        return fallback  # type: ignore[return-value]
+
     point_centre: dict[int, tuple[np.ndarray, float]] = {}
     if (jpts >= 0).any():
-        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source)
+        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low,
+                                             pick, chosen)
     rot = fit.rotation                                        # [T,L,3,3]
     cen = (rot @ c0[:, :, None])[..., 0] + fit.translation    # base centroid carried along
 
@@ -216,19 +354,6 @@ def calibrate(
     shift = np.concatenate([mid - c0[la], mid - c0[lb]], axis=-1)  # [J,6]
     bvec = cen[:, lb] - cen[:, la] - (a_mat @ shift[None, :, :, None])[..., 0]
     bvec = np.where(valid[..., None], bvec, 0.0)
-
-    # Range of motion between each joint's two limbs.
-    rom = np.zeros(J)
-    for j in range(J):
-        fr = np.flatnonzero(valid[:, j])
-        q_rel = Rotation.from_matrix(
-            np.swapaxes(rot[fr, la[j]], -1, -2) @ rot[fr, lb[j]]).as_quat(scalar_first=True)
-        rom[j] = _range_of_motion(q_rel)
-    low = rom < np.radians(min_rom_deg)
-    if low.all():
-        raise CalibrationError(
-            f"{source}: gym capture has almost no motion (every joint below {min_rom_deg:g} deg): "
-            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in range(J)))
 
     w = valid.astype(float)
     x = np.zeros((J, 6))
@@ -253,14 +378,37 @@ def calibrate(
     offsets = (x + shift).reshape(J, 2, 3)
     for j, (centre, rms_j) in point_centre.items():
         offsets[j, 0], offsets[j, 1] = centre - c0[la[j]], centre - c0[lb[j]]
-        methods[j] = "sphere"
+        methods[j] = "prior" if low[j] else "sphere"
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
-    _place_hinge_centres(definition, joint_base, offsets, axes, hinge & ~low, methods)
     inlier = valid & (err <= c)
     resid = np.array([np.sqrt(np.mean(err[inlier[:, j], j] ** 2)) if inlier[:, j].any() else np.nan
                       for j in range(J)])
     for j, (centre, rms_j) in point_centre.items():
         resid[j] = rms_j
+    # One method per joint, in tree order (a knee chord needs its hip's chosen centre).
+    functional_hinge = np.zeros(J, dtype=bool)
+    for j in range(J):
+        if j in point_centre:
+            if j not in picked:
+                picked[j] = (methods[j], resid[j], False, {})
+            methods[j], resid[j] = picked[j][0], picked[j][1]
+            chosen[j] = joint_base[j].copy()
+            continue
+        func = None if methods[j] == "prior" else Candidate(joint_base[j].copy(), float(resid[j]), methods[j],
+                                                            {"functional": "SARA" if hinge[j] else "SCoRE"})
+        got = pick(j, func, fit)
+        if j not in picked:
+            picked[j] = (methods[j], resid[j], False, {})
+        elif got is not func:
+            offsets[j, 0], offsets[j, 1] = got.point - c0[la[j]], got.point - c0[lb[j]]
+            joint_base[j] = got.point
+        else:
+            functional_hinge[j] = bool(hinge[j])
+        methods[j], resid[j] = picked[j][0], picked[j][1]
+        chosen[j] = joint_base[j].copy()
+    _place_hinge_centres(definition, joint_base, offsets, axes, functional_hinge, methods, cands, fit, chosen)
+    reliable = np.array([picked[j][2] for j in range(J)], dtype=bool)
+    method_inputs = tuple(dict(picked[j][3]) for j in range(J))
     outl = 1.0 - inlier.sum(0) / np.maximum(n_frames, 1)
     axes[~hinge] = np.nan  # the axis sign is arbitrary; only the line matters to the solver
 
@@ -268,11 +416,23 @@ def calibrate(
         else np.array([np.nanmedian(fit.rms[fit.valid[:, l], l]) if fit.valid[:, l].any() else np.nan
                        for l in range(len(definition.limb_names))])
     warns: list[str] = []
-    if low.any():
+    weak = np.flatnonzero(~reliable)
+    if weak.size:
         warns.append(
-            f"{source}: too little motion for a reliable centre (< {min_rom_deg:g} deg), centre "
-            "from the prior: " + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in np.flatnonzero(low)))
-    model = SkeletonModel(
+            f"{source}: no reliable centre (range of motion < {min_rom_deg:g} deg or residual > "
+            f"{max_residual_mm:g} mm, and no landmarks or regression): centre from the prior: "
+            + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg" for j in weak))
+    warns.extend(f"{source}: {n}" for n in cands.notes if names[0] is not None)
+    static_only: tuple[str, ...] = ()
+    if parts and len(parts) > 1:
+        # Only the layout's landmarks may be static-only: any other marker stays required later.
+        lmk = np.zeros(len(labels), dtype=bool)
+        lmk[[k for pair in (getattr(definition, "joint_landmarks", ()) or ()) for k in pair]] = True
+        later = np.isfinite(markers[n_static:]).all(-1).any(0)
+        static_only = tuple(labels[m] for m in np.flatnonzero(
+            lmk & ~later & np.isfinite(markers[:n_static]).all(-1).any(0)))
+        warns.extend(cluster_changes(definition, markers, parts))
+    model = ActorModel(
         layout=str(definition.name),
         marker_labels=labels,
         limb_names=tuple(definition.limb_names),
@@ -294,12 +454,14 @@ def calibrate(
             range_of_motion=rom,
             n_frames=n_frames.astype(np.int64),
             outlier_fraction=outl,
-            reliable=~low,
+            reliable=reliable,
             method=tuple(methods),
+            inputs=method_inputs,
         ),
         n_gym_frames=int(markers.shape[0]),
         rate_hz=rate_hz,
         limb_joint_points=jpts,
+        static_only_markers=static_only,
     )
     model.bone_length = _bone_lengths(model, markers)
     model.warnings = tuple(warns)
@@ -309,18 +471,30 @@ def calibrate(
 
 
 def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.ndarray,
-                         axes: np.ndarray, hinge: np.ndarray, methods: list[str]) -> None:
-    """Slide each hinge centre along its axis to where the axis meets the line from the parent
-    joint to the child joint (in place).
+                         axes: np.ndarray, hinge: np.ndarray, methods: list[str],
+                         cands: CentreCandidates | None = None, fit: Any = None,
+                         chosen: dict[int, np.ndarray] | None = None) -> None:
+    """Fix each functional hinge centre's place along its axis (in place).
 
-    Motion about one axis leaves the centre's position along it unobservable. An anatomical
-    hinge's axis is normal to the plane of the neighbouring joint centres (shoulder, elbow,
-    wrist), so the closest point of the axis to the parent-child line is the centre in any pose.
-    Without both neighbours the midpoint prior stays.
+    Motion about one axis leaves the centre's position along it unobservable. In order: the
+    point of the axis nearest the landmark midpoint (epicondyles), else nearest the regression
+    centre (PiG knee width), else where the axis meets the line from the parent joint to the
+    child joint (an anatomical hinge's axis is normal to the plane of its neighbours: shoulder,
+    elbow, wrist), else the axis point nearest the parent joint (the segment's long axis is
+    perpendicular to its flexion axis), else the mid-plane of the two limbs' markers.
     """
     jl = np.asarray(definition.joint_limbs)
     parent = np.asarray(definition.joint_parent)
     for j in np.flatnonzero(hinge):
+        n = axes[j]
+        if cands is not None and np.isfinite(n).all():
+            got = cands.anatomical(j, fit) or cands.regression(j, fit, chosen or {})
+            if got is not None:
+                s = float((got.point - joint_base[j]) @ n)
+                joint_base[j] += s * n
+                offsets[j] += s * n
+                methods[j] += "+" + ("landmarks" if got.method == "landmarks" else "regression")
+                continue
         kids = [k for k in np.flatnonzero(jl[:, 0] == jl[j, 1]) if not hinge[k]]
         p = parent[j]
         n = axes[j]
@@ -338,6 +512,22 @@ def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.nd
         joint_base[j] += s * n
         offsets[j] += s * n
         methods[j] = "hinge+plane"
+    for j in np.flatnonzero(hinge):
+        p = parent[j]
+        n = axes[j]
+        if methods[j] in ("hinge", "hinge+prior") and p >= 0 and np.isfinite(n).all():
+            # The segment's long axis (parent joint to this centre) is perpendicular to its
+            # flexion axis: the centre is the axis point nearest the parent joint.
+            d = joint_base[p] - joint_base[j]
+            s = float(d @ n)
+            # Only a small correction: a poorly found axis would otherwise slide the centre far
+            # along it (the joint is at most a few centimetres wide).
+            if abs(s) < min(np.cos(np.radians(75.0)) * np.linalg.norm(d), _MAX_AXIAL_SHIFT):
+                joint_base[j] += s * n
+                offsets[j] += s * n
+                methods[j] = "hinge+perpendicular"
+        if methods[j] in ("hinge", "hinge+prior"):
+            methods[j] += "+midplane"
 
 
 def _joint_points(definition: Any) -> np.ndarray:
@@ -373,9 +563,10 @@ def _sphere_centre(y: np.ndarray, prior: np.ndarray) -> tuple[np.ndarray, float]
     return c + prior, float(np.sqrt(np.mean(res * res))) if res.size else float("nan")
 
 
-def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source):
+def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low, pick=None, chosen=None):
     """Joint centres used as fit points (sphere fit of the limb's markers in the other limb's
-    frame), then the limbs' rigid fits redone with those centres as extra points."""
+    frame; the midpoint prior for joints that hardly moved, ``low`` bool[J]), then the limbs'
+    rigid fits redone with those centres as extra points."""
     jl = np.asarray(definition.joint_limbs)
     names = definition.joint_names
     pl = np.flatnonzero((jpts >= 0).any(1))
@@ -395,7 +586,16 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source):
             x = gather_limb_markers(markers[frames], idx[l])  # [F,K,3]
             rm = fit.rotation[frames, m]
             y = np.einsum("fji,fkj->fki", rm, x - fit.translation[frames, m][:, None, :])
-            centre[int(j)] = _sphere_centre(y, 0.5 * (c0[l] + c0[m]))
+            prior = 0.5 * (c0[l] + c0[m])
+            # A still joint's markers fit any sphere: the "centre" would be noise.
+            centre[int(j)] = (prior, float("nan")) if low[j] else _sphere_centre(y, prior)
+            if pick is not None:
+                func = None if low[j] else Candidate(centre[int(j)][0], centre[int(j)][1], "sphere",
+                                                     {"functional": "sphere fit"})
+                got = pick(int(j), func, fit)
+                if got is not None:
+                    centre[int(j)] = (got.point, got.spread)
+                chosen[int(j)] = centre[int(j)][0]
     vmask = jpts[pl] >= 0
     js = np.where(vmask, jpts[pl], 0)
     other = np.where(jl[js, 1] == pl[:, None], jl[js, 0], jl[js, 1])
@@ -416,7 +616,7 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source):
     return type(fit)(**merged), centre
 
 
-def _bone_lengths(model: SkeletonModel, markers: np.ndarray) -> np.ndarray:
+def _bone_lengths(model: ActorModel, markers: np.ndarray) -> np.ndarray:
     """Median distance from each joint to its parent joint over the gym frames (Kiip 3.3.3)."""
     from mocapgraph.kinematics.solver import FrameSolver  # solver imports model only; no cycle at load
 

@@ -40,6 +40,8 @@ class Character:
     rest_offsets: np.ndarray     # float64 [J, 3], m, parent frame (root: world)
     rest_rotations: np.ndarray   # float64 [J, 4], wxyz, parent frame (root: world)
     end_sites: np.ndarray = field(default=None)  # bool [J]: leaf markers with no rotation of their own
+    # BVH rigs may stack joints at one place (CMU's LHipJoint sits on Hips); hand-written files may not
+    allow_zero_bones: bool = False
 
     def __post_init__(self) -> None:
         names = tuple(self.joint_names)
@@ -49,7 +51,7 @@ class Character:
         rest = np.asarray(self.rest_rotations, dtype=np.float64).reshape(-1, 4)
         ends = (np.zeros(n, dtype=bool) if self.end_sites is None
                 else np.asarray(self.end_sites, dtype=bool).reshape(-1))
-        validate_hierarchy(names, parents, offsets, rest)
+        validate_hierarchy(names, parents, offsets, rest, allow_zero_bones=self.allow_zero_bones)
         if ends.shape != (n,):
             raise CharacterError(f"end_sites: {ends.shape[0]} flags for {n} joints")
         for attr, value in (("joint_names", names), ("parents", parents), ("rest_offsets", offsets),
@@ -152,11 +154,11 @@ class Character:
         if not np.isfinite(factor) or factor <= 0:
             raise CharacterError(f"scale: {factor} is not a positive finite number")
         return Character(name or self.name, self.joint_names, self.parents, self.rest_offsets * factor,
-                         self.rest_rotations, self.end_sites)
+                         self.rest_rotations, self.end_sites, self.allow_zero_bones)
 
 
 def validate_hierarchy(names: tuple[str, ...], parents: np.ndarray, offsets: np.ndarray,
-                       rest_rotations: np.ndarray) -> None:
+                       rest_rotations: np.ndarray, *, allow_zero_bones: bool = False) -> None:
     """Raise :class:`CharacterError` naming the joint at fault: duplicates, unknown or later
     parents (a cycle), zero-length bones, non-finite or non-unit data."""
     n = len(names)
@@ -182,7 +184,7 @@ def validate_hierarchy(names: tuple[str, ...], parents: np.ndarray, offsets: np.
     if bad.size:
         raise CharacterError(f"joint {names[bad[0]]!r}: rest offset is not finite")
     short = np.flatnonzero((np.linalg.norm(offsets, axis=1) < 1e-6) & (parents >= 0))
-    if short.size:
+    if short.size and not allow_zero_bones:
         raise CharacterError(f"joint {names[short[0]]!r}: zero-length bone to {names[parents[short[0]]]!r}")
     norms = np.linalg.norm(rest_rotations, axis=1)
     bad = np.flatnonzero(~np.isfinite(norms) | (np.abs(norms - 1.0) > 1e-6))

@@ -21,6 +21,13 @@ File format (``graph_configs/marker_layouts/*.yaml``)::
         markers: [LTIB_A, LTIB_B]
         shared: [LKNE]              # optional: markers OWNED by an adjacent limb also used here
         joint_points: [knee_l]      # optional: joint centres usable as extra rigid-fit points
+      - name: foot_l
+        parent: lower_leg_l
+        joint:
+          name: ankle_l
+          type: hinge
+          landmarks: [LANK, LMED]   # optional: anatomical centre = midpoint of these two markers
+          regression: {method: pig_ankle, side: left, markers: {wand: LTIB, lateral: LANK}}
 
 Rules (each broken rule is a one-line :class:`LayoutError` naming file, line and key):
 
@@ -35,7 +42,12 @@ Rules (each broken rule is a one-line :class:`LayoutError` naming file, line and
 - ``joint_points`` names joints touching this limb whose centre, once estimated from the other
   limb, may stand in as an extra fit point (Plug-in Gait thigh: THI, KNE and the hip centre);
 - a limb needs ``markers + shared + joint_points >= 3`` fit points, and at least one marker of
-  its own or shared.
+  its own or shared;
+- ``joint.landmarks`` names two markers (epicondyles, malleoli, styloids) owned by one of the
+  joint's two limbs; their midpoint in a static trial is the joint's anatomical centre. Markers
+  seen only in the static (medial ones) need not be in later trials;
+- ``joint.regression`` names a regression (``method`` one of ``REGRESSIONS``), the ``side``
+  (left/right) and the ``markers`` it reads by role (see :mod:`mocapgraph.kinematics.regression`).
 """
 from __future__ import annotations
 
@@ -47,6 +59,13 @@ import yaml
 
 LAYOUT_DIR = Path(__file__).resolve().parents[2] / "graph_configs" / "marker_layouts"
 JOINT_TYPES = ("ball", "hinge")
+# Regression centres and the marker roles each reads (kinematics/regression.py computes them).
+REGRESSIONS = {
+    "pig_hip": ("lasi", "rasi", "lpsi", "rpsi"),        # Davis 1991, as Plug-in Gait
+    "harrington_hip": ("lasi", "rasi", "lpsi", "rpsi"),  # Harrington 2007 (pelvis width and depth)
+    "pig_knee": ("wand", "lateral"),                     # PiG chord: thigh marker, lateral epicondyle
+    "pig_ankle": ("wand", "lateral"),                    # PiG chord: tibia marker, lateral malleolus
+}
 MIN_FIT_POINTS = 3
 
 LineOf = Callable[[tuple], "int | None"]
@@ -117,6 +136,15 @@ def read_layout_yaml(path: str | Path) -> tuple[dict, LineOf]:
 
 
 @dataclass(frozen=True)
+class Regression:
+    """A joint's regression centre: method name, side (left/right), marker role -> label."""
+
+    method: str
+    side: str
+    markers: dict
+
+
+@dataclass(frozen=True)
 class ParsedLimb:
     name: str
     parent: str | None
@@ -125,6 +153,8 @@ class ParsedLimb:
     markers: tuple[str, ...]
     shared: tuple[str, ...]
     joint_points: tuple[str, ...]
+    landmarks: tuple[str, ...] = ()
+    regression: Regression | None = None
 
 
 @dataclass(frozen=True)
@@ -178,6 +208,7 @@ def parse_layout(data: Any, source: str = "<dict>", line_of: LineOf | None = Non
             fail(("limbs", i, "name"), "limb name missing or not a string")
         parent = item.get("parent")
         jname = jtype = None
+        landmarks, regression = (), None
         if parent is not None:
             if not isinstance(parent, str):
                 fail(("limbs", i, "parent"), f"limb `{lname}`: parent must be a limb name")
@@ -188,11 +219,34 @@ def parse_layout(data: Any, source: str = "<dict>", line_of: LineOf | None = Non
             jtype = joint.get("type", "ball")
             if jtype not in JOINT_TYPES:
                 fail(("limbs", i, "joint", "type"), f"joint `{jname}`: type must be one of {JOINT_TYPES}, got {jtype!r}")
+            jextra = set(joint) - {"name", "type", "landmarks", "regression"}
+            if jextra:
+                fail(("limbs", i, "joint", sorted(jextra)[0]),
+                     f"joint `{jname}`: unknown key (allowed: name, type, landmarks, regression)")
+            lm = joint.get("landmarks", [])
+            if not (isinstance(lm, list) and (len(lm) in (0, 2)) and all(isinstance(v, str) and v.strip() for v in lm)):
+                fail(("limbs", i, "joint", "landmarks"), f"joint `{jname}`: landmarks must be a list of two marker labels")
+            landmarks = tuple(v.strip() for v in lm)
+            regression = None
+            reg = joint.get("regression")
+            if reg is not None:
+                if not isinstance(reg, dict) or reg.get("method") not in REGRESSIONS:
+                    fail(("limbs", i, "joint", "regression"),
+                         f"joint `{jname}`: regression needs `method:` one of {', '.join(REGRESSIONS)}")
+                side = reg.get("side")
+                if side not in ("left", "right"):
+                    fail(("limbs", i, "joint", "regression", "side"), f"joint `{jname}`: side must be left or right")
+                roles = reg.get("markers")
+                need = REGRESSIONS[reg["method"]]
+                if not isinstance(roles, dict) or set(roles) != set(need) or not all(isinstance(v, str) for v in roles.values()):
+                    fail(("limbs", i, "joint", "regression", "markers"),
+                         f"joint `{jname}`: regression {reg['method']} needs markers for {', '.join(need)}")
+                regression = Regression(reg["method"], side, {k: v.strip() for k, v in roles.items()})
         elif "joint" in item:
             fail(("limbs", i, "joint"), f"root limb `{lname}` has no parent, so it cannot declare a joint")
         parsed.append(ParsedLimb(lname.strip(), parent.strip() if parent else None, jname, jtype,
                                  str_list(i, "markers", item), str_list(i, "shared", item),
-                                 str_list(i, "joint_points", item)))
+                                 str_list(i, "joint_points", item), landmarks, regression))
 
     index = {}
     for i, lb in enumerate(parsed):
@@ -264,5 +318,20 @@ def parse_layout(data: Any, source: str = "<dict>", line_of: LineOf | None = Non
                  f"{len(lb.joint_points)} joint point(s); a rigid fit needs >= {MIN_FIT_POINTS} "
                  "(add markers, or `shared:` markers of an adjacent limb)")
 
+    for i, lb in enumerate(parsed):
+        if lb.landmarks:
+            if lb.landmarks[0].lower() == lb.landmarks[1].lower():
+                fail(("limbs", i, "joint", "landmarks"), f"joint `{lb.joint_name}`: the two landmarks are one marker")
+            pi = index[lb.parent]
+            for m in lb.landmarks:
+                o = owner.get(m.lower())
+                if o not in (i, pi):
+                    fail(("limbs", i, "joint", "landmarks"),
+                         f"joint `{lb.joint_name}`: landmark `{m}` is not a marker of `{lb.name}` or `{lb.parent}`")
+        if lb.regression is not None:
+            for role, m in lb.regression.markers.items():
+                if m.lower() not in owner:
+                    fail(("limbs", i, "joint", "regression", "markers"),
+                         f"joint `{lb.joint_name}`: regression marker {role}: `{m}` is not a marker of this layout")
     limbs = tuple(parsed[i] for i in order)
     return ParsedLayout(name.strip(), str(desc).strip(), limbs)

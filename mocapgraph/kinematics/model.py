@@ -10,22 +10,15 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field
-from enum import IntEnum
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from ..messages.quality import Quality  # noqa: F401  (the one definition; re-exported for the math)
+
 MODEL_FORMAT = "mocapgraph.skeleton_model"
 MODEL_VERSION = 1
-
-
-class Quality(IntEnum):
-    """Per joint / limb quality code carried as int8 next to NaN-able values."""
-
-    MISSING = 0    # no value (NaN)
-    ESTIMATED = 1  # from fewer limbs than usual, a poor fit, or predicted over a short gap
-    GOOD = 2       # measured from every attached limb
 
 
 class ModelFileError(ValueError):
@@ -45,13 +38,16 @@ class JointQuality:
     range_of_motion: np.ndarray  # rad, largest relative rotation between the two limbs covered
     n_frames: np.ndarray       # gym frames with both limbs visible
     outlier_fraction: np.ndarray  # share of frames down-weighted by the robust fit
-    reliable: np.ndarray       # bool: enough motion and well-posed centre
-    method: tuple[str, ...]    # "ball", "hinge", "ball+prior", "hinge+prior", "prior"
+    reliable: np.ndarray       # bool: a centre from a method that applies (never the prior)
+    # "ball", "hinge[+plane|+landmarks|+regression|+midplane]", "sphere" (functional),
+    # "landmarks" (anatomical), "regression:pig_hip" ..., "prior"
+    method: tuple[str, ...]
+    inputs: tuple[dict, ...] = ()  # per joint: what the method used (landmarks, measurements, m)
 
 
 @dataclass
-class SkeletonModel:
-    """A calibrated actor: the layout's structure plus per-actor geometry in the base pose."""
+class ActorModel:
+    """A calibrated actor (the kinematic model; its message is `SkeletonModel`): the layout's structure plus per-actor geometry in the base pose."""
 
     layout: str
     marker_labels: tuple[str, ...]
@@ -77,6 +73,8 @@ class SkeletonModel:
     # int64[L,P]: joints whose centre (seen from the joint's other limb) is an extra fit point
     # of each limb (-1 padding); for limbs with only two markers (Plug-in Gait thigh).
     limb_joint_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
+    # Markers seen only in the static trial (medial landmarks): later trials need not have them.
+    static_only_markers: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.marker_fingerprint:
@@ -127,6 +125,7 @@ class SkeletonModel:
             "rate_hz": self.rate_hz,
             "warnings": list(self.warnings),
             "marker_labels": list(self.marker_labels),
+            "static_only_markers": list(self.static_only_markers),
             "base_markers": arr(self.base_markers, 7),
             "limbs": [
                 {
@@ -156,6 +155,7 @@ class SkeletonModel:
                         "outlier_fraction": arr(q.outlier_fraction[j : j + 1], 4)[0],
                         "reliable": bool(q.reliable[j]),
                         "method": q.method[j],
+                        "inputs": q.inputs[j] if j < len(q.inputs) else {},
                     },
                 }
                 for j, n in enumerate(self.joint_names)
@@ -163,7 +163,7 @@ class SkeletonModel:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any], source: str = "model") -> "SkeletonModel":
+    def from_dict(cls, d: dict[str, Any], source: str = "model") -> "ActorModel":
         if d.get("format") != MODEL_FORMAT:
             raise ModelFileError(f"{source}: not a skeleton model file (format {d.get('format')!r})")
         if d.get("version") != MODEL_VERSION:
@@ -214,11 +214,13 @@ class SkeletonModel:
                     outlier_fraction=np.array([f(q["outlier_fraction"]) for q in qs], dtype=float),
                     reliable=np.array([q["reliable"] for q in qs], dtype=bool),
                     method=tuple(q["method"] for q in qs),
+                    inputs=tuple(dict(q.get("inputs", {})) for q in qs),
                 ),
                 warnings=tuple(d.get("warnings", ())),
                 n_gym_frames=int(d.get("n_gym_frames", 0)),
                 rate_hz=d.get("rate_hz"),
                 limb_joint_points=jpts,
+                static_only_markers=tuple(d.get("static_only_markers", ())),
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ModelFileError(f"{source}: malformed skeleton model ({exc.__class__.__name__}: {exc})") from None
@@ -227,7 +229,7 @@ class SkeletonModel:
         return model
 
 
-def save_model(model: SkeletonModel, path: str | Path) -> None:
+def save_model(model: ActorModel, path: str | Path) -> None:
     """Write the model as indented JSON."""
     Path(path).write_text(json.dumps(model.to_dict(), indent=1) + "\n", encoding="utf-8")
 
@@ -236,7 +238,7 @@ def load_model(
     path: str | Path,
     layout: str | None = None,
     marker_labels: Sequence[str] | None = None,
-) -> SkeletonModel:
+) -> ActorModel:
     """Read a model file; with ``layout`` (and labels), refuse a model calibrated for another layout.
 
     ``layout`` may also be any object with ``name`` and ``marker_labels`` (a SkeletonDefinition).
@@ -250,7 +252,7 @@ def load_model(
         raise ModelFileError(f"{path}: cannot read skeleton model ({exc})") from None
     if not isinstance(data, dict):
         raise ModelFileError(f"{path}: not a skeleton model file")
-    model = SkeletonModel.from_dict(data, source=str(path))
+    model = ActorModel.from_dict(data, source=str(path))
     if layout is not None:
         if not isinstance(layout, str):
             marker_labels = tuple(layout.marker_labels)

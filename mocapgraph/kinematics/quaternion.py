@@ -10,24 +10,67 @@ from __future__ import annotations
 import numpy as np
 
 
+# m = I + 2 * (linear map of the 16 products q_a q_b) for a unit q: one outer product and one
+# matrix product instead of two dozen element-wise operations (this sits on every live frame)
+_Q2M = np.zeros((16, 9))
+_TERMS = {  # element (row-major index) -> [(a, b, coefficient)] over q = (w, x, y, z)
+    0: [(2, 2, -1), (3, 3, -1)], 1: [(1, 2, 1), (0, 3, -1)], 2: [(1, 3, 1), (0, 2, 1)],
+    3: [(1, 2, 1), (0, 3, 1)], 4: [(1, 1, -1), (3, 3, -1)], 5: [(2, 3, 1), (0, 1, -1)],
+    6: [(1, 3, 1), (0, 2, -1)], 7: [(2, 3, 1), (0, 1, 1)], 8: [(1, 1, -1), (2, 2, -1)],
+}
+for _e, _terms in _TERMS.items():
+    for _a, _b, _c in _terms:
+        _Q2M[4 * _a + _b, _e] += 2.0 * _c
+_EYE9 = np.eye(3).reshape(9)
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices [..., 3, 3] of quaternions [..., 4] (wxyz; normalised here)."""
     q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-    m = np.empty(q.shape[:-1] + (3, 3))
-    m[..., 0, 0] = 1 - 2 * (yy + zz)
-    m[..., 0, 1] = 2 * (xy - wz)
-    m[..., 0, 2] = 2 * (xz + wy)
-    m[..., 1, 0] = 2 * (xy + wz)
-    m[..., 1, 1] = 1 - 2 * (xx + zz)
-    m[..., 1, 2] = 2 * (yz - wx)
-    m[..., 2, 0] = 2 * (xz - wy)
-    m[..., 2, 1] = 2 * (yz + wx)
-    m[..., 2, 2] = 1 - 2 * (xx + yy)
-    return m
+    n2 = np.sum(q * q, axis=-1, keepdims=True)
+    outer = (q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,)) / n2
+    return (outer @ _Q2M + _EYE9).reshape(q.shape[:-1] + (3, 3))
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (broadcasting); np.cross costs several times more on tiny arrays."""
+    a1, a2, a3 = a[..., 0], a[..., 1], a[..., 2]
+    b1, b2, b3 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a2 * b3 - a3 * b2, a3 * b1 - a1 * b3, a1 * b2 - a2 * b1], axis=-1)
+
+
+def norm(v: np.ndarray, keepdims: bool = False) -> np.ndarray:
+    """Euclidean length over the last axis (np.linalg.norm without its overhead)."""
+    return np.sqrt(np.sum(v * v, axis=-1, keepdims=keepdims))
+
+
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+_SKEW = np.zeros((3, 9))   # v -> [v]x, row-major
+_SKEW[0, 5], _SKEW[0, 7], _SKEW[1, 2], _SKEW[1, 6], _SKEW[2, 1], _SKEW[2, 3] = -1, 1, 1, -1, -1, 1
+
+
+def matrix_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotation matrices [..., 3, 3] taking directions a onto b: for unit vectors,
+    R = c I + [v]x + v v^T / (1 + c) with v = a x b, c = a . b (the antiparallel case through
+    :func:`quat_between`)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a = a / norm(a, True)
+    b = b / norm(b, True)
+    v = np.einsum("ijk,...j,...k->...i", _EPS, a, b)
+    c = np.einsum("...i,...i->...", a, b)
+    if np.any(c < -1.0 + 1e-9):
+        return quat_to_matrix(quat_between(a, b))
+    outer = v[..., :, None] * (v / (1.0 + c)[..., None])[..., None, :]
+    return outer + (v @ _SKEW).reshape(v.shape[:-1] + (3, 3)) + c[..., None, None] * np.eye(3)
+
+
+# Shepperd: with k the largest of the four squared components, the quaternion times 2 s (s = 2|q_k|)
+# is row k of these picks from (s^2, m21-m12, m02-m20, m10-m01, m10+m01, m02+m20, m21+m12)
+_SHEPPERD = np.array([[0, 1, 2, 3], [1, 0, 4, 5], [2, 4, 0, 6], [3, 5, 6, 0]])
+_SQ = np.array([[1.0, 1.0, -1.0, -1.0], [1.0, -1.0, 1.0, -1.0], [1.0, -1.0, -1.0, 1.0]])  # diag -> 4 |q_k|^2 - 1
 
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
@@ -35,23 +78,15 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     each quaternion from the largest of its four squared components, so no precision is lost)."""
     m = np.asarray(m, dtype=np.float64)
     lead = m.shape[:-2]
-    flat = m.reshape(-1, 3, 3)
-    m00, m11, m22 = flat[:, 0, 0], flat[:, 1, 1], flat[:, 2, 2]
-    # 4 * squared components (w, x, y, z); pick the largest per matrix
-    sq = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], axis=1)
+    f = m.reshape(-1, 9)
+    sq = f[:, [0, 4, 8]] @ _SQ + 1.0                                    # [N, 4] = 4 q_k^2
     k = np.argmax(sq, axis=1)
-    s = np.sqrt(np.maximum(sq[np.arange(len(k)), k], 1e-300))  # = 4 * |component k| / 2 ... = 2|q_k|
-    d21, d02, d10 = flat[:, 2, 1] - flat[:, 1, 2], flat[:, 0, 2] - flat[:, 2, 0], flat[:, 1, 0] - flat[:, 0, 1]
-    a10, a02, a21 = flat[:, 1, 0] + flat[:, 0, 1], flat[:, 0, 2] + flat[:, 2, 0], flat[:, 2, 1] + flat[:, 1, 2]
-    # rows: the quaternion times 2s when component k is the largest
-    cand = np.stack([
-        np.stack([s * s, d21, d02, d10], axis=1),
-        np.stack([d21, s * s, a10, a02], axis=1),
-        np.stack([d02, a10, s * s, a21], axis=1),
-        np.stack([d10, a02, a21, s * s], axis=1),
-    ], axis=1)
-    q = cand[np.arange(len(k)), k] / (2.0 * s)[:, None]
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    rows = np.arange(len(k))
+    s = np.sqrt(np.maximum(sq[rows, k], 1e-300))                       # 2 |q_k|
+    v = np.stack([s * s, f[:, 7] - f[:, 5], f[:, 2] - f[:, 6], f[:, 3] - f[:, 1],
+                  f[:, 3] + f[:, 1], f[:, 2] + f[:, 6], f[:, 7] + f[:, 5]], axis=1)
+    q = v[rows[:, None], _SHEPPERD[k]] / (2.0 * s)[:, None]
+    q /= np.sqrt(np.sum(q * q, axis=1, keepdims=True))
     q *= np.where(q[:, :1] < 0, -1.0, 1.0)
     return q.reshape(lead + (4,))
 
@@ -73,3 +108,64 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
     out = np.array(q, dtype=np.float64, copy=True)
     out[..., 1:] *= -1.0
     return out
+
+
+def quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotations [..., 4] taking directions a onto b ([..., 3], any length).
+
+    Antiparallel pairs turn by pi about an axis perpendicular to a (any such axis is shortest).
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a = a / norm(a, True)
+    b = b / norm(b, True)
+    w = 1.0 + np.sum(a * b, axis=-1)
+    xyz = cross(a, b)
+    flip = w < 1e-9
+    if np.any(flip):
+        # a perpendicular axis: a x X, or a x Y when a is along X
+        alt = cross(a, np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]))
+        xyz = np.where(flip[..., None], alt, xyz)
+        w = np.where(flip, 0.0, w)
+    q = np.concatenate([w[..., None], xyz], axis=-1)
+    return q / norm(q, True)
+
+
+def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors v [..., 3] rotated by unit quaternions q [..., 4] (broadcasting)."""
+    q = np.asarray(q, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    u = q[..., 1:]
+    t = 2.0 * cross(u, v)
+    return v + q[..., :1] * t + cross(u, t)
+
+
+def quat_power(q: np.ndarray, f) -> np.ndarray:
+    """q^f: the rotation about q's axis by f times its angle (f broadcasts; shortest arc first)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    s = np.linalg.norm(q[..., 1:], axis=-1)
+    half = np.arctan2(s, q[..., 0]) * f
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = np.where(s[..., None] > 1e-15, q[..., 1:] / s[..., None], 0.0)
+    return np.concatenate([np.cos(half)[..., None], np.sin(half)[..., None] * axis], axis=-1)
+
+
+def swing_twist(q: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Decompose q = swing * twist with twist about ``axis`` (unit, q's own frame) [..., 4] each."""
+    q = np.asarray(q, dtype=np.float64)
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+    proj = np.sum(q[..., 1:] * axis, axis=-1, keepdims=True) * axis
+    twist = np.concatenate([q[..., :1], np.broadcast_to(proj, q.shape[:-1] + (3,))], axis=-1)
+    n = np.linalg.norm(twist, axis=-1, keepdims=True)
+    twist = np.where(n > 1e-12, twist / np.where(n > 1e-12, n, 1.0), [1.0, 0.0, 0.0, 0.0])
+    swing = quat_multiply(q, quat_conjugate(twist))
+    return swing, twist
+
+
+def twist_angle(twist: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Signed angle (rad, in (-pi, pi]) of a twist quaternion about ``axis``."""
+    s = np.sum(np.asarray(twist)[..., 1:] * axis, axis=-1)
+    ang = 2.0 * np.arctan2(s, twist[..., 0])
+    return (ang + np.pi) % (2 * np.pi) - np.pi

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .labels import place_labels
+
 from mocapgraph.kinematics.layout import (
     LayoutError,
     layout_path,
@@ -47,6 +49,10 @@ class SkeletonDefinition:
     """Per limb: indices of markers owned by an adjacent limb but also in this limb's fit set."""
     limb_joint_points: tuple[tuple[int, ...], ...] = field(default=())
     """Per limb: joint indices whose centre may serve as an extra rigid-fit point."""
+    joint_landmarks: tuple[tuple[int, ...], ...] = field(default=())
+    """Per joint: the two landmark marker indices whose midpoint is its anatomical centre, or ()."""
+    joint_regression: tuple = field(default=())
+    """Per joint: a layout.Regression with marker roles as marker indices, or None."""
     description: str = ""
     source: str = "<dict>"
 
@@ -83,7 +89,14 @@ class SkeletonDefinition:
         joint_hinge = np.array([lb.joint_type == "hinge" for lb in lay.limbs[1:]], dtype=bool)
         shared = tuple(tuple(midx[m.lower()] for m in lb.shared) for lb in lay.limbs)
         jpts = tuple(tuple(dict.fromkeys(jidx[n] for n in lb.joint_points)) for lb in lay.limbs)
+        landmarks = tuple(tuple(midx[m.lower()] for m in lb.landmarks) for lb in lay.limbs[1:])
+        regression = tuple(
+            None if lb.regression is None else type(lb.regression)(
+                lb.regression.method, lb.regression.side,
+                {k: midx[v.lower()] for k, v in lb.regression.markers.items()})
+            for lb in lay.limbs[1:])
         return cls(
+            joint_landmarks=landmarks, joint_regression=regression,
             name=lay.name, limb_names=limb_names, limb_parent=limb_parent,
             joint_names=joint_names, joint_limbs=joint_limbs, joint_parent=joint_parent,
             joint_hinge=joint_hinge, marker_labels=tuple(labels),
@@ -130,25 +143,8 @@ class SkeletonDefinition:
         return limb - 1
 
     def match_labels(self, labels: list[str]) -> tuple[np.ndarray, list[str]]:
-        """Place capture labels on layout markers, case-insensitively.
-
-        A label also matches after dropping a ``Subject:`` prefix (Vicon) and surrounding spaces.
-        Returns int64[M] (index into ``labels`` for each layout marker, -1 if absent) and the
-        labels that could not be placed (unknown, or a second label for an already placed marker).
-        """
-        want = {m.lower(): k for k, m in enumerate(self.marker_labels)}
-        idx = np.full(self.n_markers, -1, dtype=np.int64)
-        unplaced: list[str] = []
-        for i, lab in enumerate(labels):
-            s = str(lab).strip()
-            k = want.get(s.lower())
-            if k is None and ":" in s:
-                k = want.get(s.rsplit(":", 1)[1].strip().lower())
-            if k is None or idx[k] >= 0:
-                unplaced.append(lab)
-            else:
-                idx[k] = i
-        return idx, unplaced
+        """Place capture labels on layout markers (:func:`~mocapgraph.kinematics.labels.place_labels`)."""
+        return place_labels(self.marker_labels, labels)
 
     def __repr__(self) -> str:
         return (f"SkeletonDefinition({self.name!r}: {self.n_limbs} limbs, {self.n_joints} joints, "

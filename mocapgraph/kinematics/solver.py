@@ -1,8 +1,9 @@
-"""Frame solver: joint positions from labelled markers and a calibrated SkeletonModel (Kiip 3.4).
+"""Frame solver: joint positions from labelled markers and a calibrated ActorModel (Kiip 3.4).
 
 Per frame: each limb's rotation from its visible markers (weighted Kabsch against the base
 pose), each joint from every attached limb that is visible (``R @ base_point + t``), an
-inverse-variance weighted average, then bone lengths enforced outward from the root. One code
+inverse-variance weighted average, then bone lengths enforced outward from the root. A joint is
+GOOD only when every attached limb is seen and its calibration is reliable; else ESTIMATED. One code
 path for one frame or many: :meth:`FrameSolver.solve` batches the geometry over frames and runs
 the (optional) temporal stage frame by frame exactly as :meth:`FrameSolver.step` does live.
 """
@@ -14,9 +15,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocapgraph.kinematics.filters import GapFiller, make_filter
-from mocapgraph.kinematics.model import Quality, SkeletonModel
+from mocapgraph.kinematics.model import Quality, ActorModel
+from mocapgraph.kinematics.global_fit import GlobalFit, GlobalFitOptions
+from mocapgraph.kinematics.regression import RegressionStage
 from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
 
+FITS = ("segment", "global")
 _GOOD, _EST, _MISS = np.int8(Quality.GOOD), np.int8(Quality.ESTIMATED), np.int8(Quality.MISSING)
 
 
@@ -61,19 +65,28 @@ class FrameSolver:
     filter: None, "one_euro" or "constant_velocity"; filter_params go to its constructor.
     limb_rms_tol: a limb fit worse than this (m) is ESTIMATED and its joint estimates weigh less;
     None -> max(4 x calibrated fit RMS, 5 mm).
+    fit: "segment" (each limb by itself, Kiip) or "global" (all limbs of a frame together under
+    the joint constraints, :mod:`mocapgraph.kinematics.global_fit`; warm-started from the
+    previous frame, so it also carries state between calls).
     """
 
     def __init__(
         self,
-        model: SkeletonModel,
+        model: ActorModel,
         rate_hz: float | None = None,
         max_gap_s: float = 0.1,
         enforce_lengths: bool = True,
         filter: str | None = None,
         filter_params: dict[str, float] | None = None,
         limb_rms_tol: float | None = None,
+        fit: str = "segment",
+        global_options: GlobalFitOptions | None = None,
     ) -> None:
+        if fit not in FITS:
+            raise ValueError(f"unknown fit {fit!r} (expected one of {', '.join(FITS)})")
         self.model = model
+        self.fit = fit
+        self._global = GlobalFit(model, global_options) if fit == "global" else None
         self.rate_hz = rate_hz if rate_hz is not None else model.rate_hz
         self.max_gap_s = float(max_gap_s)
         self.enforce_lengths = enforce_lengths
@@ -99,6 +112,10 @@ class FrameSolver:
         tol = np.maximum(4.0 * sig, 0.005) if limb_rms_tol is None else np.full_like(sig, limb_rms_tol)
         self._rms_tol = tol
         self._J = len(model.joint_names)
+        # A joint whose calibrated centre is unreliable (from the prior, too little motion) is at
+        # best ESTIMATED, however well its limbs are seen: quality flags tell the truth.
+        rel = np.asarray(model.quality.reliable, dtype=bool).reshape(-1)
+        self._unreliable = ~rel if rel.shape == (self._J,) else np.zeros(self._J, dtype=bool)
         # Bone-length correction order: joints grouped by depth so each level is one vector op.
         parent = np.asarray(model.joint_parent)
         depth = np.zeros(self._J, dtype=int)
@@ -107,7 +124,11 @@ class FrameSolver:
             while p >= 0 and d <= self._J:
                 d, p = d + 1, parent[p]
             depth[j] = d
-        blen = np.asarray(model.bone_length)
+        blen = np.asarray(model.bone_length).copy()
+        # Regression joints are recomputed from the markers each frame (as Plug-in Gait does):
+        # their distances to the parent follow the markers, not a calibrated length.
+        self._regression = RegressionStage(model)
+        blen[self._regression.joints] = np.nan
         self._levels = [
             (c, parent[c], blen[c])
             for lvl in range(1, depth.max(initial=0) + 1)
@@ -119,7 +140,7 @@ class FrameSolver:
         self._filter = make_filter(filter, self._J, **self._filter_spec[1])
         self._frame = 0
 
-    def _setup_joint_points(self, model: SkeletonModel) -> None:
+    def _setup_joint_points(self, model: ActorModel) -> None:
         jp = np.asarray(model.limb_joint_points)
         self._pl = np.flatnonzero((jp >= 0).any(1)) if jp.size else np.zeros(0, dtype=np.int64)
         if not self._pl.size:
@@ -145,7 +166,8 @@ class FrameSolver:
         return est, valid[:, lab] & self._has
 
     def solve_geometry(self, markers: np.ndarray) -> SolverResult:
-        """float[T,M,3] -> SolverResult over [T]; no temporal state is touched."""
+        """float[T,M,3] -> SolverResult over [T]; no temporal state is touched (but the global fit
+        keeps the last poses as its warm start)."""
         markers = np.asarray(markers, dtype=float)
         J = self._J
         fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
@@ -162,6 +184,11 @@ class FrameSolver:
             pl = self._pl
             rot[:, pl], trans[:, pl], valid[:, pl] = fit2.rotation, fit2.translation, fit2.valid
             rms_l[:, pl], nfit[:, pl] = fit2.rms, fit2.n_visible
+        if self._global is not None:
+            rot, trans = self._global.refine(markers, rot, trans, valid)
+            nan = ~valid
+            rot = np.where(nan[..., None, None], np.nan, rot)
+            trans = np.where(nan[..., None], np.nan, trans)
         est, ok = self._limb_estimates(rot, trans, valid)
         lab = self._labs
         n = nfit[:, lab]
@@ -175,8 +202,11 @@ class FrameSolver:
             wsum > 0, wsum, 1.0)[..., None]
         n_ok = ok[:, :J].astype(np.int8) + ok[:, J:]
         n_need = self._has[:J].astype(np.int8) + self._has[J:]
-        jq = np.where(n_ok == 0, _MISS, np.where(n_ok >= n_need, _GOOD, _EST)).astype(np.int8)
+        jq = np.where(n_ok == 0, _MISS, np.where((n_ok >= n_need) & ~self._unreliable, _GOOD, _EST)
+                      ).astype(np.int8)
         joints[jq == _MISS] = np.nan
+        if self._regression:
+            self._regression.apply(markers, joints, jq, _GOOD)
         if self.enforce_lengths:
             for c, p, length in self._levels:
                 v = joints[:, c] - joints[:, p]
@@ -232,9 +262,5 @@ class FrameSolver:
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter = make_filter(self._filter_spec[0], self._J, **self._filter_spec[1])
         self._frame = 0
-
-
-def solve_markers(model: SkeletonModel, markers: np.ndarray, rate_hz: float | None = None,
-                  max_gap_s: float = 0.1, **kw: object) -> SolverResult:
-    """Batch convenience: a fresh FrameSolver over a whole trial float[T,M,3]."""
-    return FrameSolver(model, rate_hz=rate_hz, max_gap_s=max_gap_s, **kw).solve(markers)  # type: ignore[arg-type]
+        if self._global is not None:
+            self._global.reset()

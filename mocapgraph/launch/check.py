@@ -14,10 +14,10 @@ import networkx as nx
 from ..bus.node import DIAGNOSTICS_TOPIC, Node, NodeConfigError
 from ..bus.input_files import InputFileError, check_input_file
 from ..bus.ports import Interface
-from ..messages.registry import UnknownTypeError, all_types, lookup
+from ..messages.registry import all_types
 from ..nodes.registry import NODE_TYPES, resolve
 from .graph import GraphSpec, NodeSpec, did_you_mean
-from .yaml_source import GraphError
+from ..formats.yaml_source import GraphError
 
 
 @dataclass
@@ -52,6 +52,8 @@ class CheckedGraph:
                 out[topic] = n.iface.outputs[port].type_name
         for ext in self.spec.external:
             out[ext.topic] = ext.type
+        for exp in self.spec.expects:
+            out.setdefault(exp.topic, exp.type)
         out[DIAGNOSTICS_TOPIC] = "Diagnostics"
         return out
 
@@ -144,6 +146,11 @@ def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
             raise GraphError(ext.file, ext.line, f"external[{ext.topic}].type",
                              f"unknown message type{did_you_mean(ext.type, list(types))}")
         publishers.setdefault(ext.topic, []).append((f"external:{ext.endpoint}", ext.type))
+    for exp in spec.expects:
+        if exp.type not in types:
+            raise GraphError(exp.file, exp.line, f"expects[{exp.topic}].type",
+                             f"unknown message type{did_you_mean(exp.type, list(types))}")
+        publishers.setdefault(exp.topic, []).append(("the includer", exp.type))
     flow = nx.DiGraph()
     for rn in resolved:
         flow.add_node(("node", rn.name))
@@ -187,11 +194,3 @@ def shutdown_order(graph: CheckedGraph) -> list[str]:
     for c in nx.topological_sort(cond):
         order.extend(sorted(cond.nodes[c]["members"]))
     return order
-
-
-def message_type_exists(name: str) -> bool:
-    try:
-        lookup(name)
-        return True
-    except UnknownTypeError:
-        return False

@@ -9,6 +9,8 @@ A graph file::
         args: {rate: "${rate}"}
     external:                   # topics published by processes outside this graph
       - {topic: markers, type: MarkerFrame, endpoint: "tcp://10.0.0.5:7000"}
+    expects:                    # a piece meant for inclusion: topics its includer publishes
+      - {topic: markers, type: MarkerFrame, doc: "labelled markers of the reader"}
     nodes:
       - name: actor
         type: synthetic_actor   # registry name (mocapgraph node list) or package.module:Class
@@ -19,7 +21,8 @@ A graph file::
         host: 127.0.0.1         # address its publisher binds (default loopback, ipc)
         if: "${viewer}"         # a bool (after substitution): false leaves the node out
 
-``if:`` also works on an include.
+``if:`` also works on an include. ``expects:`` counts only in the file being checked (so
+``graph check optical_pipeline.yaml`` passes); an includer must publish what its pieces expect.
 
 ``${name}`` is replaced by the arg's value; a string that is only ``${name}`` takes the arg's
 type (so numbers stay numbers).
@@ -32,10 +35,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
+from ..formats.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
 NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "doc", "if")
-TOP_KEYS = ("args", "include", "nodes", "external", "description")
+TOP_KEYS = ("args", "include", "nodes", "external", "expects", "description")
+EXPECTS_KEYS = ("topic", "type", "doc")
 INCLUDE_KEYS = ("file", "args", "if")
 EXTERNAL_KEYS = ("topic", "type", "endpoint")
 _SUBST = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
@@ -80,12 +84,23 @@ class ExternalTopic:
 
 
 @dataclass
+class ExpectedTopic:
+    """A topic a pipeline piece expects its includer to publish (honoured when the piece is the top file)."""
+
+    topic: str
+    type: str
+    file: str = ""
+    line: int = 0
+
+
+@dataclass
 class GraphSpec:
     """A whole resolved graph: nodes from the file and everything it includes."""
 
     file: str
     nodes: list[NodeSpec] = field(default_factory=list)
     external: list[ExternalTopic] = field(default_factory=list)
+    expects: list[ExpectedTopic] = field(default_factory=list)
     args: dict[str, Any] = field(default_factory=dict)
     description: str = ""
 
@@ -208,6 +223,13 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
         if not target.exists():
             raise GraphError(path, line, f"include[{i}].file", f"{inc_file} does not exist")
         _load_into(spec, target, dict(inc_args), stack + [path], top=False)
+    for i, exp in enumerate(doc.get("expects") or []):
+        line = doc["expects"].item_lines[i]
+        if not isinstance(exp, dict) or any(k not in exp for k in ("topic", "type")):
+            raise GraphError(path, line, f"expects[{i}]", "needs topic and type")
+        _check_keys(exp, EXPECTS_KEYS, f"expects[{i}].")
+        if top:  # an includer publishes what its pieces expect; the check holds it to that
+            spec.expects.append(ExpectedTopic(str(exp["topic"]), str(exp["type"]), str(path), line))
     for i, ext in enumerate(doc.get("external") or []):
         line = doc["external"].item_lines[i]
         if not isinstance(ext, dict) or any(k not in ext for k in EXTERNAL_KEYS):

@@ -1,34 +1,144 @@
-"""Client side of the launcher's manifest: which topics exist, their types and publishers."""
+"""The manifest of a running graph (nodes, topics, types, endpoints): typed builder, server, client.
+
+The launcher serves it at the master endpoint ($MOCAPGRAPH_MASTER or a per-user ipc socket);
+a standalone `bag play` serves its own; `topic echo`, `bag record` and friends fetch it. On the
+wire it is one JSON object: {"graph", "launcher_pid", "nodes": [...], "topics": {topic: {"type",
+"publishers": [{"node", "endpoint", "latched"}], "subscribers": [{"node", "port"}]}}}.
+"""
 from __future__ import annotations
 
 import json
-from typing import Any
+import os
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
 
 import zmq
 
 from ..messages.codec import topic_frame
-from .supervisor import default_master
+
+REQUEST = b"manifest"
+
+
+def default_master() -> str:
+    """Where the manifest is served: $MOCAPGRAPH_MASTER or a per-user ipc socket."""
+    env = os.environ.get("MOCAPGRAPH_MASTER")
+    if env:
+        return env
+    return f"ipc://{Path(tempfile.gettempdir()) / f'mocapgraph-{os.getuid()}' / 'master'}"
 
 
 class NoGraphError(RuntimeError):
     """No launcher answers at the master endpoint."""
 
 
-def fetch_manifest(master: str | None = None, timeout_s: float = 2.0) -> dict[str, Any]:
-    """The running graph's manifest; NoGraphError when nothing answers in ``timeout_s``."""
-    master = master or default_master()
-    ctx = zmq.Context.instance()
+@dataclass
+class NodeEntry:
+    """One node process as the manifest lists it."""
+
+    name: str
+    type: str
+    cls: str
+    pid: int | None
+    endpoint: str
+    params: dict[str, Any]
+    inputs: dict[str, str]
+    outputs: dict[str, str]
+    restarts: int = 0
+    running: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["class"] = d.pop("cls")
+        return d
+
+
+@dataclass
+class Manifest:
+    """Nodes and topics of one running graph; ``to_dict`` gives the JSON form above."""
+
+    graph: str
+    launcher_pid: int = field(default_factory=os.getpid)
+    nodes: list[NodeEntry] = field(default_factory=list)
+    topics: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def _topic(self, topic: str, type_name: str) -> dict[str, Any]:
+        return self.topics.setdefault(topic, {"type": type_name, "publishers": [], "subscribers": []})
+
+    def add_publisher(self, topic: str, type_name: str, node: str, endpoint: str, latched: bool = False) -> None:
+        self._topic(topic, type_name)["publishers"].append({"node": node, "endpoint": endpoint, "latched": latched})
+
+    def add_subscriber(self, topic: str, type_name: str, node: str, port: str) -> None:
+        self._topic(topic, type_name)["subscribers"].append({"node": node, "port": port})
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"graph": self.graph, "launcher_pid": self.launcher_pid,
+                "nodes": [n.to_dict() for n in self.nodes], "topics": self.topics}
+
+
+def _answers(ctx: zmq.Context, endpoint: str, timeout_s: float) -> bytes | None:
     s = ctx.socket(zmq.REQ)
     s.setsockopt(zmq.LINGER, 0)
     try:
-        s.connect(master)
-        s.send(b"manifest")
-        if not s.poll(int(timeout_s * 1000)):
-            raise NoGraphError(f"no running graph answers at {master} (start one with 'mocapgraph launch FILE', "
-                               "or set MOCAPGRAPH_MASTER)")
-        return json.loads(s.recv())
+        s.connect(endpoint)
+        s.send(REQUEST)
+        return s.recv() if s.poll(int(timeout_s * 1000)) else None
     finally:
         s.close(0)
+
+
+class ManifestServer:
+    """Answers manifest requests at ``master``; refuses to take over one that still answers."""
+
+    def __init__(self, master: str, ctx: zmq.Context | None = None) -> None:
+        self.master = master
+        ctx = ctx or zmq.Context.instance()
+        self.socket = ctx.socket(zmq.REP)
+        self.socket.setsockopt(zmq.LINGER, 0)
+        if master.startswith("ipc://"):
+            path = Path(master[6:])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if path.exists() and _answers(ctx, master, 0.3) is not None:  # a stale socket file does not count
+                self.socket.close(0)
+                raise ManifestBusyError(f"another graph is already running at {master}; "
+                                        "set MOCAPGRAPH_MASTER to run a second one")
+        try:
+            self.socket.bind(master)
+        except zmq.ZMQError as exc:
+            self.socket.close(0)
+            raise ManifestBusyError(f"cannot serve the manifest at {master}: {exc}") from None
+
+    def serve(self, build: Callable[[], Manifest]) -> None:
+        """Answer every waiting request (non-blocking) with the manifest ``build()`` gives now."""
+        while True:
+            try:
+                self.socket.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            self.socket.send_string(json.dumps(build().to_dict()))
+
+    def close(self) -> None:
+        self.socket.close(0)
+        if self.master.startswith("ipc://"):
+            try:
+                os.unlink(self.master[6:])
+            except OSError:
+                pass
+
+
+class ManifestBusyError(RuntimeError):
+    """The master endpoint is taken (another graph answers there, or it cannot be bound)."""
+
+
+def fetch_manifest(master: str | None = None, timeout_s: float = 2.0) -> dict[str, Any]:
+    """The running graph's manifest; NoGraphError when nothing answers in ``timeout_s``."""
+    master = master or default_master()
+    reply = _answers(zmq.Context.instance(), master, timeout_s)
+    if reply is None:
+        raise NoGraphError(f"no running graph answers at {master} (start one with 'mocapgraph launch FILE', "
+                           "or set MOCAPGRAPH_MASTER)")
+    return json.loads(reply)
 
 
 def topic_entry(manifest: dict[str, Any], topic: str) -> dict[str, Any]:

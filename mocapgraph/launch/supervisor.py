@@ -31,22 +31,16 @@ from typing import IO, Any
 
 import zmq
 
-from ..bus.node import DIAGNOSTICS_TOPIC, Wiring
-from ..bus.runtime import die_with_parent
+from ..bus.diagnostics import DIAGNOSTICS_TOPIC
+from ..bus.protocol import READY, START, STARTED, STOP, Wiring, die_with_parent
 from .check import CheckedGraph, ResolvedNode, shutdown_order
+from .manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
+from .wiring_plan import plan_wiring
 
 READY_TIMEOUT_S = 30.0
 STOP_TIMEOUT_S = 2.0
 START_ACK_TIMEOUT_S = 5.0
 MAX_BACKOFF_S = 10.0
-
-
-def default_master() -> str:
-    """Where the manifest is served: $MOCAPGRAPH_MASTER or a per-user ipc socket."""
-    env = os.environ.get("MOCAPGRAPH_MASTER")
-    if env:
-        return env
-    return f"ipc://{Path(tempfile.gettempdir()) / f'mocapgraph-{os.getuid()}' / 'master'}"
 
 
 def _free_tcp_port(host: str) -> int:
@@ -101,66 +95,33 @@ class Supervisor:
         return f"ipc://{self.run_dir / (rn.name + '.pub')}"
 
     def _plan(self) -> None:
-        g = self.graph
-        endpoints = {rn.name: self._endpoint(rn) for rn in g.nodes}
-        publishers: dict[str, list[str]] = {}
-        for rn in g.nodes:
-            for topic in rn.outputs.values():
-                publishers.setdefault(topic, []).append(endpoints[rn.name])
-        for ext in g.spec.external:
-            publishers.setdefault(ext.topic, []).append(ext.endpoint)
-        publishers[DIAGNOSTICS_TOPIC] = list(endpoints.values())
-        subscribers: dict[str, int] = {}
-        for rn in g.nodes:
-            for topic in set(rn.inputs.values()):
-                subscribers[topic] = subscribers.get(topic, 0) + sum(
-                    1 for t in rn.inputs.values() if t == topic)
-        self.endpoints = endpoints
-        self.publishers = publishers
-        for rn in g.nodes:
-            own = {t for t in rn.inputs.values()}
-            wiring = Wiring(
-                node=rn.name,
-                pub_endpoint=endpoints[rn.name],
-                inputs={p: {"topic": t, "endpoints": publishers.get(t, [])} for p, t in rn.inputs.items()},
-                outputs={p: {"topic": t, "subscribers": subscribers.get(t, 0) - (
-                    sum(1 for x in rn.inputs.values() if x == t) if t in own else 0)} for p, t in rn.outputs.items()},
-                control=self.control_ep,
-                diagnostics_subscribers=subscribers.get(DIAGNOSTICS_TOPIC, 0) - (
-                    1 if DIAGNOSTICS_TOPIC in own else 0),
-            )
+        self.endpoints = {rn.name: self._endpoint(rn) for rn in self.graph.nodes}
+        plan = plan_wiring(self.graph, self.endpoints, self.control_ep)
+        for rn in self.graph.nodes:
+            wiring = plan[rn.name]
             wf = self.run_dir / f"{rn.name}.json"
             wf.write_text(json.dumps({"class": rn.class_path, "params": rn.params, "wiring": wiring.__dict__}))
             self.children[rn.name] = Child(rn, wiring, wf, backoff_s=rn.spec.respawn_delay)
 
-    def manifest(self) -> dict[str, Any]:
-        """Nodes, topics, types and endpoints of the running graph (JSON-ready)."""
+    def manifest(self) -> Manifest:
+        """Nodes, topics, types and endpoints of the running graph."""
         types = self.graph.topic_types()
-        topics: dict[str, Any] = {}
+        m = Manifest(graph=self.graph.spec.file)
         for rn in self.graph.nodes:
             for port, t in rn.outputs.items():
-                entry = topics.setdefault(t, {"type": types[t], "publishers": [], "subscribers": []})
-                entry["publishers"].append({"node": rn.name, "endpoint": self.endpoints[rn.name],
-                                            "latched": rn.iface.outputs[port].is_latched})
+                m.add_publisher(t, types[t], rn.name, self.endpoints[rn.name], rn.iface.outputs[port].is_latched)
             for port, t in rn.inputs.items():
-                entry = topics.setdefault(t, {"type": types.get(t, "*"), "publishers": [], "subscribers": []})
-                entry["subscribers"].append({"node": rn.name, "port": port})
+                m.add_subscriber(t, types.get(t, "*"), rn.name, port)
         for ext in self.graph.spec.external:
-            topics.setdefault(ext.topic, {"type": ext.type, "publishers": [], "subscribers": []})[
-                "publishers"].append({"node": "external", "endpoint": ext.endpoint, "latched": False})
-        topics[DIAGNOSTICS_TOPIC] = {"type": "Diagnostics", "subscribers": topics.get(DIAGNOSTICS_TOPIC, {}).get(
-            "subscribers", []), "publishers": [{"node": n, "endpoint": e, "latched": False}
-                                               for n, e in self.endpoints.items()]}
-        return {
-            "graph": self.graph.spec.file,
-            "launcher_pid": os.getpid(),
-            "nodes": [{"name": c.node.name, "type": c.node.spec.type, "class": c.node.class_path,
-                       "pid": c.proc.pid if c.proc else None, "endpoint": self.endpoints[c.node.name],
-                       "params": c.node.params, "inputs": c.node.inputs, "outputs": c.node.outputs,
-                       "restarts": c.restarts, "running": bool(c.proc and c.proc.poll() is None)}
-                      for c in self.children.values()],
-            "topics": topics,
-        }
+            m.add_publisher(ext.topic, ext.type, "external", ext.endpoint)
+        diag = m.topics.pop(DIAGNOSTICS_TOPIC, {"subscribers": []})
+        m.topics[DIAGNOSTICS_TOPIC] = {"type": "Diagnostics", "subscribers": diag["subscribers"], "publishers": []}
+        for n, e in self.endpoints.items():
+            m.add_publisher(DIAGNOSTICS_TOPIC, "Diagnostics", n, e)
+        m.nodes = [NodeEntry(c.node.name, c.node.spec.type, c.node.class_path, c.proc.pid if c.proc else None,
+                             self.endpoints[c.node.name], c.node.params, c.node.inputs, c.node.outputs,
+                             c.restarts, bool(c.proc and c.proc.poll() is None)) for c in self.children.values()]
+        return m
 
     # ----- logging --------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -205,33 +166,21 @@ class Supervisor:
             child = self.children.get(name)
             if child is None or not frames:
                 continue
-            if frames[0] == b"ready":
+            if frames[0] == READY:
                 child.ready = True
                 readied.append(name)
-            elif frames[0] == b"started":
+            elif frames[0] == STARTED:
                 child.started = True
 
     def _serve_master(self) -> None:
-        while True:
-            try:
-                self.master_sock.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            self.master_sock.send_string(json.dumps(self.manifest()))
+        self.master_server.serve(self.manifest)
 
     def _bind_master(self) -> None:
-        self.master_sock = self.ctx.socket(zmq.REP)
-        self.master_sock.setsockopt(zmq.LINGER, 0)
-        if self.master.startswith("ipc://"):
-            path = Path(self.master[6:])
-            path.parent.mkdir(parents=True, exist_ok=True)
-            if path.exists() and _ipc_alive(self.ctx, self.master):
-                raise LaunchError(f"another graph is already running at {self.master}; "
-                                  "set MOCAPGRAPH_MASTER to run a second one")
         try:
-            self.master_sock.bind(self.master)
-        except zmq.ZMQError as exc:
-            raise LaunchError(f"cannot serve the manifest at {self.master}: {exc}") from None
+            self.master_server = ManifestServer(self.master, self.ctx)
+        except ManifestBusyError as exc:
+            raise LaunchError(str(exc)) from None
+        self.master_sock = self.master_server.socket
 
     def start(self) -> None:
         """Start every node and wait until the whole graph is ready, then let it run."""
@@ -257,7 +206,7 @@ class Supervisor:
         # Downstream first, each acknowledged before the next: a node is in its started state
         # (calibration in auto mode, say) before any source upstream of it sends a frame.
         for name in reversed(shutdown_order(self.graph)):
-            self._send(name, b"start")
+            self._send(name, START)
             t_ack = time.monotonic() + START_ACK_TIMEOUT_S
             while not self.children[name].started and time.monotonic() < t_ack:
                 if self.children[name].proc.poll() is not None:
@@ -272,7 +221,7 @@ class Supervisor:
     def _watch(self) -> None:
         now = time.monotonic()
         for name in self._serve_control():
-            self._send(name, b"start")  # a respawned node joins the running graph
+            self._send(name, START)  # a respawned node joins the running graph
         for c in self.children.values():
             if c.finished or c.proc is None:
                 if c.respawn_at is not None and now >= c.respawn_at:
@@ -319,7 +268,7 @@ class Supervisor:
             c.respawn_at = None
             if c.proc is None or c.proc.poll() is not None:
                 continue
-            self._send(name, b"stop")
+            self._send(name, STOP)
             if not _wait(c.proc, STOP_TIMEOUT_S / 2):
                 c.proc.terminate()
                 if not _wait(c.proc, STOP_TIMEOUT_S / 2):
@@ -330,9 +279,10 @@ class Supervisor:
                 t.join(timeout=1.0)
         self.stop_time_s = time.monotonic() - t0
         self.say(f"[launch] stopped in {self.stop_time_s:.2f} s")
-        for sock in ("control", "master_sock"):
-            if hasattr(self, sock):
-                getattr(self, sock).close(0)
+        if hasattr(self, "control"):
+            self.control.close(0)
+        if hasattr(self, "master_server"):
+            self.master_server.close()
         shutil.rmtree(self.run_dir, ignore_errors=True)
 
     def kill_all(self) -> None:
@@ -347,18 +297,6 @@ def _wait(proc: subprocess.Popen, timeout: float) -> bool:
         return True
     except subprocess.TimeoutExpired:
         return False
-
-
-def _ipc_alive(ctx: zmq.Context, endpoint: str) -> bool:
-    """True when a launcher answers at ``endpoint`` (a stale socket file does not count)."""
-    s = ctx.socket(zmq.REQ)
-    s.setsockopt(zmq.LINGER, 0)
-    try:
-        s.connect(endpoint)
-        s.send(b"manifest")
-        return bool(s.poll(300))
-    finally:
-        s.close(0)
 
 
 def run_graph(graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None) -> int:

@@ -39,7 +39,43 @@ from .schema import Message, MessageError
 
 MAGIC = b"MG"
 CODEC_VERSION = 1
-HEADER = struct.Struct("<2sBBHHHQqq")
+_HEADER_FIELDS = (("magic", "2s"), ("codec", "B"), ("flags", "B"), ("schema", "H"), ("type_len", "H"),
+                  ("sender_len", "H"), ("seq", "Q"), ("capture_ns", "q"), ("publish_ns", "q"))
+HEADER = struct.Struct("<" + "".join(f for _, f in _HEADER_FIELDS))
+#: byte offset of each header field, for in-place reads and writes (bag play restamps headers)
+HEADER_AT = {name: struct.calcsize("<" + "".join(f for _, f in _HEADER_FIELDS[:i]))
+             for i, (name, _) in enumerate(_HEADER_FIELDS)}
+_U64 = struct.Struct("<Q")
+_I64 = struct.Struct("<q")
+_LENS = struct.Struct("<HH")
+
+
+def header_seq(head: bytes | bytearray | memoryview) -> int:
+    """The sequence number of a header frame."""
+    return _U64.unpack_from(head, HEADER_AT["seq"])[0]
+
+
+def header_capture_ns(head: bytes | bytearray | memoryview) -> int:
+    """The capture stamp (ns) of a header frame."""
+    return _I64.unpack_from(head, HEADER_AT["capture_ns"])[0]
+
+
+def header_sender(head: bytes | bytearray | memoryview) -> bytes:
+    """The sender's name (UTF-8 bytes) of a header frame."""
+    tlen, slen = _LENS.unpack_from(head, HEADER_AT["type_len"])
+    return bytes(head[HEADER.size + tlen:HEADER.size + tlen + slen])
+
+
+def set_header_seq(head: bytearray, seq: int) -> None:
+    _U64.pack_into(head, HEADER_AT["seq"], seq)
+
+
+def set_header_publish_ns(head: bytearray, ns: int) -> None:
+    _I64.pack_into(head, HEADER_AT["publish_ns"], ns)
+
+
+def header_latched(head: bytes | bytearray | memoryview) -> bool:
+    return bool(head[HEADER_AT["flags"]] & FLAG_LATCHED)
 FLAG_LATCHED = 0x01
 
 

@@ -9,10 +9,7 @@ from __future__ import annotations
 
 from .schema import Message, array, scalar, strings
 
-# Quality codes shared by joints, limbs and markers.
-QUALITY_MISSING = 0
-QUALITY_ESTIMATED = 1
-QUALITY_GOOD = 2
+from .quality import QUALITY_ESTIMATED, QUALITY_GOOD, QUALITY_MISSING  # noqa: F401  (re-exported)
 
 # Kinect-style tracking states (SkeletonPose.tracking_state).
 TRACK_NOT_TRACKED = 0
@@ -119,24 +116,31 @@ class CharacterInfo(Message):
     """Latched: a user character's skeleton (names, parents, rest offsets)."""
 
     type_name = "CharacterInfo"
-    version = 1
+    version = 2
     latched_by_default = True
     character: str = scalar("str", "character name")
     joint_names = strings("joint names, CharacterPose order")
     joint_parent = array("int32", ("J",), "parent joint index, -1 for the root")
-    rest_offsets = array("float64", ("J", 3), "joint offset from its parent in the rest pose, m")
+    rest_offsets = array("float64", ("J", 3), "joint offset from its parent in the rest pose, m, "
+                         "parent frame (the root's: its rest position, world)")
+    rest_rotations = array("float64", ("J", 4), "rest orientation relative to the parent, wxyz "
+                           "(world = W[parent] * rest * local; identity for BVH rigs)")
 
 
 class CharacterPose(Message):
     """A retargeted character pose."""
 
     type_name = "CharacterPose"
-    version = 1
+    version = 2
     character: str = scalar("str", "character name")
     frame_number: int = scalar("int", "source frame index")
     root_position = array("float64", (3,), "root joint position, m, world")
-    local_rotations = array("float64", ("J", 4), "joint rotations relative to the parent, wxyz")
-    joint_positions = array("float64", ("J", 3), "joint positions, m, world")
+    local_rotations = array("float64", ("J", 4), "joint rotations relative to the rest orientation in the "
+                            "parent's frame, wxyz; never NaN (a joint whose source is missing keeps its "
+                            "last rotation)")
+    joint_positions = array("float64", ("J", 3), "joint positions, m, world, computed from local_rotations")
+    joint_quality = array("int8", ("J",), "0 missing (never seen: rest pose), 1 estimated (held or "
+                          "depending on a held source), 2 good")
 
 
 class PhysicsScene(Message):

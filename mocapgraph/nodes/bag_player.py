@@ -12,6 +12,7 @@ from ..bag.player import Outgoing, Playback, select_topics, set_publish_stamp
 from ..bag.reader import BagReader
 from ..bus import Input, Interface, Node, Output, Param
 from ..bus.node import NodeConfigError
+from ..messages.commands import PLAYER_COMMANDS
 from ..messages import NodeCommand, NodeStatus
 from ..messages.registry import lookup
 
@@ -182,6 +183,8 @@ class BagPlayer(Node):
         """Apply a command: play, pause, toggle, step, seek {position_s}, rate {rate}, stop."""
         args = args or {}
         pb = self.playback
+        if command not in PLAYER_COMMANDS:
+            raise ValueError(f"unknown command {command!r} ({', '.join(PLAYER_COMMANDS)})")
         if command == "play":
             pb.resume()
         elif command == "pause":
@@ -199,8 +202,6 @@ class BagPlayer(Node):
             pb.set_rate(float(args["rate"]))
         elif command == "stop":
             self.request_stop()
-        else:
-            raise ValueError(f"unknown command {command!r} (play, pause, toggle, step, seek, rate, stop)")
         if self._timer is not None:
             self._timer.reschedule(time.monotonic())
 

@@ -26,18 +26,22 @@ from collections import deque
 import time
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
 from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate
 from ..kinematics.layout import LayoutError, layout_path
-from ..kinematics.model import ModelFileError, SkeletonModel, load_model, save_model
+from ..kinematics.capture_steps import FOUND, TIMED_OUT, BasePoseFinder, GymSampler
+from ..kinematics.labels import missing_labels, place_labels
+from ..kinematics.model import ActorModel, ModelFileError, load_model, save_model
 from ..kinematics.skeleton import SkeletonDefinition
+from ..messages.commands import CALIBRATION_COMMANDS
+from ..kinematics.subject import SubjectError, read_vsk
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
-from ..messages import SkeletonModel as ModelMsg
-from .model_messages import jsonable, model_to_message, quality_report
+from ..messages import SkeletonModel
+from ..adapters.model_messages import jsonable, model_to_message, quality_report
 
 IDLE = "idle"
 FINDING = "finding_base_pose"
@@ -47,7 +51,6 @@ CAPTURED = "gym_captured"
 PROCESSING = "processing"
 CALIBRATED = "calibrated"
 ERROR = "error"
-COMMANDS = ("find_base_pose", "capture_gym", "process", "reset", "save", "load")
 
 
 EARLY_FRAMES = 64  # frames held while the latched layout is still on its way
@@ -62,7 +65,7 @@ class CalibrationNode(Node):
     calibration_command = Input("calibration_command", NodeCommand,
                                 "find_base_pose, capture_gym {seconds, rate_hz}, process, reset, "
                                 "save {path}, load {path}; target '' or this node", required=False)
-    skeleton_model = Output("skeleton_model", ModelMsg, "latched calibrated model")
+    skeleton_model = Output("skeleton_model", SkeletonModel, "latched calibrated model")
     calibration_status = Output("calibration_status", NodeStatus,
                                 "state, progress, per-joint quality (data_json)", latched=True)
 
@@ -75,6 +78,8 @@ class CalibrationNode(Node):
     auto = Param(False, "on start (without a model file to load): find base pose, capture gym, process")
     min_rom_deg = Param(25.0, "joints moving less than this are reported unreliable, deg", minimum=0.0)
     status_rate_hz = Param(2.0, "periodic status rate, Hz", minimum=0.1)
+    centres = Param("functional,anatomical,regression", "joint-centre methods in order of preference")
+    subject_file = Param("", "Vicon VSK with the subject's measurements (regression centres); '' none")
 
     # ----- life cycle ---------------------------------------------------------------------------
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
@@ -85,7 +90,7 @@ class CalibrationNode(Node):
         self._layout_error = ""
         self.where: np.ndarray | None = None      # layout marker -> stream index
         self.stream: MarkerLayout | None = None
-        self.model: SkeletonModel | None = None
+        self.model: ActorModel | None = None
         self._auto_running = False
         self._early: deque = deque(maxlen=EARLY_FRAMES)
         self._reset_capture()
@@ -111,14 +116,11 @@ class CalibrationNode(Node):
     def _reset_capture(self) -> None:
         self.base: np.ndarray | None = None
         self.base_frame = -1
-        self.gym: list[np.ndarray] = []
+        self.finder = BasePoseFinder(self.base_pose_timeout_s)
+        self.sampler = GymSampler(self.gym_seconds, self.gym_rate_hz)
         self._t_first: float | None = None
         self._wall0 = time.monotonic()
         self._frames_used = 0
-        self._seen: np.ndarray | None = None
-        self._best: tuple[int, np.ndarray] | None = None
-        self._next_k = 0
-        self._gym_spec = (self.gym_seconds, self.gym_rate_hz)
 
     # ----- status -------------------------------------------------------------------------------
     def _publish_status(self) -> None:
@@ -177,8 +179,8 @@ class CalibrationNode(Node):
             except LayoutError as exc:
                 self._error(f"layout '{self.stream.name}' of the marker stream: {exc}")
                 return False
-        where, _ = self.definition.match_labels(list(self.stream.labels))
-        missing = [self.definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
+        where, _ = place_labels(self.definition.marker_labels, list(self.stream.labels))
+        missing = missing_labels(self.definition.marker_labels, where)
         if missing:
             self.where = None
             self._error(f"layout '{self.definition.name}' names markers the marker stream "
@@ -219,22 +221,23 @@ class CalibrationNode(Node):
         else:
             self._gym_step(x, t, frame.rate_hz)
 
+    @property
+    def gym(self) -> list[np.ndarray]:
+        """The gym frames kept so far (layout order, metres, NaN unseen)."""
+        return self.sampler.frames
+
     def _find_step(self, x: np.ndarray, ok: np.ndarray, t: float, frame_number: int) -> None:
-        self._seen = ok.copy() if self._seen is None else (self._seen | ok)
-        n = int(ok.sum())
-        if self._best is None or n > self._best[0]:
-            self._best = (n, ~ok)
-        if ok.all():
+        found = self.finder.step(ok, t - self._t_first)
+        if found == FOUND:
             self.base, self.base_frame = x, frame_number
             self._set(BASE_FOUND, f"base pose at frame {frame_number}",
                       data={"base_frame": frame_number, "markers": len(ok)})
             if self._auto_running:
                 self._begin_capture(self.gym_seconds, self.gym_rate_hz)
-            return
-        if t - self._t_first >= self.base_pose_timeout_s:
+        elif found == TIMED_OUT:
             labels = self.definition.marker_labels
-            never = [labels[m] for m in np.flatnonzero(~self._seen)]
-            worst = [labels[m] for m in np.flatnonzero(self._best[1])]
+            never = [labels[m] for m in np.flatnonzero(self.finder.never_seen)]
+            worst = [labels[m] for m in np.flatnonzero(self.finder.best_missing)]
             span = f"{self.base_pose_timeout_s:g} s of capture"
             if never:
                 self._error(f"no base pose in {span}: markers never visible: {', '.join(never)}",
@@ -243,20 +246,15 @@ class CalibrationNode(Node):
                 self._error(f"no base pose in {span}: no frame shows all markers at once "
                             f"(the best lacks {', '.join(worst)})", {"best_frame_missing": worst})
         else:
-            self.progress = (t - self._t_first) / self.base_pose_timeout_s
+            self.progress = self.finder.progress
 
     def _gym_step(self, x: np.ndarray, t: float, stream_rate: float) -> None:
-        seconds, rate = self._gym_spec
-        dt = t - self._t_first
-        if dt >= seconds:
+        if self.sampler.step(x, t - self._t_first):
             self._finish_capture()
             return
-        k = int(np.floor(dt * rate + 1e-6)) if rate > 0 else self._next_k
-        if k >= self._next_k:
-            self.gym.append(x)
-            self._next_k = k + 1
-        self.progress = dt / seconds
-        self.data = {"frames": len(self.gym), "seconds": seconds, "rate_hz": rate or stream_rate}
+        self.progress = self.sampler.progress
+        self.data = {"frames": len(self.gym), "seconds": self.sampler.seconds,
+                     "rate_hz": self.sampler.rate_hz or stream_rate}
 
     # ----- steps --------------------------------------------------------------------------------
     def _begin_find(self) -> None:
@@ -266,16 +264,14 @@ class CalibrationNode(Node):
         self._set(FINDING, "waiting for a frame with every marker visible", 0.0)
 
     def _begin_capture(self, seconds: float, rate_hz: float) -> None:
-        self.gym = []
+        self.sampler = GymSampler(seconds, rate_hz)
         self._t_first = None
-        self._next_k = 0
-        self._gym_spec = (float(seconds), float(rate_hz))
         self._set(CAPTURING, f"capturing {seconds:g} s of gym at "
                              f"{rate_hz:g} frames/s" if rate_hz else f"capturing {seconds:g} s of gym", 0.0,
                   {"frames": 0, "seconds": seconds, "rate_hz": rate_hz})
 
     def _finish_capture(self) -> None:
-        seconds, rate = self._gym_spec
+        seconds, rate = self.sampler.seconds, self.sampler.rate_hz
         self._set(CAPTURED, f"{len(self.gym)} gym frames over {seconds:g} s", 1.0,
                   {"frames": len(self.gym), "seconds": seconds, "rate_hz": rate})
         if self._auto_running:
@@ -284,25 +280,25 @@ class CalibrationNode(Node):
     def _begin_process(self) -> None:
         self._set(PROCESSING, f"calibrating from base pose + {len(self.gym)} gym frames")
         # Run on the next loop turn: the "processing" status leaves before the work blocks.
-        timer: list = []
-        timer.append(self.add_timer(3600.0, lambda: (self.cancel_timer(timer[0]), self._process()),
-                                    first_delay_s=0.0))
+        self.call_later(0.0, self._process)
 
     def _process(self) -> None:
         self._auto_running = False
         frames = np.concatenate([self.base[None], np.asarray(self.gym)]) if self.gym else self.base[None]
-        rate = self._gym_spec[1] or None
+        rate = self.sampler.rate_hz or None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
             try:
+                subject = read_vsk(self.subject_file) if self.subject_file else None
                 model = calibrate(self.definition, frames, base_frame=0, rate_hz=rate,
-                                  min_rom_deg=self.min_rom_deg, source="gym capture")
-            except CalibrationError as exc:
+                                  min_rom_deg=self.min_rom_deg, source="gym capture", subject=subject,
+                                  centre_order=tuple(m.strip() for m in self.centres.split(",") if m.strip()))
+            except (CalibrationError, SubjectError) as exc:
                 self._error(str(exc))
                 return
         # The published model is the file form (rounded as saved), so a later run that loads the
         # file interprets the session exactly as this one does.
-        model = SkeletonModel.from_dict(json.loads(json.dumps(model.to_dict())), source="calibration")
+        model = ActorModel.from_dict(json.loads(json.dumps(model.to_dict())), source="calibration")
         saved = ""
         if self.model_file:
             try:
@@ -313,7 +309,7 @@ class CalibrationNode(Node):
         self._publish_model(model, "calibration", saved,
                             [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)])
 
-    def _publish_model(self, model: SkeletonModel, origin: str, path: str, warns: list[str]) -> None:
+    def _publish_model(self, model: ActorModel, origin: str, path: str, warns: list[str]) -> None:
         self.model = model
         ml = self.definition.marker_limb if (self.definition is not None
                                              and self.definition.name == model.layout) else None
@@ -352,48 +348,62 @@ class CalibrationNode(Node):
         except ValueError as exc:
             self._note(f"command {cmd.command!r}: bad args_json ({exc})")
             return
-        name = cmd.command
+        handler = self._HANDLERS.get(cmd.command)
+        if handler is None:
+            self._note(f"unknown command {cmd.command!r} (expected one of {', '.join(CALIBRATION_COMMANDS)})")
+            return
         self._auto_running = False
-        if name == "find_base_pose":
-            self._begin_find()
-        elif name == "capture_gym":
-            if self.base is None:
-                self._note("capture_gym: no base pose yet (send find_base_pose first)")
-                return
-            try:
-                seconds = float(args.get("seconds", self.gym_seconds))
-                rate = float(args.get("rate_hz", self.gym_rate_hz))
-                if not (seconds > 0 and rate >= 0):
-                    raise ValueError
-            except (TypeError, ValueError):
-                self._note(f"capture_gym: seconds must be > 0 and rate_hz >= 0, got {args}")
-                return
-            self._begin_capture(seconds, rate)
-        elif name == "process":
-            if self.base is None or self.state in (FINDING, CAPTURING, PROCESSING):
-                self._note(f"process: nothing captured to process (state {self.state})")
-                return
-            self._begin_process()
-        elif name == "reset":
-            self._reset_capture()
-            self._set(IDLE, "reset")
-        elif name == "save":
-            path = str(args.get("path") or self.model_file)
-            if self.model is None or not path:
-                self._note("save: " + ("no model yet" if self.model is None else "no path given"))
-                return
-            try:
-                save_model(self.model, path)
-            except OSError as exc:
-                self._note(f"save: cannot write {path}: {exc.strerror or exc}")
-                return
-            self.data["model_file"] = path
-            self._note(f"saved to {path}", problem=False)
-        elif name == "load":
-            path = str(args.get("path") or self.model_file)
-            if not path:
-                self._note("load: no path given")
-                return
-            self._load(path)
-        else:
-            self._note(f"unknown command {name!r} (expected one of {', '.join(COMMANDS)})")
+        handler(self, args)
+
+    def _cmd_find_base_pose(self, args: dict[str, Any]) -> None:
+        self._begin_find()
+
+    def _cmd_capture_gym(self, args: dict[str, Any]) -> None:
+        if self.base is None:
+            self._note("capture_gym: no base pose yet (send find_base_pose first)")
+            return
+        try:
+            seconds = float(args.get("seconds", self.gym_seconds))
+            rate = float(args.get("rate_hz", self.gym_rate_hz))
+            if not (seconds > 0 and rate >= 0):
+                raise ValueError
+        except (TypeError, ValueError):
+            self._note(f"capture_gym: seconds must be > 0 and rate_hz >= 0, got {args}")
+            return
+        self._begin_capture(seconds, rate)
+
+    def _cmd_process(self, args: dict[str, Any]) -> None:
+        if self.base is None or self.state in (FINDING, CAPTURING, PROCESSING):
+            self._note(f"process: nothing captured to process (state {self.state})")
+            return
+        self._begin_process()
+
+    def _cmd_reset(self, args: dict[str, Any]) -> None:
+        self._reset_capture()
+        self._set(IDLE, "reset")
+
+    def _cmd_save(self, args: dict[str, Any]) -> None:
+        path = str(args.get("path") or self.model_file)
+        if self.model is None or not path:
+            self._note("save: " + ("no model yet" if self.model is None else "no path given"))
+            return
+        try:
+            save_model(self.model, path)
+        except OSError as exc:
+            self._note(f"save: cannot write {path}: {exc.strerror or exc}")
+            return
+        self.data["model_file"] = path
+        self._note(f"saved to {path}", problem=False)
+
+    def _cmd_load(self, args: dict[str, Any]) -> None:
+        path = str(args.get("path") or self.model_file)
+        if not path:
+            self._note("load: no path given")
+            return
+        self._load(path)
+
+    #: the command table (filled below the class): one handler per name in CALIBRATION_COMMANDS
+    _HANDLERS: dict[str, Callable[["CalibrationNode", dict[str, Any]], None]] = {}
+
+
+CalibrationNode._HANDLERS = {name: getattr(CalibrationNode, f"_cmd_{name}") for name in CALIBRATION_COMMANDS}

@@ -24,7 +24,7 @@ import zmq
 
 from ..bus import Param
 from ..formats.wire_protocol import WireFrame, make_decoder
-from .device_config import DeviceConfig, device_or_default
+from ..formats.device_file import DeviceConfig, device_or_default
 from .marker_source import LayoutMap, MarkerSourceNode
 from .source_base import INPUT_ERRORS
 

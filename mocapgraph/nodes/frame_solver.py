@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
-from ..kinematics.model import ModelFileError, SkeletonModel, load_model
+from ..kinematics.model import ActorModel, ModelFileError, load_model
 from ..kinematics.solver import FrameSolver
 from ..messages import ActorPose, MarkerFrame, MarkerLayout
-from ..messages import SkeletonModel as ModelMsg
-from .model_messages import marker_index, missing_pose, model_from_message, pose_message
+from ..messages import SkeletonModel
+from ..adapters.model_messages import marker_index, missing_pose, model_from_message, pose_message
 
 FILTERS = ("", "one_euro", "constant_velocity")
 
@@ -33,7 +33,7 @@ class FrameSolverNode(Node):
     summary = "joint centres every frame from labelled markers and a calibrated model -> ActorPose"
     markers = Input("markers", MarkerFrame, "labelled markers, m, world, in marker_layout order")
     marker_layout = Input("marker_layout", MarkerLayout, "latched labels of the marker stream", latched=True)
-    skeleton_model = Input("skeleton_model", ModelMsg, "latched calibrated model", latched=True,
+    skeleton_model = Input("skeleton_model", SkeletonModel, "latched calibrated model", latched=True,
                            required=False)
     actor_pose = Output("actor_pose", ActorPose, "solved joints in the order of skeleton_model")
 
@@ -42,12 +42,14 @@ class FrameSolverNode(Node):
     filter = Param("", "temporal filter on joints: '', one_euro, constant_velocity", choices=FILTERS)
     enforce_lengths = Param(True, "keep calibrated bone lengths (Kiip), outward from the root")
     actor = Param("actor", "actor name carried in every ActorPose")
+    fit = Param("segment", "limb poses: segment (each by itself) or global (together under the joints)",
+                choices=("segment", "global"))
     model_file = Param("", "model JSON loaded at start instead of waiting for skeleton_model")
 
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
         # State lives from construction: a latched model or layout may arrive before on_start.
-        self.model: SkeletonModel | None = None
+        self.model: ActorModel | None = None
         self.model_source = ""
         self.solver: FrameSolver | None = None
         self.where: np.ndarray | None = None
@@ -72,7 +74,7 @@ class FrameSolverNode(Node):
             self.log.error("%s; waiting for skeleton_model", exc)
 
     # ----- model and layout ---------------------------------------------------------------------
-    def on_skeleton_model(self, msg: ModelMsg) -> None:
+    def on_skeleton_model(self, msg: SkeletonModel) -> None:
         try:
             model = model_from_message(msg, source=f"skeleton_model from {self.skeleton_model.envelope.sender}")
         except ModelFileError as exc:
@@ -83,7 +85,7 @@ class FrameSolverNode(Node):
     def on_marker_layout(self, msg: MarkerLayout) -> None:
         self._bind()
 
-    def _use_model(self, model: SkeletonModel, source: str) -> None:
+    def _use_model(self, model: ActorModel, source: str) -> None:
         self.model, self.model_source = model, source
         self._bind()
 
@@ -107,10 +109,11 @@ class FrameSolverNode(Node):
             self.log.warning("model layout '%s' used on marker layout '%s' (every marker found by label)",
                              self.model.layout, layout.name)
         self.where = where
+        self.absent = where < 0  # static-only markers the stream does not carry
         self.n_stream = len(layout.labels)
         self.identity = bool(len(where) == self.n_stream and (where == np.arange(len(where))).all())
         self.solver = FrameSolver(self.model, max_gap_s=self.max_gap_s, enforce_lengths=self.enforce_lengths,
-                                  filter=self.filter or None)
+                                  filter=self.filter or None, fit=self.fit)
         self._last_t = -np.inf
         self.log.info("solving %d joints of layout '%s' (%s) from %d markers", len(self.model.joint_names),
                       self.model.layout, self.model_source, len(where))
@@ -132,7 +135,7 @@ class FrameSolverNode(Node):
             self.actor_pose.publish(missing_pose(self.model, self.actor, frame.frame_number), env.capture_ns)
             return
         x = pos if self.identity else pos[self.where]
-        seen = np.isfinite(x).all(1)
+        seen = np.isfinite(x).all(1) & ~self.absent
         if frame.valid.shape == (pos.shape[0],):
             seen &= frame.valid if self.identity else frame.valid[self.where]
         if not seen.all():

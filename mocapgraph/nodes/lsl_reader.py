@@ -11,7 +11,7 @@ import pylsl
 from pylsl.util import InternalError, LostError, TimeoutError as LSLTimeoutError
 
 from ..bus import Param
-from .device_config import DeviceConfig, device_or_default
+from ..formats.device_file import DeviceConfig, device_or_default
 from .marker_source import LayoutMap, MarkerSourceNode
 from .source_base import INPUT_ERRORS, SourceError
 
@@ -167,7 +167,7 @@ class LSLReader(MarkerSourceNode):
         self.stream_desc = f"LSL stream '{info.name()}' ({info.type()}) from {info.hostname()}, uid {info.uid()}"
         note = f"LSL {self.dev.units} -> m; LSL time stamps -> host clock; {self.dev.describe()}"
         self.publish_layout(lmap, note, self.stream_desc)
-        self.cancel_timer(self._resolve_timer)
+        self._resolve_timer.cancel()
         self._pull_timer = self.add_timer(self.poll_s, self._pull, first_delay_s=0.0)
         self.log.info("connected to %s: %d markers at %g Hz", self.stream_desc, lmap.n_source, self._rate)
         self.set_state("streaming", self.stream_desc)
@@ -175,7 +175,7 @@ class LSLReader(MarkerSourceNode):
     def _lost(self, why: str) -> None:
         self.streams_lost += 1
         self.log.warning("lost %s (%s); looking for it again", self.stream_desc, why)
-        self.cancel_timer(self._pull_timer)
+        self._pull_timer.cancel()
         self.inlet = None
         self.set_state("waiting", f"lost {self.stream_desc}: {why}")
         self._resolve_timer = self.add_timer(self.resolve_s, self._resolve, first_delay_s=self.resolve_s)

@@ -6,7 +6,7 @@ imported only when a graph uses it or `mocapgraph node info` asks for it.
 from __future__ import annotations
 
 NODE_TYPES: dict[str, str] = {
-    "marker_test_pattern": "mocapgraph.nodes.test_pattern:MarkerTestPattern",
+    "marker_test_pattern": "mocapgraph.testing.marker_pattern:MarkerTestPattern",
     "topic_logger": "mocapgraph.nodes.topic_logger:TopicLogger",
     # inputs: marker readers (markers + marker_layout) and skeleton sources (skeleton_pose + skeleton_info)
     "synthetic_actor": "mocapgraph.nodes.synthetic_actor:SyntheticActorNode",
@@ -21,15 +21,14 @@ NODE_TYPES: dict[str, str] = {
     # actor: calibration (latched SkeletonModel) and the per-frame solver (ActorPose)
     "calibration": "mocapgraph.nodes.calibration:CalibrationNode",
     "frame_solver": "mocapgraph.nodes.frame_solver:FrameSolverNode",
+    # characters: retargeting (CharacterPose), a ground-truth character source, physics
+    "retargeter": "mocapgraph.nodes.retargeter:RetargeterNode",
+    "synthetic_character": "mocapgraph.nodes.synthetic_character:SyntheticCharacterNode",
+    "physics_tracker": "mocapgraph.nodes.physics_tracker:PhysicsTrackerNode",
     "bag_recorder": "mocapgraph.nodes.bag_recorder:BagRecorder",
     "bag_player": "mocapgraph.nodes.bag_player:BagPlayer",
     "visualizer": "mocapgraph.nodes.visualizer:Visualizer",
 }
-
-
-def register_node_type(name: str, import_path: str) -> None:
-    """Add a node type (plugins call this before loading a graph)."""
-    NODE_TYPES[name] = import_path
 
 
 def resolve(type_name: str) -> str:

@@ -71,7 +71,7 @@ class SerialReader(WireDeviceSource):
         self.ser = ser
         self._backoff = self.reopen_s
         if self._reopen_timer is not None:
-            self.cancel_timer(self._reopen_timer)
+            self._reopen_timer.cancel()
             self._reopen_timer = None
         self.watch_fd(ser.fileno())
         self.log.info("%s %s at %d baud (%s protocol)", "opened" if not self.disconnects else "reopened",
@@ -80,7 +80,7 @@ class SerialReader(WireDeviceSource):
 
     def _schedule_reopen(self) -> None:
         if self._reopen_timer is not None:
-            self.cancel_timer(self._reopen_timer)
+            self._reopen_timer.cancel()
         self._reopen_timer = self.add_timer(self._backoff, self._try_open)
         self._backoff = min(self._backoff * 2, self.reopen_max_s)
 

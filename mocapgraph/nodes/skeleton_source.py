@@ -16,7 +16,7 @@ import numpy as np
 from ..bus import Output, Param
 from ..formats import SkeletonTrial
 from ..messages import SkeletonInfo, SkeletonPose
-from .device_config import DeviceConfig, device_or_default
+from ..formats.device_file import DeviceConfig, device_or_default
 from .source_base import FilePlayback, SourceError
 
 

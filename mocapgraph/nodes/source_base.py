@@ -21,11 +21,12 @@ from typing import Any
 import numpy as np
 
 from ..bus import Node, Output, Param
+from ..bus.diagnostics import EdgeRecord
 from ..bus.input_files import PROJECT_ROOT, InputFileError, resolve_input_file  # noqa: F401 (re-export)
 from ..formats import FormatError
 from ..kinematics.layout import LayoutError
-from ..messages import Diagnostics, NodeStatus
-from .device_config import DeviceConfigError
+from ..messages import NodeStatus
+from ..formats.device_file import DeviceConfigError
 
 STATUS_PERIOD_S = 1.0
 
@@ -112,21 +113,8 @@ class SourceNode(Node):
         """Incoming device streams as edges: dicts with topic, sender, rate_hz, received, gaps, rejected."""
         return []
 
-    def diagnostics(self) -> Diagnostics:
-        d = super().diagnostics()
-        extra = self.device_edges()
-        if not extra:
-            return d
-        nan = float("nan")
-        d.edge_topics = d.edge_topics + [e["topic"] for e in extra]
-        d.edge_senders = d.edge_senders + [e.get("sender", "device") for e in extra]
-        d.edge_rate_hz = np.concatenate([d.edge_rate_hz, [e.get("rate_hz", 0.0) for e in extra]])
-        d.edge_latency_ms = np.concatenate([d.edge_latency_ms, [e.get("latency_ms", nan) for e in extra]])
-        d.edge_latency_max_ms = np.concatenate([d.edge_latency_max_ms, [e.get("latency_max_ms", nan) for e in extra]])
-        d.edge_received = np.concatenate([d.edge_received, [e.get("received", 0) for e in extra]]).astype(np.int64)
-        d.edge_gaps = np.concatenate([d.edge_gaps, [e.get("gaps", 0) for e in extra]]).astype(np.int64)
-        d.edge_rejected = np.concatenate([d.edge_rejected, [e.get("rejected", 0) for e in extra]]).astype(np.int64)
-        return d
+    def edge_records(self) -> list[EdgeRecord]:
+        return super().edge_records() + [EdgeRecord(**e) for e in self.device_edges()]
 
 
 class Playback:

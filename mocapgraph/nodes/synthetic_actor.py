@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from ..bus import Output, Param
-from ..kinematics.model import marker_fingerprint
+from ..adapters.model_messages import model_to_message
 from ..kinematics.synthetic_actor import CaptureOptions, SyntheticActor, SyntheticCapture
 from ..kinematics.synthetic_motion import MotionScript
+from ..kinematics.synthetic_truth import exact_model
 from ..messages import QUALITY_GOOD, ActorPose, SkeletonModel
 from .marker_source import LayoutMap, MarkerSourceNode
 from .source_base import INPUT_ERRORS, SourceError
@@ -45,24 +46,7 @@ class _Chunk:
 
 def ground_truth_model(cap: SyntheticCapture, layout_name: str) -> SkeletonModel:
     """The exact skeleton of a synthetic session as a SkeletonModel message (no calibration)."""
-    sk = cap.skeleton
-    J = sk.n_joints
-    parent = np.asarray(sk.joint_parent, dtype=np.int64)
-    base = cap.base_joint_centres
-    bone = np.full(J, np.nan)
-    has = parent >= 0
-    bone[has] = np.linalg.norm(base[has] - base[parent[has]], axis=1)
-    hinge = np.asarray(sk.joint_hinge, dtype=bool)
-    axes = np.where(hinge[:, None], cap.joint_dof_axes[:, 0, :], np.nan) if J else np.zeros((0, 3))
-    return SkeletonModel(
-        layout_name=layout_name, fingerprint=marker_fingerprint(list(sk.marker_labels)),
-        marker_labels=list(sk.marker_labels), limb_names=list(sk.limb_names), joint_names=list(sk.joint_names),
-        marker_limb=sk.marker_limb, limb_parent=sk.limb_parent, joint_limbs=sk.joint_limbs.reshape(J, 2),
-        joint_parent=parent, joint_hinge=hinge, base_markers=cap.base_markers, joint_offsets=cap.joint_offsets,
-        base_joints=base, bone_lengths=bone, hinge_axes=axes, joint_residual_rms=np.zeros(J),
-        joint_rom=np.full(J, np.nan),
-        extra_json='{"ground_truth": true, "note": "exact synthetic skeleton, not a calibration"}',
-    )
+    return model_to_message(exact_model(cap, layout_name), cap.skeleton.marker_limb)
 
 
 class SyntheticActorNode(MarkerSourceNode):

@@ -20,11 +20,10 @@ import webbrowser
 from typing import Any, Callable
 
 from ..bus import Input, Interface, Node, Output, Param
-from ..bus.node import InputPort
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
                         NodeCommand, NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel,
                         SkeletonPose)
-from .viewer.server import COMMANDS, LatestStore, ViewerServer, ViewerStartError
+from ..viewer.server import COMMANDS, LatestStore, ViewerServer, ViewerStartError
 
 FRAME_QUEUE = 64  # messages a per-frame input's socket holds before dropping (counted as gaps)
 # The field naming a stream inside a topic, per type (several actors on one actor_pose topic).
@@ -91,7 +90,7 @@ class Visualizer(Node):
         self.server: ViewerServer | None = None
 
     def input_handler(self, port_name: str) -> Callable[[Message], Any]:
-        port = self._ports[port_name]
+        port = self.bound_port(port_name)
         put = self.store.put
 
         def store(msg: Message) -> None:
@@ -104,7 +103,7 @@ class Visualizer(Node):
     def setup(self) -> None:
         super().setup()
         topics = {name: {"topic": p.topic, "type": p.decl.type_name, "latched": p.decl.latched}
-                  for name, p in self._ports.items() if isinstance(p, InputPort)}
+                  for name, p in self.input_ports.items()}
         hello = {"node": self.name, "title": self.title, "topics": topics,
                  "reference_topics": list(self.reference_topics),
                  "commands": {ch: list(cmds) for ch, cmds in COMMANDS.items()},

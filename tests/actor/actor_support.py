@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.kinematics.calibration import CalibrationWarning, calibrate
-from mocapgraph.kinematics.model import SkeletonModel
+from mocapgraph.kinematics.model import ActorModel
 from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 from mocapgraph.kinematics.synthetic_motion import MotionScript
 
@@ -41,7 +41,7 @@ def joints(recs: dict[int, dict], frames) -> np.ndarray:
                      for f in frames], dtype=float)
 
 
-def quick_model(layout: str, seed: int = 0) -> SkeletonModel:
+def quick_model(layout: str, seed: int = 0) -> ActorModel:
     """A model calibrated (kinematics only) from a short synthetic gym of ``layout``."""
     cap = SyntheticActor(layout, rate=60.0, seed=seed, script=MotionScript(gym_block_s=1.0),
                          options=CaptureOptions(noise_mm=1.0)).capture(0, 300)

@@ -171,10 +171,42 @@ def test_real_plug_in_gait_static_and_walk(shared_data, capsys, tmp_path):
         print("\n" + out)
     code, out, _ = run(capsys, "solve", folder / "Movement_trial.c3d", "--model", tmp_path / "pig.json",
                        "-o", tmp_path / "walk.csv")
-    assert code == 0 and "323 frames" in out and "100.0 % good" in out, out
+    assert code == 0 and "323 frames" in out and "0.0 % missing" in out, out
     model = load_model(tmp_path / "pig.json")
     walk = _csv_joints(tmp_path / "walk.csv", len(model.joint_names))
+    # joints calibration called unreliable (centre from the prior) are never flagged good
+    rel = model.quality.reliable
+    assert (~rel).any() and (walk[:, ~rel, 3] == 1).all() and (walk[:, rel, 3] == 2).all()
     idx = {n: i for i, n in enumerate(model.joint_names)}
     for s in "lr":  # bone lengths held (enforce_lengths) and plausible for an adult
         thigh = np.linalg.norm(walk[:, idx[f"hip_{s}"], :3] - walk[:, idx[f"knee_{s}"], :3], axis=1)
         assert 0.3 < thigh.mean() < 0.55 and thigh.std() < 1e-4
+
+
+def test_static_plus_walk_with_other_markers_and_plug_in_gait_regressions(shared_data, capsys, tmp_path):
+    # OpenSim: the static has medial/lateral knee and ankle markers, the walk has none of them.
+    folder = shared_data / "trc" / "opensim-gait2392"
+    code, out, _ = run(capsys, "calibrate", folder / "subject01_static.trc", folder / "subject01_walk1.trc",
+                       "--layout", "opensim_gait2392", "--centres", "anatomical,functional", "-o", tmp_path / "os.json")
+    assert code == 0, out
+    assert "subject01_walk1.trc: lacks 8 landmarks of subject01_static.trc: static-only" in out and "R.Knee.Med" in out
+    assert "knee_r: midpoint of R.Knee.Lat and R.Knee.Med" in out
+    code, out, _ = run(capsys, "solve", folder / "subject01_walk1.trc", "--model", tmp_path / "os.json",
+                       "-o", tmp_path / "walk.csv")
+    assert code == 0 and "0.0 % missing" in out, out  # no --allow-missing: the absent ones are static-only
+    # Plug-in Gait from the static alone with the VSK: regressions, inputs printed.
+    pig = shared_data / "c3d" / "pycgm"
+    code, out, _ = run(capsys, "calibrate", pig / "Static_trial.c3d", "--layout", "plug_in_gait", "--vsk",
+                       pig / "Test.vsk", "--subject", "LeftKneeWidth=150", "--centres", "regression,functional",
+                       "-o", tmp_path / "pig.json")
+    assert code == 0, out
+    with capsys.disabled():
+        print("\n" + out)
+    assert "knee_l: Plug-in Gait chord (knee) (knee_width 150.0 mm" in out  # --subject overrides the VSK
+    assert "regression:pig_hip" in out
+    code, out, err = run(capsys, "calibrate", pig / "Static_trial.c3d", "--layout", "plug_in_gait",
+                         "--subject", "LeftKneeWidth", "-o", tmp_path / "x.json")
+    assert code == 2 and "--subject 'LeftKneeWidth': expected key=value" in err
+    code, out, err = run(capsys, "calibrate", pig / "Static_trial.c3d", "--layout", "plug_in_gait",
+                         "--centres", "magic", "-o", tmp_path / "x.json")
+    assert code == 2 and "--centres 'magic'" in err

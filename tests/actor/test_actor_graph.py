@@ -186,3 +186,50 @@ nodes:
     assert g.proc.poll() is None
     assert g.stop() == 0
     cmd.close()
+
+
+def test_the_solver_node_never_calls_an_unreliable_joint_good(launch_graph, tmp_path):
+    # A model whose calibration found some joints unreliable (a 60 deg bar on a short gym): the
+    # live solver node publishes them estimated on every frame, the others good.
+    import warnings
+
+    from mocapgraph.kinematics.calibration import CalibrationWarning, calibrate
+    from mocapgraph.kinematics.model import save_model
+    from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
+    from mocapgraph.kinematics.synthetic_motion import MotionScript
+
+    actor = SyntheticActor("kiip_full_body", rate=120.0, seed=3, script=MotionScript(gym_block_s=1.0),
+                           options=CaptureOptions(noise_mm=1.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)
+        model = calibrate(actor.skeleton, actor.capture(0, 600).markers[::2], rate_hz=60.0, min_rom_deg=60.0)
+    bad = ~model.quality.reliable
+    assert bad.any() and not bad.all()
+    save_model(model, tmp_path / "m.json")
+    log = tmp_path / "poses.jsonl"
+    g = launch_graph(f"""\
+nodes:
+{SOURCE.format(duration=3.0)}\
+  - name: solver
+    type: frame_solver
+    params: {{model_file: {tmp_path / "m.json"}}}
+  - name: solver_global
+    type: frame_solver
+    params: {{model_file: {tmp_path / "m.json"}, fit: global}}
+    remap: {{actor_pose: actor_pose_global}}
+  - name: logger
+    type: topic_logger
+    params: {{path: {log}, topics: [actor_pose, actor_pose_global, ground_truth]}}
+""")
+    g.wait_ready()
+    g.wait_for("node src exited with code 0", timeout=30)
+    wait_until(lambda: len(poses(log)) > 300 and len(poses(log, "actor_pose_global")) > 300, what="poses", graph=g)
+    assert g.stop() == 0
+    truth = poses(log, "ground_truth")
+    for topic in ("actor_pose", "actor_pose_global"):  # the segment-wise and the global fit node
+        got = poses(log, topic)
+        q = np.array([p["joint_quality"] for p in got.values()])
+        assert (q[:, bad] == 1).all() and (q[:, ~bad] == 2).mean() > 0.99
+        frames = sorted(set(got) & set(truth))
+        err = np.linalg.norm(joints(got, frames) - joints(truth, frames), axis=-1)
+        assert np.median(err[:, ~bad]) < 0.005, topic

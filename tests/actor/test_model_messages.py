@@ -13,7 +13,7 @@ from mocapgraph.kinematics.skeleton import SkeletonDefinition
 from mocapgraph.kinematics.solver import FrameSolver
 from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 from mocapgraph.messages import decode, encode
-from mocapgraph.nodes.model_messages import (ModelMismatchError, marker_index, model_from_message,
+from mocapgraph.adapters.model_messages import (ModelMismatchError, marker_index, model_from_message,
                                              model_to_message, owner_limbs, pose_message)
 
 
@@ -92,3 +92,21 @@ def test_pose_message_carries_quality_and_nan(kiip_model):
         sk.limb_markers(hand), np.flatnonzero(sk.marker_limb == hand)).sum()
     ok = pose.limb_quality == 2
     np.testing.assert_allclose(np.linalg.norm(pose.limb_orientations[ok], axis=1), 1.0)
+
+
+@pytest.mark.parametrize("layout", ["kiip_full_body", "plug_in_gait"])
+def test_a_solver_fed_the_synthetic_ground_truth_model_solves_the_true_joints(layout):
+    """The synthetic actor's ground_truth_model topic, through the wire, solves noise-free markers
+    to the synthetic joint centres (the ground truth the generator computed, not our solver)."""
+    from mocapgraph.nodes.synthetic_actor import ground_truth_model
+
+    actor = SyntheticActor(layout, rate=100.0, seed=3)
+    cap = actor.capture(0, 200)
+    msg = _wire(ground_truth_model(cap, layout))
+    model = model_from_message(msg, source="ground_truth_model")       # refused before: never solved
+    assert model.layout == layout and list(model.marker_labels) == list(cap.skeleton.marker_labels)
+    res = FrameSolver(model, rate_hz=100.0, max_gap_s=0.0).solve(cap.markers)
+    exact = cap.limb_exact[np.asarray(cap.skeleton.joint_limbs)].all(1)   # joints of rigid limbs only
+    err = np.linalg.norm(res.joints - cap.joint_centres, axis=-1)[:, exact]
+    print(f"{layout}: ground-truth model, {exact.sum()} joints, max error {err.max() * 1e6:.3f} um")
+    assert exact.sum() >= 4 and np.isfinite(err).all() and err.max() < 1e-6

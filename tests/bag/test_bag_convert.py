@@ -122,10 +122,12 @@ def test_character_poses_to_bvh(tmp_path, shared_data):
     lq = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_quat(scalar_first=True).reshape(quat.shape)
     with BagWriter(tmp_path / "c.mcap") as w:
         w.write("character_info", CharacterInfo(character="mixamo", joint_names=motion.names, joint_parent=par,
-                                                rest_offsets=off), seq=1, capture_ns=0)
+                                                rest_offsets=off, rest_rotations=np.tile([1.0, 0, 0, 0], (len(par), 1))),
+                seq=1, capture_ns=0)
         for t in range(motion.n_frames):
             w.write("character_pose", CharacterPose(character="mixamo", frame_number=t, root_position=pos[t, 0],
-                                                    local_rotations=lq[t], joint_positions=pos[t]),
+                                                    local_rotations=lq[t], joint_positions=pos[t],
+                                                    joint_quality=np.full(len(par), 2, np.int8)),
                     seq=t + 1, capture_ns=int(t * motion.frame_time_s * 1e9))
     rep = bag_to_file(tmp_path / "c.mcap", tmp_path / "c.bvh")
     assert rep.topics == {"character_pose": motion.n_frames}

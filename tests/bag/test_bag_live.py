@@ -20,10 +20,10 @@ from mocapgraph.bag.recover import recover
 from mocapgraph.launch.check import check_graph
 from mocapgraph.launch.graph import load_graph
 from mocapgraph.launch.manifest import fetch_manifest, subscribe
-from mocapgraph.launch.yaml_source import GraphError
+from mocapgraph.formats.yaml_source import GraphError
 from mocapgraph.messages import NodeCommand, decode, decode_envelope, encode
 from mocapgraph.messages.codec import topic_frame
-from mocapgraph.nodes.test_pattern import pattern_positions
+from mocapgraph.testing.marker_pattern import pattern_positions
 
 N_MARKERS = 64
 RATE = 240.0

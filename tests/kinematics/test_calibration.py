@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapgraph.kinematics import arm_jig
+from mocapgraph.testing import arm_jig
 from mocapgraph.kinematics.calibration import (
     CalibrationError,
     CalibrationWarning,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapgraph.kinematics import arm_jig
+from mocapgraph.testing import arm_jig
 from mocapgraph.kinematics.calibration import calibrate
 from mocapgraph.kinematics.skeleton import SkeletonDefinition
 from mocapgraph.kinematics.solver import FrameSolver

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocapgraph.kinematics import arm_jig
+from mocapgraph.testing import arm_jig
 from mocapgraph.kinematics.calibration import calibrate
 from mocapgraph.kinematics.model import Quality
 from mocapgraph.kinematics.skeleton import SkeletonDefinition

@@ -17,7 +17,7 @@ import zmq
 from graph_helpers import node_pids, pid_alive, read_jsonl, wait_until
 from mocapgraph.messages import MarkerFrame, encode
 from mocapgraph.messages.codec import topic_frame
-from mocapgraph.nodes.test_pattern import pattern_positions
+from mocapgraph.testing.marker_pattern import pattern_positions
 
 
 PIPELINE = """\

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mocapgraph.kinematics.skeleton import SkeletonDefinition
-from mocapgraph.nodes.device_config import DeviceConfigError, load_device_config
+from mocapgraph.formats.device_file import DeviceConfigError, load_device_config
 from mocapgraph.nodes.marker_source import LayoutMap
 from mocapgraph.nodes.source_base import Playback, SourceError
 

@@ -12,7 +12,7 @@ import pytest
 
 from mocapgraph.formats.wire_protocol import encode_binary, encode_text
 from mocapgraph.kinematics.synthetic_actor import SyntheticActor
-from mocapgraph.nodes.device_simulator import SimulatedDevice
+from mocapgraph.testing.device_simulator import SimulatedDevice
 
 
 def pty_pair() -> tuple[int, int, str]:

@@ -13,7 +13,7 @@ import pytest
 
 from mocapgraph.formats.wire_protocol import encode_binary
 from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
-from mocapgraph.nodes.device_simulator import SimulatedDevice, run_udp
+from mocapgraph.testing.device_simulator import SimulatedDevice, run_udp
 
 
 def free_udp_port() -> int:

@@ -69,7 +69,7 @@ nodes:
         unreliable = sorted(n for n, j in report.items() if not j["reliable"])
         assert 0 < len(unreliable) < len(report)  # both kinds on show (the gym second moves some joints little)
         rows = wait_until(lambda: (r := page.page.evaluate("""() => [...document.querySelectorAll('#joint-table tr')]
-                                   .slice(1).map((tr) => [tr.cells[0].textContent, tr.cells[1].textContent,
+                                   .slice(1).map((tr) => [tr.cells[0].textContent, tr.cells[2].textContent,
                                    tr.querySelector('.qdot').dataset.reliable])""")) and len(r) == len(report) and r,
                           what="the joint table")
         for name, residual, reliable in rows:

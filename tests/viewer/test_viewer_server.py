@@ -14,7 +14,7 @@ import pytest
 from viewer_support import TESTING, BusTap, free_port, run_async, viewer_stats, wait_until
 
 from mocapgraph.messages import ActorPose, Diagnostics, Envelope, MarkerFrame, NodeStatus
-from mocapgraph.nodes.viewer.wire import BundleError, build_bundle, decode_bundle, encode_record
+from mocapgraph.viewer.wire import BundleError, build_bundle, decode_bundle, encode_record
 
 websockets_client = pytest.importorskip("websockets.asyncio.client")
 

@@ -16,7 +16,7 @@ CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
                  "--no-first-run", "--autoplay-policy=no-user-gesture-required"]
-TESTING = "mocapgraph.nodes.viewer.testing_nodes"
+TESTING = "mocapgraph.testing.viewer_nodes"
 
 # Connection failures while a graph is down are logged by the browser itself, not by the page.
 BENIGN_CONSOLE = ("WebSocket connection to", "ERR_CONNECTION_REFUSED", "GPU stall due to ReadPixels")

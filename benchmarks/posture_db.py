@@ -1,0 +1,119 @@
+"""Shum & Ho's Figure 5 reproduced: posture matching error and search time against PCA dimensions.
+
+600 query frames (the synthetic performer's walk and reach on standard_20, 17-22 s of its session)
+are matched against a database built from other clips (the gym, turns, walk back and kick, plus
+CMU 131_01 retargeted onto standard_20 when ../shared/data is there), at every reduced
+dimensionality r = 1..60. Error of a frame (Eq 5): the sum over joints of the squared distance
+between the query and the matched posture in the full space; percentage (Eq 6): the summed e_r over
+the summed e_60, minus one. Search time per query at each r, brute force and k-d tree. Then the
+search time over 10 000 postures at k = 7 (target <= 0.05 ms) and the PNG of the figure
+(artifacts/posture_db_figure5.png). Shum & Ho: under 3 % at 7 dimensions, 0.10 ms search.
+Run: .venv/bin/python benchmarks/posture_db.py [--png PATH]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mocapgraph.physics.posture_db import PostureDB, normalise
+from mocapgraph.physics.synthetic_targets import synthetic_targets
+
+ROOT = Path(__file__).resolve().parents[1]
+CMU = ROOT / ".." / "shared" / "data" / "bvh" / "cmu" / "131_01.bvh"
+
+
+def cmu_clip(character):
+    if not CMU.exists():
+        return None
+    from mocapgraph.cli.physics_cmds import bvh_clip
+    return bvh_clip(str(CMU), character)
+
+
+def per_query_ms(db: PostureDB, q: np.ndarray, how: str) -> float:
+    """CPU ms per one-query search (process CPU time: the machine is shared, wall time is not ours)."""
+    db.nearest(q[:1], how)
+    t0 = time.process_time()
+    for _ in range(3):
+        for i in range(len(q)):
+            db.nearest(q[i:i + 1], how)
+    return 1e3 * (time.process_time() - t0) / (3 * len(q))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--png", default=str(ROOT / "artifacts" / "posture_db_figure5.png"))
+    opts = ap.parse_args()
+    query = synthetic_targets(17.0, 22.0)                     # 600 frames at 120 Hz
+    ch = query.character
+    parts = [synthetic_targets(a, b) for a, b in ((1, 17), (25, 37.5))]
+    pos = [p.positions for p in parts]
+    rot = [p.local_rotations for p in parts]
+    cmu = cmu_clip(ch)
+    if cmu is not None:
+        pos.append(cmu[0])
+        rot.append(cmu[1])
+    db = PostureDB.build(ch.joint_names, ch.parents, np.concatenate(pos), np.concatenate(rot), k=7, min_ssd=0.005)
+    n_raw = sum(len(p) for p in pos)
+    print(f"database: {len(db)} postures of {n_raw} (SSD >= 0.005 m^2; sources: synthetic gym, turns, walk back, kick"
+          f"{', CMU 131_01' if cmu is not None else ''}); query: {len(query)} frames of walk and reach")
+    qn = normalise(db.frame, query.positions)[0].reshape(len(query), -1)
+    full = db.positions.reshape(len(db), -1)
+    dims = np.arange(1, db.components.shape[0] + 1)
+    dims = dims[dims <= 60]
+    err, t_brute, t_tree = [], [], []
+    for r in dims:
+        db.set_k(int(r))
+        red = db.project(qn)
+        idx = db.nearest(red)
+        err.append(((qn - full[idx]) ** 2).sum(1).sum())                 # Eq 5 summed over frames
+        t_brute.append(per_query_ms(db, red[:200], "brute"))
+        t_tree.append(per_query_ms(db, red[:200], "kdtree"))
+    err = np.array(err)
+    pct = (err - err[-1]) / err[-1] * 100.0                               # Eq 6
+    print(" r  error %   brute ms   k-d ms")
+    for r in (1, 2, 3, 4, 5, 6, 7, 8, 10, 15, 20, 30, 45, 60):
+        if r <= dims[-1]:
+            i = r - 1
+            print(f"{r:2d}  {pct[i]:7.2f}   {t_brute[i]:.4f}    {t_tree[i]:.4f}")
+    i7 = 6
+    print(f"at 7 dimensions: {pct[i7]:.2f} % extra matching error (Shum & Ho: under 3 %), search "
+          f"{min(t_brute[i7], t_tree[i7]):.4f} ms (Shum & Ho 0.10 ms)")
+    # 10 000 postures: every clip of the session at 120 Hz, kept whole
+    big = [synthetic_targets(a, b) for a, b in ((1, 37.5),)]
+    bp = np.concatenate([big[0].positions] * 3)[:10000]
+    br = np.concatenate([big[0].local_rotations] * 3)[:10000]
+    bp = bp + np.random.default_rng(0).normal(0, 0.005, bp.shape)       # so none are identical
+    db10 = PostureDB.build(ch.joint_names, ch.parents, bp, br, k=7, min_ssd=0.0)
+    red = db10.project(qn)
+    tb, tk = per_query_ms(db10, red[:300], "brute"), per_query_ms(db10, red[:300], "kdtree")
+    print(f"{len(db10)} postures, k = 7: brute force {tb:.4f} ms, k-d tree {tk:.4f} ms per query "
+          f"(target <= 0.05 ms; the faster is chosen at load)")
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("matplotlib missing: no PNG")
+        return
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(dims, pct, color="tab:red", label="matching error (Eq 6), %")
+    ax.axhline(3.0, color="tab:red", ls=":", lw=0.8)
+    ax.axvline(7, color="grey", ls=":", lw=0.8)
+    ax.set_xlabel("dimensions")
+    ax.set_ylabel("error %", color="tab:red")
+    ax.set_ylim(0, max(10.0, min(100.0, pct[:10].max() * 1.05)))
+    ax2 = ax.twinx()
+    ax2.plot(dims, np.minimum(t_brute, t_tree), color="tab:blue", label="search time, ms")
+    ax2.set_ylabel("search ms per query", color="tab:blue")
+    ax.set_title(f"Posture matching vs dimensions ({len(db)} postures, {len(query)} queries)")
+    fig.tight_layout()
+    Path(opts.png).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(opts.png, dpi=110)
+    print(f"figure: {opts.png}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,187 @@
+"""Retargeting benchmark: live frames/s, batch frames/s, and the latency the node adds in a graph.
+
+Prints:
+- live: one frame at a time (what the node does), the synthetic actor (1 mm noise, solved) onto
+  standard_20 (20 joints), with and without foot planting; frames/s and us/frame, beside a baseline
+  measured in the same run: one Character.forward_kinematics call per frame (the least any
+  retargeter must do). Target: at least 10 000 frames/s (under 0.1 ms a frame) on one core.
+- batch: whole trials in one call (the `mocapgraph retarget` path): the synthetic performance onto
+  standard_20, CMU 131_01 onto Mixamo (70 joints, fingers), frames/s.
+- graph: synthetic actor at 240 Hz -> calibration (model file) -> frame solver -> retargeter ->
+  bag recorder, launched; per frame the CharacterPose publish stamp minus the ActorPose publish
+  stamp of the same frame (transport + retargeting): p50, p99, max in ms. Target p99 <= 0.3 ms.
+- the machine's load average while it ran (the figures depend on it).
+
+Usage: python benchmarks/retarget.py [--live-frames 3000] [--graph-s 10] [--no-graph]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = (REPO / ".." / "shared" / "data").resolve()
+
+
+def _solved_actor():
+    from mocapgraph.kinematics.calibration import calibrate
+    from mocapgraph.kinematics.retarget_source import optical_points, optical_source
+    from mocapgraph.kinematics.solver import FrameSolver
+    from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
+    cap = SyntheticActor("kiip_full_body", options=CaptureOptions(noise_mm=1.0)).capture()
+    model = calibrate(cap.skeleton, cap.markers[: cap.phases["gym"][1]], rate_hz=cap.rate, source="synthetic")
+    perf = cap.phase_slice("performance")
+    res = FrameSolver(model, rate_hz=cap.rate).solve(cap.markers[perf])
+    src = optical_source(model.joint_names, model.joint_parent, model.joint_limbs, model.limb_names, model.joint_base)
+    return cap, model, src, optical_points(res.joints, model.joint_names), res.limb_rotation, res.limb_quality > 0, \
+        cap.times[perf]
+
+
+def bench_live(n: int) -> None:
+    from mocapgraph.kinematics.character import standard_20
+    from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
+    from mocapgraph.kinematics.retarget_mapping import derive_mapping
+    cap, model, src, pts, rot, rok, t = _solved_actor()
+    ch = standard_20(1.75)
+    m = derive_mapping(ch, src)
+    n = min(n, len(pts))
+    q = np.tile([1.0, 0, 0, 0], (ch.n_joints, 4 // 4))
+    t0 = time.process_time()
+    for f in range(n):
+        ch.forward_kinematics(q[None], pts[f:f + 1, -1])
+    base = (time.process_time() - t0) / n
+    print("(CPU time of this process, i.e. one core, so that other load on the machine does not count)")
+    print(f"live, one frame at a time, {n} frames of the solved synthetic actor onto standard_20 (20 joints):")
+    print(f"  baseline (one forward_kinematics call per frame): {1e6 * base:8.1f} us/frame  {1 / base:9.0f} frames/s")
+    for planting in (False, True):
+        rt = Retargeter(ch, m, src, RetargetOptions(foot_planting=planting))
+        for f in range(50):  # warm
+            rt.process(pts[f:f + 1], None, rot[f:f + 1], rok[f:f + 1], t[f:f + 1])
+        rt.reset()
+        t0 = time.process_time()
+        for f in range(n):
+            rt.process(pts[f:f + 1], None, rot[f:f + 1], rok[f:f + 1], t[f:f + 1])
+        dt = (time.process_time() - t0) / n
+        print(f"  retargeter, foot planting {'on ' if planting else 'off'}:            {1e6 * dt:8.1f} us/frame  "
+              f"{1 / dt:9.0f} frames/s  ({dt / base:.1f}x the baseline; target >= 10000 frames/s)")
+
+
+def bench_batch() -> None:
+    from mocapgraph.formats.bvh_file import bvh_to_skeleton, read_bvh
+    from mocapgraph.formats.character_file import load_character
+    from mocapgraph.kinematics.character import standard_20
+    from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
+    from mocapgraph.kinematics.retarget_mapping import derive_mapping
+    from mocapgraph.kinematics.retarget_source import skeleton_source
+    cap, model, src, pts, rot, rok, t = _solved_actor()
+    print("batch, a whole trial in one call:")
+    for planting in (False, True):
+        ch = standard_20(1.75)
+        rt = Retargeter(ch, derive_mapping(ch, src), src, RetargetOptions(foot_planting=planting))
+        t0 = time.process_time()
+        rt.process(pts, None, rot, rok, t)
+        dt = time.process_time() - t0
+        print(f"  synthetic performance ({len(pts)} frames) onto standard_20, planting {'on ' if planting else 'off'}: "
+              f"{len(pts) / dt:9.0f} frames/s")
+    bvh = SHARED / "bvh/cmu/131_01.bvh"
+    if bvh.exists():
+        motion = read_bvh(bvh)
+        tr = bvh_to_skeleton(motion)
+        rest = motion.rest_positions()
+        p = tr.parents
+        offs = np.where((p >= 0)[:, None], rest - rest[np.maximum(p, 0)], rest)
+        s2 = skeleton_source(tr.names, p, offs, has_orientations=True)
+        mix = load_character("mixamo")
+        for planting in (False, True):
+            rt = Retargeter(mix, derive_mapping(mix, s2), s2, RetargetOptions(foot_planting=planting))
+            t0 = time.process_time()
+            rt.process(tr.positions, None, tr.orientations, None, np.arange(motion.n_frames) / motion.rate_hz)
+            dt = time.process_time() - t0
+            print(f"  CMU 131_01 ({motion.n_frames} frames) onto Mixamo (70 joints), planting {'on ' if planting else 'off'}: "
+                  f"{motion.n_frames / dt:9.0f} frames/s")
+
+
+def bench_graph(seconds: float, keep_up: bool = False) -> None:
+    from mocapgraph.bag.reader import BagReader
+    from mocapgraph.kinematics.calibration import calibrate
+    from mocapgraph.kinematics.model import save_model
+    from mocapgraph.kinematics.synthetic_actor import SyntheticActor
+    tmp = Path(tempfile.mkdtemp(prefix="retarget_bench_"))
+    cap = SyntheticActor("kiip_full_body", rate=240.0).capture(0, int(240 * 20))
+    model = calibrate(cap.skeleton, cap.markers[: cap.phases["gym"][1]], rate_hz=cap.rate, source="synthetic")
+    save_model(model, tmp / "model.json")
+    graph = tmp / "g.yaml"
+    graph.write_text(f"""
+nodes:
+  - name: reader
+    type: synthetic_actor
+    params: {{layout: kiip_full_body, rate_hz: 240.0, noise_mm: 0.5, loop: true}}
+  - name: calibration
+    type: calibration
+    params: {{model_file: "{tmp / 'model.json'}"}}
+  - name: solver
+    type: frame_solver
+  - name: retargeter
+    type: retargeter
+    params: {{source: actor, character: standard_20, foot_planting: true, keep_up: {str(keep_up).lower()}}}
+  - name: rec
+    type: bag_recorder
+    params: {{path: "{tmp / 'lat.mcap'}", topics: [actor_pose, character_pose]}}
+""")
+    env = dict(os.environ, MOCAPGRAPH_MASTER=f"ipc://{tmp / ('m-' + uuid.uuid4().hex[:6])}", PYTHONUNBUFFERED="1")
+    log = open(tmp / "launch.log", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)], cwd=tmp, env=env,
+                            stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        t_end = time.monotonic() + 180
+        while time.monotonic() < t_end and "nodes ready in" not in (tmp / "launch.log").read_text():
+            time.sleep(0.2)
+        time.sleep(seconds)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    log.close()
+    if not (tmp / "lat.mcap").exists():
+        print("graph: no recording; launch output:\n" + (tmp / "launch.log").read_text()[-3000:])
+        return
+    with BagReader(tmp / "lat.mcap") as r:
+        actor = {m.frame_number: e.publish_ns for e, m in r.decoded("actor_pose")}
+        char = [(m.frame_number, e.publish_ns) for e, m in r.decoded("character_pose")]
+    lat = np.array([(p - actor[f]) * 1e-6 for f, p in char if f in actor])
+    lat = lat[len(lat) // 10:]   # skip the start-up transient
+    print(f"graph at 240 Hz (synthetic actor -> calibration -> solver -> retargeter{', keep_up' if keep_up else ''}), "
+          f"{len(lat)} of {len(actor)} frames retargeted:")
+    print(f"  latency the retargeter adds (CharacterPose minus ActorPose publish stamp): p50 {np.percentile(lat, 50):.3f} ms, "
+          f"p99 {np.percentile(lat, 99):.3f} ms, max {lat.max():.3f} ms (target p99 <= 0.3 ms)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--live-frames", type=int, default=2000)
+    ap.add_argument("--graph-s", type=float, default=10.0)
+    ap.add_argument("--no-graph", action="store_true")
+    a = ap.parse_args()
+    print(f"load average before: {' '.join(f'{x:.1f}' for x in os.getloadavg())} ({os.cpu_count()} cores)")
+    bench_live(a.live_frames)
+    bench_batch()
+    if not a.no_graph:
+        bench_graph(a.graph_s)
+        bench_graph(a.graph_s, keep_up=True)
+    print(f"load average after: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+
+
+if __name__ == "__main__":
+    main()

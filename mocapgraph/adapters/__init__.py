@@ -1,0 +1,1 @@
+"""Conversions between the math's types (kinematics/) and messages (messages/)."""

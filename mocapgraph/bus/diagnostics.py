@@ -1,0 +1,58 @@
+"""Diagnostics messages built from edge records (a node's inputs, a source's device streams)."""
+from __future__ import annotations
+
+import math
+import os
+import resource
+from dataclasses import dataclass
+from typing import Iterable
+
+from ..messages import Diagnostics
+from .stats import InputStats
+
+DIAGNOSTICS_TOPIC = "diagnostics"
+DIAGNOSTICS_PERIOD_S = 1.0
+
+
+@dataclass(frozen=True)
+class EdgeRecord:
+    """One incoming stream's figures: rate (Hz), latency median/max (ms), counts."""
+
+    topic: str
+    sender: str = "device"
+    rate_hz: float = 0.0
+    latency_ms: float = math.nan
+    latency_max_ms: float = math.nan
+    received: int = 0
+    gaps: int = 0
+    rejected: int = 0
+
+
+def input_edge_records(topic: str, stats: InputStats) -> list[EdgeRecord]:
+    """The edges of one input; frames rejected before any sender was known count on sender '?'."""
+    edges = list(stats.edges.values())
+    if not edges:
+        return [EdgeRecord(topic, "?", rejected=stats.rejected)] if stats.rejected else []
+    out = []
+    for i, e in enumerate(edges):
+        p50, pmax = e.latency_ms()
+        out.append(EdgeRecord(e.topic, e.sender, e.rate_hz(), p50, pmax, e.received, e.gaps,
+                              stats.rejected if i == 0 else 0))
+    return out
+
+
+def build_diagnostics(node: str, uptime_s: float, edges: Iterable[EdgeRecord],
+                      outputs: Iterable[tuple[str, int]]) -> Diagnostics:
+    """The Diagnostics message of this process: edges, (output topic, messages sent), CPU time."""
+    edges = list(edges)
+    outputs = list(outputs)
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return Diagnostics(
+        node=node, pid=os.getpid(), uptime_s=uptime_s, cpu_s=ru.ru_utime + ru.ru_stime,
+        edge_topics=[e.topic for e in edges], edge_senders=[e.sender for e in edges],
+        edge_rate_hz=[float(e.rate_hz) for e in edges], edge_latency_ms=[float(e.latency_ms) for e in edges],
+        edge_latency_max_ms=[float(e.latency_max_ms) for e in edges],
+        edge_received=[int(e.received) for e in edges], edge_gaps=[int(e.gaps) for e in edges],
+        edge_rejected=[int(e.rejected) for e in edges],
+        output_topics=[t for t, _ in outputs], output_sent=[n for _, n in outputs],
+    )

@@ -1,0 +1,172 @@
+"""Device configurations (``graph_configs/devices/*.yaml``): where a device sits in the world and
+what its channels are.
+
+A device file::
+
+    name: lab_serial_bridge            # required
+    description: free text             # optional
+    rate_hz: 240                       # optional nominal frame rate, Hz (0 or absent: measured)
+    units: mm                          # optional: units of positions the device sends (LSL only;
+                                       #   the serial/UDP wire protocol is millimetres by definition)
+    to_world:                          # optional; default: the device frame IS the world frame
+      up: "+Y"                         #   device axis pointing up in the room (becomes world +Z)
+      forward: "+Z"                    #   device axis pointing forward (becomes world +X)
+      yaw_deg: 0                       #   then a turn about world Z, degrees
+      translation_m: [0, 0, 0]         #   device origin in the world, metres
+    channels: [LASI, RASI, ...]        # optional: marker label of each device channel, wire order
+                                       #   (skeleton sources ignore it)
+
+A point seen by the device maps to the world as ``p_world = R @ p_device + t`` with
+``R = Rz(yaw) @ axes(up, forward)`` (column vectors) and ``t = translation_m``; orientations as
+``q_world = q_R * q_device``. Errors are one line naming the file, line and key.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .axes import describe_rotation, to_world_rotation
+from .yaml_source import GraphError, LinedDict, load_yaml_file
+
+DEVICE_DIR = Path(__file__).resolve().parents[2] / "graph_configs" / "devices"
+UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+TOP_KEYS = ("name", "description", "rate_hz", "units", "to_world", "channels")
+WORLD_KEYS = ("up", "forward", "yaw_deg", "translation_m")
+
+
+class DeviceConfigError(ValueError):
+    """A device configuration that cannot be used (one line: file, line, key, fault)."""
+
+
+@dataclass
+class DeviceConfig:
+    """A device's pose in the world and its channel labels."""
+
+    name: str = "device"
+    description: str = ""
+    rate_hz: float = 0.0
+    units: str = "m"
+    rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # world = R @ device
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))  # m, world
+    channels: list[str] = field(default_factory=list)
+    source: str = "<default>"
+
+    @property
+    def is_identity(self) -> bool:
+        return bool(np.array_equal(self.rotation, np.eye(3)) and not self.translation.any())
+
+    @property
+    def scale(self) -> float:
+        """Metres per device unit."""
+        return UNITS_TO_M[self.units]
+
+    def points_to_world(self, p: np.ndarray) -> np.ndarray:
+        """Device points [..., 3] (metres) to world [..., 3]; NaN stays NaN."""
+        if self.is_identity:
+            return p
+        return p @ self.rotation.T + self.translation
+
+    def points_from_world(self, p: np.ndarray) -> np.ndarray:
+        """World points [..., 3] (metres) to the device frame (the inverse of points_to_world)."""
+        if self.is_identity:
+            return p
+        return (p - self.translation) @ self.rotation
+
+    def quats_to_world(self, q: np.ndarray) -> np.ndarray:
+        """Device orientations [..., 4] wxyz to world; NaN rows stay NaN."""
+        if np.array_equal(self.rotation, np.eye(3)):
+            return q
+        flat = q.reshape(-1, 4)
+        out = np.full_like(flat, np.nan)
+        ok = np.isfinite(flat).all(axis=1)
+        if ok.any():
+            r = Rotation.from_matrix(self.rotation) * Rotation.from_quat(flat[ok], scalar_first=True)
+            out[ok] = r.as_quat(scalar_first=True)
+        return out.reshape(q.shape)
+
+    def describe(self) -> str:
+        """What the transform does, for MarkerLayout.units_note / SkeletonInfo.units_note."""
+        if self.is_identity:
+            return f"device '{self.name}': device frame taken as the world frame"
+        t = ", ".join(f"{v:g}" for v in self.translation)
+        return f"device '{self.name}': {describe_rotation(self.rotation)}, then origin moved to ({t}) m"
+
+
+def device_path(name_or_path: str | Path) -> Path:
+    """A device name under graph_configs/devices, or a path to a YAML file."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    return DEVICE_DIR / f"{name_or_path}.yaml"
+
+
+def _fail(d: LinedDict | None, file: Path, key: str, msg: str) -> DeviceConfigError:
+    line = d.line_of(key.split(".")[-1]) if isinstance(d, LinedDict) else None
+    return DeviceConfigError(str(GraphError(file, line, key, msg)))
+
+
+def load_device_config(name_or_path: str | Path) -> DeviceConfig:
+    """Read and check a device file; DeviceConfigError names file, line and key."""
+    path = device_path(name_or_path)
+    if not path.is_file():
+        raise DeviceConfigError(f"{path}: no such device configuration "
+                                f"(a name under {DEVICE_DIR} or a path to a .yaml file)")
+    try:
+        doc = load_yaml_file(path)
+    except GraphError as exc:
+        raise DeviceConfigError(str(exc)) from None
+    if not isinstance(doc, dict) or "name" not in doc:
+        raise DeviceConfigError(f"{path}: a device configuration is a mapping with at least 'name'")
+    for key in doc:
+        if key not in TOP_KEYS:
+            raise _fail(doc, path, str(key), f"unknown key (expected one of {', '.join(TOP_KEYS)})")
+    cfg = DeviceConfig(name=str(doc["name"]), description=str(doc.get("description", "")), source=str(path))
+    rate = doc.get("rate_hz", 0)
+    if not isinstance(rate, (int, float)) or isinstance(rate, bool) or rate < 0:
+        raise _fail(doc, path, "rate_hz", f"wants a rate in Hz >= 0, got {rate!r}")
+    cfg.rate_hz = float(rate)
+    units = str(doc.get("units", "m"))
+    if units not in UNITS_TO_M:
+        raise _fail(doc, path, "units", f"{units!r} is not one of {list(UNITS_TO_M)}")
+    cfg.units = units
+    chans = doc.get("channels", [])
+    if not isinstance(chans, list) or not all(isinstance(c, str) and c.strip() for c in chans):
+        raise _fail(doc, path, "channels", "wants a list of marker labels")
+    if len({c.strip().lower() for c in chans}) != len(chans):
+        raise _fail(doc, path, "channels", "labels must be unique")
+    cfg.channels = [c.strip() for c in chans]
+    world = doc.get("to_world")
+    if world is not None:
+        cfg.rotation, cfg.translation = _parse_world(world, path, doc)
+    return cfg
+
+
+def _parse_world(world: Any, path: Path, doc: LinedDict) -> tuple[np.ndarray, np.ndarray]:
+    if not isinstance(world, dict):
+        raise _fail(doc, path, "to_world", "wants a mapping with up, forward, yaw_deg, translation_m")
+    for key in world:
+        if key not in WORLD_KEYS:
+            raise _fail(world, path, f"to_world.{key}", f"unknown key (expected one of {', '.join(WORLD_KEYS)})")
+    try:
+        R = to_world_rotation(str(world.get("up", "+Z")), str(world.get("forward", "+X")))
+    except ValueError as exc:
+        raise _fail(world, path, "to_world.up", str(exc)) from None
+    yaw = world.get("yaw_deg", 0.0)
+    if not isinstance(yaw, (int, float)) or isinstance(yaw, bool):
+        raise _fail(world, path, "to_world.yaw_deg", f"wants degrees, got {yaw!r}")
+    R = Rotation.from_euler("z", float(yaw), degrees=True).as_matrix() @ R
+    R[np.abs(R) < 1e-15] = 0.0
+    t = world.get("translation_m", [0.0, 0.0, 0.0])
+    if (not isinstance(t, list) or len(t) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in t)):
+        raise _fail(world, path, "to_world.translation_m", f"wants [x, y, z] in metres, got {t!r}")
+    return R, np.asarray(t, dtype=np.float64)
+
+
+def device_or_default(name_or_path: str) -> DeviceConfig:
+    """The named device configuration, or the identity device for ""."""
+    return load_device_config(name_or_path) if name_or_path else DeviceConfig()

@@ -1,0 +1,269 @@
+"""What a retargeting source offers: named points and named rotations, their rest pose, and rotations from points.
+
+Three kinds of source, all in the world frame (m, Z up, X forward, wxyz):
+
+* ``skeleton`` with orientations (BVH playback, SkeletonPose with joint_orientations): the points
+  are the joints, the rotations are the joints' world orientations (identity in the BVH rest pose).
+* ``skeleton`` without orientations (Kinect CSV: positions only): rotations are derived from the
+  points by :func:`rotations_from_points`, identity in the source's rest pose.
+* ``optical`` (ActorPose + SkeletonModel): the points are the solved joint centres plus ``pelvis``
+  (the mid-point of the hip joints); the rotations are the limbs' world rotations from the base
+  pose (identity there), named by limb.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .quaternion import matrix_to_quat, quat_between, quat_multiply, quat_rotate
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+@dataclass(frozen=True, eq=False)
+class SourceSkeleton:
+    """Names and rest pose of a source (see the module docstring for the kinds)."""
+
+    kind: str                      # "skeleton" or "optical"
+    point_names: tuple[str, ...]
+    point_parents: np.ndarray      # int [P], -1 for roots (a forest; any order)
+    rest_points: np.ndarray        # float [P, 3] m, world, the source's rest (or base) pose
+    rotation_names: tuple[str, ...]
+    rest_rotations: np.ndarray     # float [R, 4] wxyz: each rotation's value in the rest pose
+    derived_rotations: bool = False  # True: rotations come from the points (rotations_from_points)
+    kinect_like: str = ""          # "kinect_v1", "kinect_v2", "bvh", "optical:<layout>"
+
+    def point(self, name: str) -> int:
+        try:
+            return self.point_names.index(name)
+        except ValueError:
+            raise KeyError(name) from None
+
+    def rotation(self, name: str) -> int:
+        try:
+            return self.rotation_names.index(name)
+        except ValueError:
+            raise KeyError(name) from None
+
+    @property
+    def fingerprint(self) -> tuple:
+        return (self.kind, self.point_names, self.rotation_names)
+
+
+def observed_bone_lengths(positions: np.ndarray, parents) -> np.ndarray:
+    """Median distance from each joint to its parent over frames [F, J, 3] (m; NaN for roots)."""
+    par = np.asarray(parents, dtype=np.int64)
+    d = np.linalg.norm(positions - positions[:, np.maximum(par, 0)], axis=-1)
+    out = np.nanmedian(np.where(np.isfinite(d), d, np.nan), axis=0) if len(positions) else np.full(len(par), np.nan)
+    out[par < 0] = np.nan
+    return out
+
+
+def skeleton_source(names, parents, rest_offsets, *, has_orientations: bool, kind_hint: str = "") -> SourceSkeleton:
+    """A SkeletonInfo-like source: ``rest_offsets`` [J, 3] from the parent (the root's: its rest position)."""
+    names = tuple(names)
+    parents = np.asarray(parents, dtype=np.int64)
+    offs = np.asarray(rest_offsets, dtype=np.float64)
+    rest = np.zeros_like(offs)
+    for j in _topological(parents):
+        rest[j] = offs[j] + (rest[parents[j]] if parents[j] >= 0 else 0.0)
+    return SourceSkeleton("skeleton", names, parents, rest, names, np.tile(IDENTITY, (len(names), 1)),
+                          derived_rotations=not has_orientations, kinect_like=kind_hint)
+
+
+def optical_source(joint_names, joint_parent, joint_limbs, limb_names, base_joints, layout: str = "") -> SourceSkeleton:
+    """An optical actor (SkeletonModel): joint points plus ``pelvis``; limb rotations (identity at base)."""
+    names = tuple(joint_names) + ("pelvis",)
+    base = np.asarray(base_joints, dtype=np.float64)
+    hips = [i for i, n in enumerate(joint_names) if n.startswith("hip")]
+    pelvis = base[hips].mean(axis=0) if hips else base[0]
+    parents = np.append(np.asarray(joint_parent, dtype=np.int64), -1)
+    return SourceSkeleton("optical", names, parents, np.vstack([base, pelvis]), tuple(limb_names),
+                          np.tile(IDENTITY, (len(limb_names), 1)), kinect_like=f"optical:{layout}")
+
+
+def optical_points(joint_positions: np.ndarray, joint_names) -> np.ndarray:
+    """[F, J+1, 3]: the solved joints plus the pelvis point (mean of the hip joints)."""
+    hips = [i for i, n in enumerate(joint_names) if n.startswith("hip")]
+    p = np.asarray(joint_positions, dtype=np.float64)
+    pelvis = p[..., hips, :].mean(axis=-2, keepdims=True) if hips else p[..., :1, :]
+    return np.concatenate([p, pelvis], axis=-2)
+
+
+def _topological(parents: np.ndarray) -> list[int]:
+    order, seen = [], set()
+    pending = list(range(len(parents)))
+    while pending:
+        rest = []
+        for j in pending:
+            if parents[j] < 0 or parents[j] in seen:
+                order.append(j)
+                seen.add(j)
+            else:
+                rest.append(j)
+        if len(rest) == len(pending):
+            raise ValueError("source parents form a cycle")
+        pending = rest
+    return order
+
+
+@dataclass(frozen=True, eq=False)
+class PointRotationPlan:
+    """Precomputed index arrays of :func:`rotations_from_points` for one source."""
+
+    levels: tuple[np.ndarray, ...]     # joints per depth, roots first
+    parents: np.ndarray
+    primary: np.ndarray                # aim child per joint (-1: leaf)
+    secondary: np.ndarray              # [P, 2] points whose difference is the second axis (-1: none)
+    rest_primary: np.ndarray           # [P, 3] unit
+    rest_frames: np.ndarray            # [P, 3, 3] rest frames of two-axis joints (NaN: none)
+
+
+def plan_point_rotations(src: SourceSkeleton) -> PointRotationPlan:
+    """For every joint: the child it aims at (the one continuing its incoming bone, else the one
+    with most descendants), and for branching joints two children spanning the second axis."""
+    par = src.point_parents
+    n = len(par)
+    rest = src.rest_points
+    order = _topological(par)
+    depth = np.zeros(n, dtype=np.int64)
+    for j in order:
+        depth[j] = depth[par[j]] + 1 if par[j] >= 0 else 0
+    ndesc = np.zeros(n, dtype=np.int64)
+    for j in reversed(order):
+        if par[j] >= 0:
+            ndesc[par[j]] += ndesc[j] + 1
+    primary = -np.ones(n, dtype=np.int64)
+    secondary = -np.ones((n, 2), dtype=np.int64)
+    for j in range(n):
+        kids = [int(k) for k in np.flatnonzero(par == j) if np.linalg.norm(rest[k] - rest[j]) > 1e-6]
+        if not kids:
+            continue
+        incoming = rest[j] - rest[par[j]] if par[j] >= 0 else np.array([0.0, 0.0, 1.0])
+        if np.linalg.norm(incoming) < 1e-9:
+            incoming = np.array([0.0, 0.0, 1.0])
+        dirs = [(rest[k] - rest[j]) / np.linalg.norm(rest[k] - rest[j]) for k in kids]
+        cos = [float(d @ incoming) / np.linalg.norm(incoming) for d in dirs]
+        best = int(np.argmax(cos))
+        primary[j] = kids[best] if cos[best] > 0.5 or par[j] < 0 else kids[int(np.argmax(ndesc[kids]))]
+        others = [k for k in kids if k != primary[j]]
+        if len(others) >= 2:   # e.g. the pelvis (hips) or the chest (shoulders): their difference
+            a, b = others[0], others[1]
+            secondary[j] = (a, b)
+        elif len(others) == 1:
+            secondary[j] = (others[0], j)
+    rest_primary = np.full((n, 3), np.nan)
+    frames = np.full((n, 3, 3), np.nan)
+    has = primary >= 0
+    rest_primary[has] = _unit(rest[primary[has]] - rest[has])
+    two = secondary[:, 0] >= 0
+    if two.any():
+        frames[two] = _triad(rest_primary[two], rest[secondary[two, 0]] - rest[secondary[two, 1]])
+    levels = tuple(np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1))
+    return PointRotationPlan(levels, par, primary, secondary, rest_primary, frames)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _triad(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
+    """Orthonormal frames [..., 3, 3] (columns: primary, secondary made orthogonal, their cross)."""
+    a = _unit(primary)
+    b = secondary - np.sum(secondary * a, axis=-1, keepdims=True) * a
+    b = _unit(b)
+    return np.stack([a, b, np.cross(a, b)], axis=-1)
+
+
+def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.ndarray:
+    """World rotations [F, P, 4] of a positions-only source from its points [F, P, 3], identity
+    in the rest pose: branching joints from their aim child and the span of two other children
+    (TRIAD), one-child joints by the shortest arc from the parent-carried rest direction (so no
+    twist flips), leaves with their parent. NaN where a needed point is missing."""
+    p = np.asarray(points, dtype=np.float64)
+    F, n = p.shape[0], p.shape[1]
+    q = np.full((F, n, 4), np.nan)
+    for level in plan.levels:
+        par = plan.parents[level]
+        carried = np.where((par >= 0)[None, :, None], q[:, np.maximum(par, 0)], IDENTITY)
+        out = carried.copy()
+        prim = plan.primary[level]
+        two = plan.secondary[level, 0] >= 0
+        one = (prim >= 0) & ~two
+        if one.any():
+            js = level[one]
+            cur = p[:, prim[one]] - p[:, js]
+            from_dir = quat_rotate(carried[:, one], plan.rest_primary[js])
+            out[:, one] = quat_multiply(quat_between(from_dir, cur), carried[:, one])
+        if two.any():
+            js = level[two]
+            sec = plan.secondary[js]
+            cur = _triad(p[:, prim[two]] - p[:, js], p[:, sec[:, 0]] - p[:, sec[:, 1]])
+            out[:, two] = matrix_to_quat(cur @ np.swapaxes(plan.rest_frames[js], -1, -2)[None])
+            bad = ~np.isfinite(cur).all(axis=(-1, -2))
+            out[:, two] = np.where(bad[..., None], np.nan, out[:, two])
+        q[:, level] = out
+    return q
+
+
+def kinect_tpose(names, parents) -> np.ndarray:
+    """A canonical T-pose [J, 3] (m, world) for Kinect v1/v2 joint names: a Kinect stream has no
+    rest pose of its own, so its derived rotations are identity in this pose (arms along ±Y, palms
+    down, legs straight down, facing +X). Proportions of standard_20 at 1.75 m."""
+    from .character import standard_20
+    s20 = standard_20(1.75)
+    p20, _ = s20.rest_pose()
+    v1 = {n: p20[i] for i, n in enumerate(s20.joint_names)}
+    alias = {"SpineBase": "HipCenter", "SpineMid": "Spine", "SpineShoulder": "ShoulderCenter"}
+    out = np.full((len(names), 3), np.nan)
+    for i, n in enumerate(names):
+        key = alias.get(n, n)
+        if key in v1:
+            out[i] = v1[key]
+    for i, n in enumerate(names):
+        if n == "Neck":
+            out[i] = v1["ShoulderCenter"] + 0.35 * (v1["Head"] - v1["ShoulderCenter"])
+        elif n.startswith("HandTip"):
+            side = n[len("HandTip"):]
+            out[i] = v1[f"Hand{side}"] + (0.0, 0.06 if side == "Left" else -0.06, 0.0)
+        elif n.startswith("Thumb"):
+            side = n[len("Thumb"):]
+            out[i] = v1[f"Hand{side}"] + (0.04, 0.0, 0.0)
+    missing = [names[i] for i in range(len(names)) if not np.isfinite(out[i]).all()]
+    if missing:
+        raise ValueError(f"no T-pose place for Kinect joints {', '.join(missing)}")
+    return out
+
+
+def kinect_source(names, parents, kind_hint: str = "", bone_lengths: np.ndarray | None = None) -> SourceSkeleton:
+    """A positions-only Kinect source with the canonical T-pose (:func:`kinect_tpose`) as its rest:
+    its bone directions, with the performer's observed ``bone_lengths`` [J] (m, to the parent;
+    NaN or None keeps the canonical length) so that the leg-length ratio is the performer's."""
+    rest = kinect_tpose(names, parents)
+    par = np.asarray(parents, dtype=np.int64)
+    offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+    if bone_lengths is not None:
+        L = np.asarray(bone_lengths, dtype=np.float64)
+        n = np.linalg.norm(offs, axis=1)
+        use = (par >= 0) & np.isfinite(L) & (L > 1e-3) & (n > 1e-9)
+        offs[use] *= (L[use] / n[use])[:, None]
+    return skeleton_source(names, par, offs, has_orientations=False,
+                           kind_hint=kind_hint or ("kinect_v2" if len(names) == 25 else "kinect_v1"))
+
+
+def character_from_actor(joint_names, joint_parent, base_joints, name: str = "actor"):
+    """A character with an optical actor's skeleton: root ``pelvis`` (mid-hips) and the actor's
+    joints, rest offsets from the base pose (a T-pose), identity rest rotations."""
+    from .character import Character
+    src = optical_source(joint_names, joint_parent, np.zeros((len(joint_names), 2), int), ("lower_torso",), base_joints)
+    names = src.point_names
+    n = len(names)
+    parents = np.where(src.point_parents < 0, n - 1, src.point_parents)
+    parents[n - 1] = -1
+    order = [n - 1] + [j for j in _topological(parents) if j != n - 1]
+    remap = {old: new for new, old in enumerate(order)}
+    par = np.array([-1 if parents[o] < 0 else remap[int(parents[o])] for o in order])
+    rest = src.rest_points[order]
+    offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+    return Character(name, tuple(names[o] for o in order), par, offs, np.tile(IDENTITY, (n, 1)))

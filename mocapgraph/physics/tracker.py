@@ -1,0 +1,126 @@
+"""Input conditioning for the physics world: one character's incoming pose to a safe target.
+
+Per frame of a character (positions [J, 3] m, local rotations [J, 4] wxyz, root [3] m, world):
+
+* missing joints (non-finite rows, or quality below good) are filled from the posture database
+  (P_e, Θ_e, section 5);
+  without a database they get no target (no force, no torque) rather than a guess;
+* a frame with nothing usable, or a stream that stops, keeps the last good target: the character
+  stands and waits;
+* a target jump (a joint further than ``jump_m`` from where it was a frame ago) is not followed at
+  once: the world clips target velocities and bounds the forces, so the body moves there at a
+  bounded pace;
+* world joint orientations for Eq 2 come from the character's forward kinematics of Θ_e.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..kinematics.character import Character
+from .posture_db import PostureDB
+
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise Hamilton products of [N, 4] wxyz arrays (lean: the per-frame path)."""
+    aw, ax, ay, az = a.T
+    bw, bx, by, bz = b.T
+    out = np.empty_like(a)
+    out[:, 0] = aw * bw - ax * bx - ay * by - az * bz
+    out[:, 1] = aw * bx + ax * bw + ay * bz - az * by
+    out[:, 2] = aw * by - ax * bz + ay * bw + az * bx
+    out[:, 3] = aw * bz + ax * by - ay * bx + az * bw
+    return out
+
+
+def world_orientations(local: np.ndarray, rest: np.ndarray, parents: np.ndarray, levels) -> np.ndarray:
+    """World orientations [J, 4] (wxyz) of local rotations [J, 4]: W[j] = W[parent] rest[j] local[j],
+    by quaternion products one depth level at a time (the character's matrix FK costs 10x more)."""
+    joint = _qmul(rest, local)
+    world = np.empty_like(joint)
+    world[levels[0]] = joint[levels[0]]
+    for level in levels[1:]:
+        world[level] = _qmul(world[parents[level]], joint[level])
+    return world
+
+
+@dataclass
+class Conditioned:
+    """What went into the world this frame."""
+
+    positions: np.ndarray      # [J, 3] m, NaN where no target
+    orientations: np.ndarray   # [J, 4] wxyz world, NaN where no target
+    filled: np.ndarray         # [J] bool, taken from the database
+    held: bool                 # the whole frame was unusable: the last target was kept
+    match: int                 # database posture used, -1 none
+
+
+class TargetConditioner:
+    """Turns one character's incoming poses into world targets (see the module docstring)."""
+
+    def __init__(self, character: Character, db: PostureDB | None = None) -> None:
+        if db is not None and tuple(db.joint_names) != tuple(character.joint_names):
+            raise ValueError(f"posture database joints {len(db.joint_names)} do not match character "
+                             f"{character.name!r} ({character.n_joints} joints)")
+        self.character = character
+        self.db = db
+        self._levels = character._levels
+        self.last: Conditioned | None = None
+        self.filled_frames = 0
+        self.held_frames = 0
+
+    def condition(self, positions: np.ndarray, local_rotations: np.ndarray, root: np.ndarray,
+                  quality: np.ndarray | None = None) -> Conditioned:
+        """``quality`` [J] (0 missing, 1 estimated, 2 good): with a database, joints below 2 are
+        replaced by the match (a held value is what the database should beat)."""
+        ch = self.character
+        pos = np.asarray(positions, float).reshape(ch.n_joints, 3)
+        rot = np.asarray(local_rotations, float).reshape(ch.n_joints, 4)
+        root = np.asarray(root, float).reshape(3)
+        with np.errstate(invalid="ignore"):
+            n = np.linalg.norm(rot, axis=1)
+        bad_rot = ~np.isfinite(n) | (np.abs(n - 1.0) > 1e-3)
+        rot = np.where(bad_rot[:, None], np.nan, rot)
+        ok_p = np.isfinite(pos).all(1)
+        if not ok_p.any():
+            return self._hold()
+        if quality is not None and self.db is not None:
+            unsure = np.asarray(quality) < 2
+            if unsure.all():
+                return self._hold()
+            pos = np.where(unsure[:, None], np.nan, pos)
+            rot = np.where(unsure[:, None], np.nan, rot)
+            ok_p &= ~unsure
+            bad_rot |= unsure
+        filled = np.zeros(ch.n_joints, bool)
+        match = -1
+        if self.db is not None and ((~ok_p).any() or bad_rot.any()):
+            pos, rot, filled, match = self.db.complete(pos, rot)
+            self.filled_frames += bool(filled.any())
+        ok_r = np.isfinite(rot).all(1)
+        if not np.isfinite(root).all():
+            root = pos[ch.root] if np.isfinite(pos[ch.root]).all() else None
+        orient = np.full((ch.n_joints, 4), np.nan)
+        if root is not None:
+            # a missing rotation turns with its parent (identity) and its orientation (and those
+            # below) are marked unknown
+            chain_ok = ok_r.copy()
+            for level in self._levels[1:]:
+                chain_ok[level] &= chain_ok[ch.parents[level]]
+            world = world_orientations(np.where(ok_r[:, None], rot, IDENTITY), ch.rest_rotations, ch.parents,
+                                       self._levels)
+            orient = np.where(chain_ok[:, None], world, np.nan)
+        out = Conditioned(np.where(np.isfinite(pos).all(1)[:, None], pos, np.nan), orient, filled, False, match)
+        self.last = out
+        return out
+
+    def _hold(self) -> Conditioned:
+        self.held_frames += 1
+        if self.last is None:
+            J = self.character.n_joints
+            return Conditioned(np.full((J, 3), np.nan), np.full((J, 4), np.nan), np.zeros(J, bool), True, -1)
+        return Conditioned(self.last.positions, self.last.orientations, self.last.filled, True, self.last.match)

@@ -1,0 +1,581 @@
+"""One MuJoCo world of characters tracking target poses on a stage (Shum & Ho, sections 4 and 6).
+
+Per input frame: :meth:`PhysicsWorld.set_target` takes each character's target joint positions
+``P_e`` and world joint orientations (``Θ_e``), both world frame (m, wxyz); :meth:`step` advances
+the frame's span in substeps of ``timestep``, each computing Eq 1 forces at every joint and Eq 2
+twist torques on every body from the current state (``mj_step1``), applying them through
+``xfrc_applied`` as the force at the joint point plus its moment about the body's centre of mass
+(exactly ``mj_applyFT`` at the joint; a test checks), then integrating (``mj_step2``).
+
+Virtual joints (section 6.1) are MuJoCo ``connect`` constraints between a foot point and a mocap
+pin: switched on where the foot's target is on the floor and still, placed where the simulated foot
+is, and off when the target lifts or slides; a held object is a ``weld`` to the hand's body.
+Positional constraints replace some targets: ``set_override`` (a hand onto an object, ``reach``)
+and the automatic dodge (forearm targets raised around the head while a ball comes at it, Figure 4).
+
+Frames: world Z up, X forward; SI units. All per-step math is vectorised over every joint and body
+of every character at once.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from ..kinematics.character import Character
+from ..kinematics.quaternion import matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix
+from .body import CharacterBody, add_character, add_pins, character_body, fmt, to_xml, world_root
+from .controller import Gains, clip_norm, cross, joint_forces, twist_torques
+from .stage import EMPTY_STAGE, PARK_X, Stage, add_stage
+
+import xml.etree.ElementTree as ET
+
+GRAVITY = np.array([0.0, 0.0, -9.81])
+
+
+@dataclass
+class TrackerParams:
+    """Simulation and control settings (SI units)."""
+
+    timestep: float = 1.0 / 240.0      # s, MuJoCo step (1/120 is unstable with these gains)
+    gains: Gains = field(default_factory=Gains)
+    body_mass: float = 70.0            # kg per character
+    virtual_joints: bool = True        # pin supporting feet
+    contact_height: float = 0.03       # m: a foot target this close to its rest height is on the floor
+    contact_speed: float = 0.25        # m/s: ... and slower than this horizontally
+    pin_slack: float = 0.05            # m: a pin lets go when its target has moved this far from it
+    dodge: bool = False                # raise the forearms when a ball comes at the head
+    dodge_horizon_s: float = 0.45      # s ahead a ball is seen coming
+    joint_damping: float = 1.0         # N·m·s/rad in every ball joint
+    max_target_speed: float = 6.0      # m/s: faster target velocities (jumps, glitches) are clipped
+    gravity_compensation: float = 0.5  # fraction of each body's weight held up at its centre of mass
+
+
+@dataclass
+class _Push:
+    character: int
+    point: int          # index into the stacked points
+    force: np.ndarray   # N, world
+    until: float        # sim time, s
+
+
+class PhysicsWorld:
+    """Characters and a stage in one MuJoCo world, each character tracking its own target."""
+
+    def __init__(self, characters: list[Character], stage: Stage = EMPTY_STAGE,
+                 params: TrackerParams | None = None, spawns: list | None = None) -> None:
+        self.params = params or TrackerParams()
+        self.params.gains.check()
+        if not characters:
+            raise ValueError("a physics world needs at least one character")
+        if spawns is None:
+            spawns = [np.array([0.0, 1.5 * k, 0.0]) for k in range(len(characters))]
+        self.stage = stage
+        self.bodies = [character_body(c, k, self.params.body_mass, spawns[k]) for k, c in enumerate(characters)]
+        self.xml = build_xml(self.bodies, stage, self.params)
+        self.model = mujoco.MjModel.from_xml_string(self.xml)
+        self.data = mujoco.MjData(self.model)
+        self._index()
+        self.time_of_target = [None] * len(self.bodies)
+        self.frames_stepped = 0
+        self.max_applied_force = 0.0     # N, largest Eq 1 force ever applied
+        self.max_applied_torque = 0.0    # N·m, largest Eq 2 torque ever applied
+        self.resets = 0                  # times the state went non-finite and was reset to the target
+        self._pushes: list[_Push] = []
+        self._next_ball = 0
+        self._dodge_until = np.full(len(self.bodies), -np.inf)
+        mujoco.mj_forward(self.model, self.data)
+
+    # ----- indexing ----------------------------------------------------------------------------
+    def _index(self) -> None:
+        m = self.model
+        name = lambda kind, n: mujoco.mj_name2id(m, kind, n)  # noqa: E731
+        pts_body, pts_local, pts_char, bodies, axes, body_char, body_joint = [], [], [], [], [], [], []
+        self.point_slice, self.body_slice, self.qpos_adr = [], [], []
+        self.pin_eq, self.pin_mocap, self.pin_point, self.pin_rest_z = [], [], [], []
+        for k, cb in enumerate(self.bodies):
+            bid = np.array([name(mujoco.mjtObj.mjOBJ_BODY, cb.body_name(int(j))) for j in cb.body_joints])
+            a = len(pts_body)
+            pts_body += list(bid[cb.joint_body])
+            pts_local += list(cb.joint_point)
+            pts_char += [k] * cb.character.n_joints
+            self.point_slice.append(slice(a, len(pts_body)))
+            b0 = len(bodies)
+            bodies += list(bid)
+            axes += list(cb.twist_axis)
+            body_char += [k] * len(bid)
+            body_joint += list(cb.body_joints)
+            self.body_slice.append(slice(b0, len(bodies)))
+            jnt = m.body_jntadr[bid]
+            self.qpos_adr.append(m.jnt_qposadr[jnt])
+            rest, _ = cb.character.rest_pose()
+            for f in cb.feet:
+                self.pin_eq.append(name(mujoco.mjtObj.mjOBJ_EQUALITY, f"{cb.prefix}pin/{cb.character.joint_names[f]}"))
+                self.pin_mocap.append(m.body_mocapid[name(mujoco.mjtObj.mjOBJ_BODY, cb.pin_name(int(f)))])
+                self.pin_point.append(a + int(f))
+                self.pin_rest_z.append(rest[f, 2] + cb.spawn[2])
+        self.pt_body = np.array(pts_body)
+        self.pt_local = np.array(pts_local, dtype=np.float64)
+        self.pt_char = np.array(pts_char)
+        self.pt_min_z = np.zeros(len(pts_body))
+        for k, cb in enumerate(self.bodies):
+            a = self.point_slice[k].start
+            for c, r in zip(cb.bone_child, cb.bone_radius):
+                for j in (int(c), int(cb.character.parents[c])):
+                    self.pt_min_z[a + j] = max(self.pt_min_z[a + j], r)
+        self.b_body = np.array(bodies)
+        self.b_axis = np.array(axes, dtype=np.float64)
+        self.b_char = np.array(body_char)
+        self.b_joint = np.array(body_joint)
+        self.b_root = m.body_rootid[self.b_body]
+        self.pt_root = m.body_rootid[self.pt_body]
+        self.pin_eq = np.array(self.pin_eq, dtype=np.int64)
+        self.pin_mocap = np.array(self.pin_mocap, dtype=np.int64)
+        self.pin_point = np.array(self.pin_point, dtype=np.int64)
+        self.pin_rest_z = np.array(self.pin_rest_z)
+        self.pin_on = np.zeros(len(self.pin_eq), dtype=bool)
+        # body -> stacked rows: forces at points summed per body by one matrix product
+        nb = m.nbody
+        self._pt_to_body = np.zeros((nb, len(self.pt_body)))
+        self._pt_to_body[self.pt_body, np.arange(len(self.pt_body))] = 1.0
+        n = len(self.pt_body)
+        self.p_t = np.full((n, 3), np.nan)
+        self.v_t = np.zeros((n, 3))
+        self.q_t = np.tile([1.0, 0, 0, 0], (len(self.b_body), 1))
+        self.w_t = np.zeros((len(self.b_body), 3))
+        self.has_rot = np.zeros(len(self.b_body), dtype=bool)
+        self.override = np.full((n, 3), np.nan)   # positional constraints (reach, dodge)
+        self.dodge_override = np.full((n, 3), np.nan)
+        self.last_forces = np.zeros((n, 3))
+        self.last_torques = np.zeros((len(self.b_body), 3))
+        self.scale_pt = np.ones(n)
+        # Eq 2 gains act per unit inertia about the twist axis (1/s^2, 1/s): a foot twisting with
+        # the torso's gains in N·m/rad would be unstable at any usable timestep
+        Rp = quat_to_matrix(m.body_iquat[self.b_body])
+        a_p = (np.swapaxes(Rp, 1, 2) @ self.b_axis[:, :, None])[:, :, 0]
+        self.scale_body = (m.body_inertia[self.b_body] * a_p ** 2).sum(1)
+        comp = self.params.gravity_compensation
+        self._comp = m.body_mass[self.b_body] * 9.81 * comp if comp else None
+        # published geoms: every character capsule and stage geom (not the floor)
+        floor = name(mujoco.mjtObj.mjOBJ_GEOM, "floor")
+        self.geom_ids = np.array([g for g in range(m.ngeom) if g != floor])
+        self.geom_names = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, int(g)) for g in self.geom_ids)
+        # each character geom's two joints, for its tracking error
+        self.geom_joints = -np.ones((len(self.geom_ids), 2), dtype=np.int64)
+        lookup = {n_: i for i, n_ in enumerate(self.geom_names)}
+        for k, cb in enumerate(self.bodies):
+            a = self.point_slice[k].start
+            for c in cb.bone_child:
+                i = lookup[cb.geom_name(int(c))]
+                self.geom_joints[i] = (a + int(cb.character.parents[c]), a + int(c))
+        self.ball_joint = [m.jnt_qposadr[m.body_jntadr[name(mujoco.mjtObj.mjOBJ_BODY, b)]] for b in self.stage.ball_names]
+        self.ball_dof = [m.jnt_dofadr[m.body_jntadr[name(mujoco.mjtObj.mjOBJ_BODY, b)]] for b in self.stage.ball_names]
+        self.ball_body = np.array([name(mujoco.mjtObj.mjOBJ_BODY, b) for b in self.stage.ball_names], dtype=np.int64)
+        self.held = []  # (eq id, object body id, hand body id, object pose in the hand frame)
+        d0 = mujoco.MjData(m)
+        mujoco.mj_forward(m, d0)  # the model's own pose: where each weld is satisfied
+        for o in self.stage.objects:
+            if o.held_by is not None and o.held_by[0] < len(self.bodies):
+                eq = name(mujoco.mjtObj.mjOBJ_EQUALITY, f"hold/{o.name}")
+                obj = name(mujoco.mjtObj.mjOBJ_BODY, f"stage/{o.name}")
+                hand = int(m.eq_obj1id[eq])
+                Rh = d0.xmat[hand].reshape(3, 3)
+                rel_p = Rh.T @ (d0.xpos[obj] - d0.xpos[hand])
+                rel_q = quat_multiply(quat_conjugate(d0.xquat[hand]), d0.xquat[obj])
+                self.held.append((eq, obj, hand, rel_p, rel_q))
+
+    # ----- geometry of the current state -------------------------------------------------------
+    def point_positions(self) -> np.ndarray:
+        """World positions [N, 3] of every character joint (stacked), m."""
+        d = self.data
+        R = d.xmat[self.pt_body].reshape(-1, 3, 3)
+        return d.xpos[self.pt_body] + (R @ self.pt_local[:, :, None])[:, :, 0]
+
+    def point_velocities(self, p: np.ndarray) -> np.ndarray:
+        """World velocities [N, 3] (m/s) of the points ``p`` riding their bodies (from ``cvel``)."""
+        d = self.data
+        cv = d.cvel[self.pt_body]
+        return cv[:, 3:] + cross(cv[:, :3], p - d.subtree_com[self.pt_root])
+
+    def joint_positions(self, k: int) -> np.ndarray:
+        """Simulated joint positions [J, 3] of character ``k``, m, world."""
+        return self.point_positions()[self.point_slice[k]]
+
+    def local_rotations(self, k: int, leaf_rotations: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Simulated character ``k`` as (local rotations [J, 4] wxyz, root position [3] m).
+
+        Joints without a body (leaves) take ``leaf_rotations`` (their target's) or identity."""
+        cb = self.bodies[k]
+        ch = cb.character
+        adr = self.qpos_adr[k]
+        q = self.data.qpos
+        out = np.tile([1.0, 0, 0, 0], (ch.n_joints, 1)) if leaf_rotations is None else np.array(leaf_rotations, float)
+        root = int(np.flatnonzero(cb.body_joints == ch.root)[0])
+        ball = adr[np.arange(len(adr)) != root]
+        joints = cb.body_joints[np.arange(len(adr)) != root]
+        out[joints] = q[ball[:, None] + np.arange(4)]
+        r = adr[root]
+        out[ch.root] = quat_multiply(quat_conjugate(ch.rest_rotations[ch.root]), q[r + 3:r + 7])
+        out /= np.linalg.norm(out, axis=1, keepdims=True)
+        return out, q[r:r + 3].copy()
+
+    # ----- targets -----------------------------------------------------------------------------
+    def set_pose(self, k: int, local_rotations: np.ndarray, root_position: np.ndarray) -> None:
+        """Put character ``k`` exactly in a pose (local rotations wxyz [J,4], root m), at rest."""
+        cb = self.bodies[k]
+        ch = cb.character
+        adr = self.qpos_adr[k]
+        q = self.data.qpos
+        loc = np.asarray(local_rotations, float)
+        for b, j in enumerate(cb.body_joints):
+            a = adr[b]
+            if j == ch.root:
+                q[a:a + 3] = root_position
+                q[a + 3:a + 7] = quat_multiply(ch.rest_rotations[j], loc[j])
+            else:
+                q[a:a + 4] = loc[j]
+        dof = self.model.body_dofadr[self.b_body[self.body_slice[k]]]
+        ndof = self.model.body_dofnum[self.b_body[self.body_slice[k]]]
+        for a, n in zip(dof, ndof):
+            self.data.qvel[a:a + n] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+        self._snap_held()
+        self.pin_on[self.pin_char == k] = False
+        self.data.eq_active[self.pin_eq[self.pin_char == k]] = 0
+
+    @property
+    def pin_char(self) -> np.ndarray:
+        return self.pt_char[self.pin_point]
+
+    def set_target(self, k: int, positions: np.ndarray, orientations: np.ndarray, time_s: float) -> None:
+        """Target of character ``k``: joint positions [J, 3] m and world joint orientations [J, 4]
+        wxyz (NaN rows: no target for that joint), at input time ``time_s`` (for the velocities)."""
+        sl = self.point_slice[k]
+        bs = self.body_slice[k]
+        cb = self.bodies[k]
+        p = np.asarray(positions, float)
+        q = np.asarray(orientations, float)[cb.body_joints]
+        prev_t = self.time_of_target[k]
+        dt = None if prev_t is None else time_s - prev_t
+        ok_p = np.isfinite(p).all(1)
+        ok_q = np.isfinite(q).all(1)
+        if dt is not None and 1e-4 < dt < 0.5:
+            prev = self.p_t[sl]
+            v = (p - prev) / dt
+            v = np.where((ok_p & np.isfinite(prev).all(1))[:, None], v, 0.0)
+            self.v_t[sl] = clip_norm(v, self.params.max_target_speed)
+            # angular velocity of each target orientation: 2 vec(q q_prev^-1) / dt, small-angle
+            # form (exact to 0.1 % below 6 degrees a frame; faster turns are clipped anyway)
+            prevq = self.q_t[bs]
+            e = _qmul_conj(q, prevq)
+            w = 2.0 * np.where(e[:, :1] < 0, -e[:, 1:], e[:, 1:]) / dt
+            w = np.where((ok_q & self.has_rot[bs])[:, None], w, 0.0)
+            self.w_t[bs] = clip_norm(w, 20.0)
+        else:
+            self.v_t[sl] = 0.0
+            self.w_t[bs] = 0.0
+        # the floor is a constraint too: no target below a capsule's radius (a target foot under
+        # the floor would press the body into it with the full bounded force)
+        p = np.where(ok_p[:, None], p, np.nan)
+        self.p_t[sl] = lift_above_floor(p, cb.character.parents, self.pt_min_z[sl])
+        self.q_t[bs] = np.where(ok_q[:, None], q, self.q_t[bs])
+        self.has_rot[bs] = ok_q
+        self.time_of_target[k] = time_s
+
+    def set_override(self, k: int, joint: int | str, position: np.ndarray | None) -> None:
+        """Positional constraint: joint ``joint`` of character ``k`` targets ``position`` (world m)
+        instead of its input target, until set to None."""
+        j = self.bodies[k].character.index(joint) if isinstance(joint, str) else int(joint)
+        self.override[self.point_slice[k].start + j] = np.nan if position is None else position
+
+    def reach(self, k: int, joint: int | str, geom: str) -> np.ndarray:
+        """Move joint ``joint``'s target onto the surface of stage geom ``geom`` (the surface point
+        nearest to the joint's current target) and return that point."""
+        j = self.bodies[k].character.index(joint) if isinstance(joint, str) else int(joint)
+        g = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, geom)
+        if g < 0:
+            raise KeyError(f"no stage geom {geom!r}")
+        i = self.point_slice[k].start + j
+        base = self.p_t[i] if np.isfinite(self.p_t[i]).all() else self.point_positions()[i]
+        c = self.data.geom_xpos[g]
+        R = self.data.geom_xmat[g].reshape(3, 3)
+        size = self.model.geom_size[g]
+        if self.model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX:
+            loc = np.clip(R.T @ (base - c), -size, size)
+            if (np.abs(loc) < size).all():  # inside: out through the nearest face
+                ax = int(np.argmin(size - np.abs(loc)))
+                loc[ax] = np.copysign(size[ax], loc[ax])
+            point = c + R @ loc
+        else:
+            d = base - c
+            point = c + d / max(np.linalg.norm(d), 1e-9) * size[0]
+        self.override[i] = point
+        return point
+
+    # ----- interaction -------------------------------------------------------------------------
+    def push(self, k: int, joint: int | str, force: np.ndarray, duration_s: float) -> None:
+        """An external push (N, world) at joint ``joint`` of character ``k`` for ``duration_s``."""
+        j = self.bodies[k].character.index(joint) if isinstance(joint, str) else int(joint)
+        f = np.asarray(force, float)
+        if f.shape != (3,) or not np.isfinite(f).all() or not np.isfinite(duration_s) or duration_s < 0:
+            raise ValueError(f"push: force {force!r} must be 3 finite numbers, duration >= 0")
+        self._pushes.append(_Push(k, self.point_slice[k].start + j, f, self.data.time + duration_s))
+
+    def shoot(self, target: np.ndarray, speed: float | None = None, origin: np.ndarray | None = None) -> int:
+        """Shoot the next ball of the stage's shooter at ``target`` (world m) on a ballistic arc;
+        returns the ball's number."""
+        sh = self.stage.shooter
+        if sh is None:
+            raise ValueError("this stage has no ball shooter")
+        k = self._next_ball
+        self._next_ball = (k + 1) % sh.pool
+        o = sh.origin if origin is None else np.asarray(origin, float)
+        target = np.asarray(target, float)
+        s = sh.speed if speed is None else float(speed)
+        dist = np.linalg.norm(target - o)
+        T = dist / s
+        v = (target - o) / T - 0.5 * GRAVITY * T
+        a, dv = self.ball_joint[k], self.ball_dof[k]
+        self.data.qpos[a:a + 3] = o
+        self.data.qpos[a + 3:a + 7] = (1, 0, 0, 0)
+        self.data.qvel[dv:dv + 3] = v
+        self.data.qvel[dv + 3:dv + 6] = 0
+        return k
+
+    def park_balls(self) -> None:
+        """Every ball back to its parking place, at rest."""
+        for k, (a, dv) in enumerate(zip(self.ball_joint, self.ball_dof)):
+            self.data.qpos[a:a + 7] = (PARK_X + 0.5 * k, 0, self.stage.shooter.radius, 1, 0, 0, 0)
+            self.data.qvel[dv:dv + 6] = 0
+
+    def set_held(self, on: bool) -> None:
+        """Hold (weld) or drop every held object."""
+        for eq, *_ in self.held:
+            if on and not self.data.eq_active[eq]:
+                self._snap_held()
+            self.data.eq_active[eq] = int(on)
+
+    def _snap_held(self) -> None:
+        """Put each held object where its weld wants it relative to the hand (no jump on start)."""
+        m, d = self.model, self.data
+        for eq, obj, hand, rel_p, rel_q in self.held:
+            a = m.jnt_qposadr[m.body_jntadr[obj]]
+            dv = m.jnt_dofadr[m.body_jntadr[obj]]
+            d.qpos[a:a + 3] = d.xpos[hand] + d.xmat[hand].reshape(3, 3) @ rel_p
+            d.qpos[a + 3:a + 7] = quat_multiply(d.xquat[hand], rel_q)
+            d.qvel[dv:dv + 6] = 0
+        if self.held:
+            mujoco.mj_forward(m, d)
+
+    # ----- stepping ----------------------------------------------------------------------------
+    def _update_pins(self) -> None:
+        if not len(self.pin_eq):
+            return
+        if not self.params.virtual_joints:
+            if self.pin_on.any():
+                self.pin_on[:] = False
+                self.data.eq_active[self.pin_eq] = 0
+            return
+        pt = self.p_t[self.pin_point]
+        vt = self.v_t[self.pin_point]
+        z_ok = np.isfinite(pt).all(1)
+        low = pt[:, 2] <= self.pin_rest_z + self.params.contact_height
+        high = pt[:, 2] > self.pin_rest_z + self.params.contact_height + 0.01
+        slow = np.linalg.norm(vt[:, :2], axis=1) <= self.params.contact_speed
+        fast = np.linalg.norm(vt[:, :2], axis=1) > 2 * self.params.contact_speed
+        on = z_ok & low & slow & ~self.pin_on
+        drift = np.linalg.norm((pt - self.data.mocap_pos[self.pin_mocap])[:, :2], axis=1)
+        off = self.pin_on & (~z_ok | high | fast | (drift > self.params.pin_slack))
+        if on.any():
+            cur = self.point_positions()[self.pin_point[on]]
+            cur[:, 2] = self.pin_rest_z[on]  # on the floor: never hold a foot sunk into it
+            self.data.mocap_pos[self.pin_mocap[on]] = cur
+        self.pin_on = (self.pin_on | on) & ~off
+        self.data.eq_active[self.pin_eq] = self.pin_on.astype(np.uint8)
+
+    def _update_dodge(self) -> None:
+        self.dodge_override[:] = np.nan
+        if not self.params.dodge or not len(self.ball_body):
+            return
+        d = self.data
+        bp = d.xpos[self.ball_body]
+        bv = np.array([d.qvel[a:a + 3] for a in self.ball_dof])
+        moving = np.linalg.norm(bv, axis=1) > 1.0
+        for k, cb in enumerate(self.bodies):
+            ch = cb.character
+            try:
+                head = ch.index("Head")
+            except KeyError:
+                continue
+            a = self.point_slice[k].start
+            hp = self.point_positions()[a + head]
+            rel = hp - bp
+            speed2 = np.maximum((bv * bv).sum(1), 1e-9)
+            t_close = (rel * bv).sum(1) / speed2
+            miss = np.linalg.norm(rel - bv * t_close[:, None], axis=1)
+            threat = moving & (t_close > 0) & (t_close < self.params.dodge_horizon_s) & (miss < 0.35)
+            if threat.any():
+                self._dodge_until[k] = d.time + 0.4
+                i = int(np.flatnonzero(threat)[np.argmin(t_close[threat])])
+                self._dodge_dir = -bv[i] / np.linalg.norm(bv[i])
+            if d.time < self._dodge_until[k]:
+                self._raise_forearms(k, hp, self._dodge_dir)
+
+    def _raise_forearms(self, k: int, head: np.ndarray, towards: np.ndarray) -> None:
+        """Figure 4: forearm targets (elbows, wrists, hands) set around the head, facing the ball."""
+        ch = self.bodies[k].character
+        front = towards.copy()
+        front[2] = 0.0
+        front /= max(np.linalg.norm(front), 1e-9)
+        up = np.array([0.0, 0, 1])
+        left = np.cross(up, front)
+        a = self.point_slice[k].start
+        for side, s in (("Left", 1.0), ("Right", -1.0)):
+            spots = {f"Elbow{side}": head + 0.12 * front + s * 0.22 * left - 0.05 * up,
+                     f"Wrist{side}": head + 0.22 * front + s * 0.07 * left + 0.06 * up,
+                     f"Hand{side}": head + 0.24 * front + s * 0.03 * left + 0.14 * up}
+            for jn, p in spots.items():
+                if jn in ch.joint_names:
+                    self.dodge_override[a + ch.joint_names.index(jn)] = p
+
+    def step(self, duration_s: float) -> None:
+        """Advance by ``duration_s`` (rounded to whole substeps, at least one)."""
+        m, d = self.model, self.data
+        n = max(1, int(round(duration_s / m.opt.timestep)))
+        self._update_pins()
+        self._update_dodge()
+        g = self.params.gains
+        target = np.where(np.isfinite(self.override), self.override, self.p_t)
+        target = np.where(np.isfinite(self.dodge_override), self.dodge_override, target)
+        vel = np.where(np.isfinite(self.override) | np.isfinite(self.dodge_override), 0.0, self.v_t)
+        has_t = np.isfinite(target).all(1)
+        dt_frame = n * m.opt.timestep
+        mask = has_t[:, None].astype(np.float64)
+        for i in range(n):
+            mujoco.mj_step1(m, d)
+            # targets move on between frames at their velocity (the input arrives per frame)
+            p_t = target + vel * ((i + 1) * m.opt.timestep - dt_frame)
+            p = self.point_positions()
+            v = self.point_velocities(p)
+            f = joint_forces(g, p, v, p_t, vel, self.scale_pt) * mask
+            if i == 0:
+                # Eq 2 once per frame, held over its substeps: gains per unit inertia keep
+                # Kd_rot * frame span well inside the stable range, and it halves the work
+                R = d.xmat[self.b_body].reshape(-1, 3, 3)
+                axis = (R @ self.b_axis[:, :, None])[:, :, 0]
+                tq = twist_torques(g, d.xquat[self.b_body], d.cvel[self.b_body, :3], axis, self.q_t, self.w_t,
+                                   self.scale_body) * self.has_rot[:, None]
+                self.max_applied_torque = max(self.max_applied_torque, float(np.sqrt((tq * tq).sum(1).max(initial=0.0))))
+            wrench = np.concatenate([f, cross(p - d.xipos[self.pt_body], f)], axis=1)
+            if self._pushes:
+                arm = p - d.xipos[self.pt_body]
+                for push in self._pushes:
+                    if d.time < push.until:
+                        wrench[push.point, :3] += push.force
+                        wrench[push.point, 3:] += np.cross(arm[push.point], push.force)
+            xf = self._pt_to_body @ wrench
+            xf[self.b_body, 3:] += tq
+            if self._comp is not None:
+                xf[self.b_body, 2] += self._comp
+            d.xfrc_applied[:] = xf
+            mujoco.mj_step2(m, d)
+            self.max_applied_force = max(self.max_applied_force, float(np.sqrt((f * f).sum(1).max(initial=0.0))))
+        self.last_forces, self.last_torques = f, tq
+        self._pushes = [p for p in self._pushes if d.time < p.until]
+        self.frames_stepped += 1
+        if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()) or d.warning.number[
+                mujoco.mjtWarning.mjWARN_BADQACC] > self._badqacc:
+            self._recover()
+
+    _badqacc = 0
+
+    def _recover(self) -> None:
+        """The state blew up (MuJoCo reset it or it went NaN): put each character on its target."""
+        self.resets += 1
+        self._badqacc = int(self.data.warning.number[mujoco.mjtWarning.mjWARN_BADQACC])
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.warning.number[mujoco.mjtWarning.mjWARN_BADQACC] = self._badqacc
+        mujoco.mj_forward(self.model, self.data)
+
+    # ----- outputs -----------------------------------------------------------------------------
+    def tracking_error(self) -> np.ndarray:
+        """Per stacked joint: distance from the simulated joint to its target, m (NaN: no target)."""
+        target = np.where(np.isfinite(self.override), self.override, self.p_t)
+        return np.linalg.norm(self.point_positions() - target, axis=1)
+
+    def geom_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Published geoms: positions [G, 3] m, orientations [G, 4] wxyz, tracking error [G] m."""
+        d = self.data
+        pos = d.geom_xpos[self.geom_ids].copy()
+        quat = matrix_to_quat(d.geom_xmat[self.geom_ids].reshape(-1, 3, 3))
+        err = np.full(len(self.geom_ids), np.nan)
+        mine = self.geom_joints[:, 0] >= 0
+        e = self.tracking_error()
+        err[mine] = 0.5 * (e[self.geom_joints[mine, 0]] + e[self.geom_joints[mine, 1]])
+        return pos, quat, err
+
+    def geom_shapes(self) -> tuple[tuple[str, ...], np.ndarray]:
+        """Shape names and MuJoCo sizes [G, 3] of the published geoms."""
+        names = {mujoco.mjtGeom.mjGEOM_BOX: "box", mujoco.mjtGeom.mjGEOM_SPHERE: "sphere",
+                 mujoco.mjtGeom.mjGEOM_CAPSULE: "capsule", mujoco.mjtGeom.mjGEOM_CYLINDER: "cylinder"}
+        shapes = tuple(names.get(int(t), "mesh") for t in self.model.geom_type[self.geom_ids])
+        return shapes, self.model.geom_size[self.geom_ids].copy()
+
+
+def _qmul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a * conj(b) of [N, 4] wxyz arrays."""
+    aw, ax, ay, az = a.T
+    bw, bx, by, bz = b.T
+    out = np.empty_like(a)
+    out[:, 0] = aw * bw + ax * bx + ay * by + az * bz
+    out[:, 1] = -aw * bx + ax * bw - ay * bz + az * by
+    out[:, 2] = -aw * by + ax * bz + ay * bw - az * bx
+    out[:, 3] = -aw * bz - ax * by + ay * bx + az * bw
+    return out
+
+
+def lift_above_floor(p: np.ndarray, parents: np.ndarray, min_z: np.ndarray) -> np.ndarray:
+    """Targets [J, 3] with every joint at least ``min_z`` [J] high: a joint below it swings up
+    about its parent's target (bone length kept, heading kept), or is raised if that cannot reach."""
+    low = p[:, 2] < min_z
+    if not low.any():
+        return p
+    out = p.copy()
+    par = np.maximum(parents, 0)
+    d = p - p[par]
+    L = np.sqrt((d * d).sum(1))
+    dz = min_z - p[par, 2]
+    hz = np.sqrt((d[:, :2] ** 2).sum(1))
+    can = low & (parents >= 0) & (np.abs(dz) < L) & (hz > 1e-9)
+    h = np.sqrt(np.maximum(L ** 2 - dz ** 2, 0.0)) / np.maximum(hz, 1e-9)
+    swung = np.concatenate([p[par, :2] + d[:, :2] * h[:, None], (p[par, 2] + dz)[:, None]], axis=1)
+    out[can] = swung[can]
+    out[:, 2] = np.maximum(out[:, 2], min_z)
+    return out
+
+
+def build_xml(bodies: list[CharacterBody], stage: Stage, params: TrackerParams) -> str:
+    """The MJCF of a world: floor, characters, their foot pins, the stage, held-object welds."""
+    root, worldbody, equality = world_root(params.timestep, floor_friction=stage.floor_friction)
+    for cb in bodies:
+        add_character(worldbody, cb, len(bodies), params.joint_damping)
+        add_pins(equality, cb)
+    add_stage(worldbody, stage)
+    for o in stage.objects:
+        if o.held_by is None or o.held_by[0] >= len(bodies):
+            continue
+        cb = bodies[o.held_by[0]]
+        try:
+            j = cb.character.index(o.held_by[1])
+        except KeyError as exc:
+            raise ValueError(f"stage {stage.source or stage.name}: object {o.name}: held_by: {exc.args[0]}") from None
+        b = int(cb.body_joints[cb.joint_body[j]])
+        # spawn the object at the hand in the rest pose, handle along the world's forward axis
+        pos, _ = cb.character.rest_pose()
+        obj = worldbody.find(f"body[@name='stage/{o.name}']")
+        obj.set("pos", fmt(pos[j] + cb.spawn))
+        obj.set("quat", fmt([np.sqrt(0.5), 0, np.sqrt(0.5), 0]))  # body z -> world x
+        ET.SubElement(equality, "weld", name=f"hold/{o.name}", body1=cb.body_name(b), body2=f"stage/{o.name}",
+                      solref="0.005 1")
+    return to_xml(root)

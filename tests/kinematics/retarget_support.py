@@ -1,0 +1,44 @@
+"""Helpers shared by the retargeting tests: BVH sources and bone-direction angles."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mocapgraph.formats.bvh_file import bvh_to_skeleton, read_bvh
+from mocapgraph.kinematics.retarget_source import SourceSkeleton, skeleton_source
+
+
+def bvh_source(path: Path):
+    """(BvhMotion, SkeletonTrial, SourceSkeleton) of a BVH file, as the bvh_player node sends it."""
+    motion = read_bvh(path)
+    trial = bvh_to_skeleton(motion)
+    rest = motion.rest_positions()
+    p = trial.parents
+    offs = np.where((p >= 0)[:, None], rest - rest[np.maximum(p, 0)], rest)
+    return motion, trial, skeleton_source(trial.names, p, offs, has_orientations=True, kind_hint="bvh")
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle between vectors [..., 3], degrees."""
+    cos = np.sum(a * b, -1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def mapped_bones(ch, mapping, src: SourceSkeleton, min_len: float = 1e-6):
+    """(character joint, child, source point, source child point) for every bone whose two ends
+    both have a source point, the source bone being longer than ``min_len`` at rest."""
+    by = {e.joint: e for e in mapping.joints}
+    out = []
+    for j, n in enumerate(ch.joint_names):
+        e = by.get(n)
+        if e is None or e.position is None:
+            continue
+        for k in ch.children(j):
+            ek = by.get(ch.joint_names[k])
+            if ek is None or ek.position is None:
+                continue
+            a, b = src.point(e.position), src.point(ek.position)
+            if np.linalg.norm(src.rest_points[b] - src.rest_points[a]) > min_len:
+                out.append((j, int(k), a, b))
+    return out
