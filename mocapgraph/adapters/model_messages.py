@@ -1,4 +1,6 @@
-"""Glue shared by the calibration and solver nodes and the batch commands (no math here).
+"""The actor model and its results as messages: SkeletonModel (exact), ActorPose, the quality report.
+
+Shared by the calibration and solver nodes and the batch commands (no math here):
 
 - the kinematics :class:`~mocapgraph.kinematics.model.ActorModel` <-> the latched
   ``SkeletonModel`` message, exactly (float64 arrays as they are; the rest as JSON in

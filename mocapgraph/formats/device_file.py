@@ -19,17 +19,22 @@ A device file::
 A point seen by the device maps to the world as ``p_world = R @ p_device + t`` with
 ``R = Rz(yaw) @ axes(up, forward)`` (column vectors) and ``t = translation_m``; orientations as
 ``q_world = q_R * q_device``. Errors are one line naming the file, line and key.
+
+A reader's ``up_axis`` param (:meth:`DeviceConfig.with_up_axis`) names the device axis that
+points up when the file does not: it stands in for ``to_world.up`` (forward: the file's
+``to_world.forward``, else +X, or +Y when X is up; yaw and translation still apply after). A file
+whose own ``to_world.up`` differs is refused in one line: two answers to one question.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .axes import describe_rotation, to_world_rotation
+from .axes import axis_name, default_forward, describe_rotation, parse_axis, to_world_rotation, up_option
 from .yaml_source import GraphError, LinedDict, load_yaml_file
 
 DEVICE_DIR = Path(__file__).resolve().parents[2] / "graph_configs" / "devices"
@@ -54,6 +59,11 @@ class DeviceConfig:
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))  # m, world
     channels: list[str] = field(default_factory=list)
     source: str = "<default>"
+    up: str = ""              # the file's own to_world.up ("+Y" style), '' when not given
+    up_where: str = ""        # "file:line" of that key, for errors
+    forward: str = ""         # the file's own to_world.forward, '' when not given
+    yaw_deg: float = 0.0
+    up_from_reader: str = ""  # the reader's up_axis when it set the up axis
 
     @property
     def is_identity(self) -> bool:
@@ -93,7 +103,32 @@ class DeviceConfig:
         if self.is_identity:
             return f"device '{self.name}': device frame taken as the world frame"
         t = ", ".join(f"{v:g}" for v in self.translation)
-        return f"device '{self.name}': {describe_rotation(self.rotation)}, then origin moved to ({t}) m"
+        why = f" (up axis {self.up_from_reader} from the reader's up_axis)" if self.up_from_reader else ""
+        return f"device '{self.name}'{why}: {describe_rotation(self.rotation)}, then origin moved to ({t}) m"
+
+    def with_up_axis(self, up_axis: str | None) -> "DeviceConfig":
+        """This device with a reader's ``up_axis`` ("auto"/''/None: unchanged; else "y", "-Z"...)
+        as its up axis (see the module doc). DeviceConfigError (one line) when the file's own
+        ``to_world.up`` differs, or the file's forward is not perpendicular to it."""
+        try:
+            up = up_option(up_axis)
+        except ValueError as exc:
+            raise DeviceConfigError(f"up_axis: {exc}") from None
+        if up is None or up == self.up:
+            return self
+        if self.up:
+            raise DeviceConfigError(
+                f"{self.up_where}: to_world.up: the device file says {self.up!r} but the reader's "
+                f"up_axis is {up_axis!r}: set only one (up_axis: auto takes the file's)")
+        forward = self.forward or default_forward(up)
+        try:
+            R = to_world_rotation(up, forward)
+        except ValueError as exc:
+            raise DeviceConfigError(f"{self.source}: to_world.forward: with the reader's up_axis "
+                                    f"{up_axis!r}: {exc}") from None
+        R = Rotation.from_euler("z", self.yaw_deg, degrees=True).as_matrix() @ R
+        R[np.abs(R) < 1e-15] = 0.0
+        return replace(self, rotation=R, up_from_reader=up)
 
 
 def device_path(name_or_path: str | Path) -> Path:
@@ -142,6 +177,11 @@ def load_device_config(name_or_path: str | Path) -> DeviceConfig:
     world = doc.get("to_world")
     if world is not None:
         cfg.rotation, cfg.translation = _parse_world(world, path, doc)
+        for key in ("up", "forward"):  # what the file itself says, for a reader's up_axis
+            if world.get(key) is not None and str(world[key]).strip():
+                setattr(cfg, key, axis_name(parse_axis(str(world[key]))))
+        cfg.up_where = f"{path}:{world.line_of('up')}" if isinstance(world, LinedDict) else str(path)
+        cfg.yaw_deg = float(world.get("yaw_deg", 0.0))
     return cfg
 
 
@@ -167,6 +207,8 @@ def _parse_world(world: Any, path: Path, doc: LinedDict) -> tuple[np.ndarray, np
     return R, np.asarray(t, dtype=np.float64)
 
 
-def device_or_default(name_or_path: str) -> DeviceConfig:
-    """The named device configuration, or the identity device for ""."""
-    return load_device_config(name_or_path) if name_or_path else DeviceConfig()
+def device_or_default(name_or_path: str, up_axis: str | None = None) -> DeviceConfig:
+    """The named device configuration, or the identity device for "", with a reader's
+    ``up_axis`` applied (:meth:`DeviceConfig.with_up_axis`)."""
+    dev = load_device_config(name_or_path) if name_or_path else DeviceConfig()
+    return dev.with_up_axis(up_axis)

@@ -1,7 +1,13 @@
-"""Streaming steps of a calibration capture: find the base pose, sample the gym (capture time, s)."""
+"""Streaming steps of a calibration capture: find the base pose, sample the gym, calibrate (capture time, s)."""
 from __future__ import annotations
 
+import warnings
+from typing import Any
+
 import numpy as np
+
+from .calibration import CalibrationWarning, calibrate
+from .model import ActorModel
 
 SEARCHING, FOUND, TIMED_OUT = "searching", "found", "timed_out"
 
@@ -41,6 +47,17 @@ class BasePoseFinder:
 class GymSampler:
     """The frames of ``seconds`` of capture time, kept at ``rate_hz`` (0: every frame)."""
 
+    @staticmethod
+    def checked(seconds: object, rate_hz: object) -> tuple[float, float]:
+        """(seconds, rate_hz) as floats; ValueError unless seconds > 0 and rate_hz >= 0."""
+        try:
+            s, r = float(seconds), float(rate_hz)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            s = r = float("nan")
+        if not (s > 0 and r >= 0):
+            raise ValueError(f"seconds must be > 0 and rate_hz >= 0, got {seconds!r}, {rate_hz!r}")
+        return s, r
+
     def __init__(self, seconds: float, rate_hz: float) -> None:
         self.seconds = float(seconds)
         self.rate_hz = float(rate_hz)
@@ -59,3 +76,65 @@ class GymSampler:
             self._next_k = k + 1
         self.progress = t / self.seconds
         return False
+
+
+class CaptureSession:
+    """One calibration capture: the base-pose search, then the gym sample, on capture stamps (ns).
+
+    Each step's clock starts at the first frame it is offered (the search at the first frame
+    after a reset, the gym at the first frame after :meth:`start_gym`).
+    """
+
+    def __init__(self, timeout_s: float, gym_seconds: float, gym_rate_hz: float) -> None:
+        self.finder = BasePoseFinder(timeout_s)
+        self.sampler = GymSampler(gym_seconds, gym_rate_hz)
+        self.base: np.ndarray | None = None   # float[M,3] m, the base pose once found
+        self.base_frame = -1
+        self.frames_used = 0
+        self._ns0: int | None = None
+
+    def _elapsed_s(self, ns: int) -> float:
+        if self._ns0 is None:
+            self._ns0 = ns
+        self.frames_used += 1
+        return (ns - self._ns0) * 1e-9
+
+    def search(self, x: np.ndarray, ok: np.ndarray, ns: int, frame_number: int) -> str:
+        """Offer a frame to the base-pose search: SEARCHING, FOUND (kept as ``base``) or TIMED_OUT."""
+        found = self.finder.step(ok, self._elapsed_s(ns))
+        if found == FOUND:
+            self.base, self.base_frame = x, frame_number
+        return found
+
+    def start_gym(self, seconds: float, rate_hz: float) -> None:
+        """Begin (or restart) the gym sample: ``seconds`` of capture time at ``rate_hz`` (0: all)."""
+        self.sampler = GymSampler(seconds, rate_hz)
+        self._ns0 = None
+
+    def sample(self, x: np.ndarray, ns: int) -> bool:
+        """Offer a gym frame; True once the gym is complete."""
+        return self.sampler.step(x, self._elapsed_s(ns))
+
+    @property
+    def gym(self) -> list[np.ndarray]:
+        """The gym frames kept so far (float[M,3] each, m, NaN unseen)."""
+        return self.sampler.frames
+
+    def gym_data(self, stream_rate_hz: float = 0.0) -> dict[str, Any]:
+        """Status figures of the gym sample: frames kept, seconds, rate (the stream's when 0)."""
+        return {"frames": len(self.gym), "seconds": self.sampler.seconds,
+                "rate_hz": self.sampler.rate_hz or stream_rate_hz}
+
+    def frames(self) -> np.ndarray:
+        """float[1 + G, M, 3]: the base pose, then the gym frames (what calibration takes)."""
+        return np.concatenate([self.base[None], np.asarray(self.gym)]) if self.gym else self.base[None]
+
+    def process(self, definition: Any, **options: Any) -> tuple[ActorModel, list[str]]:
+        """Calibrate ``definition`` from the base pose + gym (``options`` go to
+        :func:`~mocapgraph.kinematics.calibration.calibrate`): (model, its warnings as text).
+        CalibrationError when no model can be made."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CalibrationWarning)
+            model = calibrate(definition, self.frames(), base_frame=0, rate_hz=self.sampler.rate_hz or None,
+                              source="gym capture", **options)
+        return model, [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)]

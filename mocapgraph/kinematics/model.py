@@ -234,6 +234,12 @@ def save_model(model: ActorModel, path: str | Path) -> None:
     Path(path).write_text(json.dumps(model.to_dict(), indent=1) + "\n", encoding="utf-8")
 
 
+def as_saved(model: ActorModel, source: str = "calibration") -> ActorModel:
+    """The model exactly as its file holds it (values rounded as :func:`save_model` writes them),
+    so a session using it now and one loading the file later compute the same joints."""
+    return ActorModel.from_dict(json.loads(json.dumps(model.to_dict())), source=source)
+
+
 def load_model(
     path: str | Path,
     layout: str | None = None,

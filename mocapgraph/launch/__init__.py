@@ -1,0 +1,1 @@
+"""Launch graphs: YAML loading (args, includes, remaps, expects), checks, the wiring plan, supervision, the manifest."""

@@ -1,9 +1,13 @@
-"""The command whitelist: which NodeCommand names each commandable node takes (calibration, bag player, retargeter, physics tracker), and the viewer's share.
+"""Node commands: which NodeCommand names each commandable node takes (calibration, bag player, retargeter, physics tracker), the viewer's share, and their args.
 
 Written once here; the calibration node and the bag player dispatch exactly these, and the viewer
-server forwards only the subset its buttons send (a browser can ask for nothing else).
+server forwards only the subset its buttons send (a browser can ask for nothing else). A
+command's ``args_json`` is a JSON object (empty: ``{}``), read by :func:`parse_command`.
 """
 from __future__ import annotations
+
+import json
+from typing import Any, Sequence
 
 CALIBRATION_COMMANDS = ("find_base_pose", "capture_gym", "process", "reset", "save", "load")
 PLAYER_COMMANDS = ("play", "pause", "toggle", "step", "seek", "rate", "stop")
@@ -18,3 +22,17 @@ VIEWER_COMMANDS: dict[str, tuple[str, ...]] = {
 
 assert set(VIEWER_COMMANDS["calibration"]) <= set(CALIBRATION_COMMANDS)
 assert set(VIEWER_COMMANDS["player"]) <= set(PLAYER_COMMANDS)
+
+
+def parse_command(command: str, args_json: str, allowed: Sequence[str]) -> dict[str, Any]:
+    """The args of a NodeCommand named ``command`` as a dict; ValueError (one line) when the
+    args are not a JSON object or the command is not one of ``allowed``."""
+    try:
+        args = json.loads(args_json or "{}")
+    except ValueError as exc:
+        raise ValueError(f"command {command!r}: bad args_json ({exc})") from None
+    if not isinstance(args, dict):
+        raise ValueError(f"command {command!r}: bad args_json (not a JSON object)")
+    if command not in allowed:
+        raise ValueError(f"unknown command {command!r} (expected one of {', '.join(allowed)})")
+    return args

@@ -12,7 +12,7 @@ from ..bag.player import Outgoing, Playback, select_topics, set_publish_stamp
 from ..bag.reader import BagReader
 from ..bus import Input, Interface, Node, Output, Param
 from ..bus.node import NodeConfigError
-from ..messages.commands import PLAYER_COMMANDS
+from ..messages.commands import PLAYER_COMMANDS, parse_command
 from ..messages import NodeCommand, NodeStatus
 from ..messages.registry import lookup
 
@@ -170,11 +170,7 @@ class BagPlayer(Node):
         if cmd.target not in ("", self.name):
             return
         try:
-            args = json.loads(cmd.args_json or "{}")
-        except ValueError:
-            args = {}
-        try:
-            self.handle(cmd.command, args)
+            self.handle(cmd.command, parse_command(cmd.command, cmd.args_json, PLAYER_COMMANDS))
         except (ValueError, TypeError, BagError) as exc:
             self.log.warning("command %s: %s", cmd.command, exc)
         self._publish_status()

@@ -18,30 +18,31 @@ the base pose, sampled at ``F`` frames/s (0: every frame). Processing runs
 :func:`mocapgraph.kinematics.calibration.calibrate` on base pose + gym; the result is published
 latched on ``skeleton_model`` in its file form (what ``model_file`` holds), so a session
 calibrated now and one loaded from the file later solve identically.
+
+The node is the command state machine; the capture steps live in
+:mod:`mocapgraph.kinematics.capture_steps`, the stream binding in
+:mod:`mocapgraph.adapters.layout_binding`, the status texts in
+:mod:`mocapgraph.adapters.calibration_report`, saving and the message form in
+:mod:`mocapgraph.adapters.model_store`.
 """
 from __future__ import annotations
 
-import json
-from collections import deque
 import time
-import warnings
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
-
 from ..bus import Input, Node, Output, Param
-from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate
-from ..kinematics.layout import LayoutError, layout_path
-from ..kinematics.capture_steps import FOUND, TIMED_OUT, BasePoseFinder, GymSampler
-from ..kinematics.labels import missing_labels, place_labels
-from ..kinematics.model import ActorModel, ModelFileError, load_model, save_model
-from ..kinematics.skeleton import SkeletonDefinition
-from ..messages.commands import CALIBRATION_COMMANDS
+from ..kinematics.calibration import CalibrationError
+from ..kinematics.capture_steps import FOUND, TIMED_OUT, CaptureSession, GymSampler
+from ..kinematics.model import ActorModel, ModelFileError, as_saved, load_model
 from ..kinematics.subject import SubjectError, read_vsk
+from ..messages.commands import CALIBRATION_COMMANDS, parse_command
 from ..messages import MarkerFrame, MarkerLayout, NodeCommand, NodeStatus
 from ..messages import SkeletonModel
-from ..adapters.model_messages import jsonable, model_to_message, quality_report
+from ..adapters.calibration_report import (base_pose_failure, gym_detail, model_report, stalled_search,
+                                        status_message)
+from ..adapters.layout_binding import BindError, StreamBinding
+from ..adapters.model_store import model_message, save_problem
 
 IDLE = "idle"
 FINDING = "finding_base_pose"
@@ -86,27 +87,16 @@ class CalibrationNode(Node):
         super().__init__(name, params, wiring)
         # State lives from construction: the latched layout may arrive before on_start.
         self.state, self.detail, self.progress, self.data = IDLE, "", float("nan"), {}
-        self.definition: SkeletonDefinition | None = None
-        self._layout_error = ""
-        self.where: np.ndarray | None = None      # layout marker -> stream index
-        self.stream: MarkerLayout | None = None
+        self.binding = StreamBinding(self.layout, hold=EARLY_FRAMES)
         self.model: ActorModel | None = None
         self._auto_running = False
-        self._early: deque = deque(maxlen=EARLY_FRAMES)
         self._reset_capture()
-        if self.layout:
-            try:
-                self.definition = SkeletonDefinition.from_layout_file(self.layout)
-            except LayoutError as exc:
-                self._layout_error = str(exc)
 
     def on_start(self) -> None:
-        if self._layout_error:
-            self._error(self._layout_error)
+        if self.binding.error:
+            self._error(self.binding.error)
         elif self.state != ERROR:
-            loaded = False
-            if self.model_file and Path(self.model_file).exists():
-                loaded = self._load(self.model_file)
+            loaded = bool(self.model_file) and Path(self.model_file).exists() and self._load(self.model_file)
             if not loaded and self.auto and self.state != ERROR:
                 self._auto_running = True
                 self._begin_find()
@@ -114,25 +104,17 @@ class CalibrationNode(Node):
         self.add_timer(1.0 / self.status_rate_hz, self._publish_status)
 
     def _reset_capture(self) -> None:
-        self.base: np.ndarray | None = None
-        self.base_frame = -1
-        self.finder = BasePoseFinder(self.base_pose_timeout_s)
-        self.sampler = GymSampler(self.gym_seconds, self.gym_rate_hz)
-        self._t_first: float | None = None
+        self.capture = CaptureSession(self.base_pose_timeout_s, self.gym_seconds, self.gym_rate_hz)
         self._wall0 = time.monotonic()
-        self._frames_used = 0
 
     # ----- status -------------------------------------------------------------------------------
     def _publish_status(self) -> None:
-        if self.state == FINDING and self._frames_used == 0 \
+        if self.state == FINDING and self.capture.frames_used == 0 \
                 and time.monotonic() - self._wall0 > self.base_pose_timeout_s:
-            why = ("no marker_layout received" if self.stream is None else
-                   "no marker frames received")
-            self._error(f"no base pose: {why} within {self.base_pose_timeout_s:g} s")
+            self._error(stalled_search(self.binding.stream is not None, self.base_pose_timeout_s))
             return
-        self.calibration_status.publish(NodeStatus(
-            node=self.name, state=self.state, detail=self.detail, progress=self.progress,
-            data_json=json.dumps(jsonable(self.data))))
+        self.calibration_status.publish(status_message(self.name, self.state, self.detail,
+                                                       self.progress, self.data))
 
     def _set(self, state: str, detail: str = "", progress: float = float("nan"),
              data: dict[str, Any] | None = None) -> None:
@@ -153,41 +135,26 @@ class CalibrationNode(Node):
 
     # ----- layout -------------------------------------------------------------------------------
     def on_marker_layout(self, msg: MarkerLayout) -> None:
-        self.stream = msg
+        self.binding.stream = msg
         if self._bind():
-            early, self._early = list(self._early), deque(maxlen=EARLY_FRAMES)
-            for frame, ns in early:
+            for frame, ns in self.binding.release():
                 if self.state in (FINDING, CAPTURING):
                     self._take(frame, ns)
-        if self.model is not None and self.definition is not None and self.where is not None:
+        if self.model is not None:
             try:
-                self.model.check_layout(self.definition.name, self.definition.marker_labels,
-                                        source=self.model_file or "model")
+                self.binding.check(self.model, self.model_file or "model")
             except ModelFileError as exc:
                 self._error(str(exc))
 
     def _bind(self) -> bool:
         """Place the layout's markers in the stream; False (with an error state) if impossible."""
-        if self.stream is None or self._layout_error:
+        if self.binding.stream is None or self.binding.error:
             return False
-        if self.definition is None:
-            if not self.stream.name:
-                self._error("no `layout` param and the marker stream names no layout")
-                return False
-            try:
-                self.definition = SkeletonDefinition.from_layout_file(layout_path(self.stream.name))
-            except LayoutError as exc:
-                self._error(f"layout '{self.stream.name}' of the marker stream: {exc}")
-                return False
-        where, _ = place_labels(self.definition.marker_labels, list(self.stream.labels))
-        missing = missing_labels(self.definition.marker_labels, where)
-        if missing:
-            self.where = None
-            self._error(f"layout '{self.definition.name}' names markers the marker stream "
-                        f"('{self.stream.name or self.stream.source}') lacks: {', '.join(missing)}",
-                        {"missing_markers": missing})
+        try:
+            self.binding.bind()
+        except BindError as exc:
+            self._error(str(exc), exc.data)
             return False
-        self.where = where
         return True
 
     # ----- frames -------------------------------------------------------------------------------
@@ -195,142 +162,87 @@ class CalibrationNode(Node):
         if self.state not in (FINDING, CAPTURING):
             return
         ns = self.markers.envelope.capture_ns
-        if self.where is None:
-            # The latched layout travels on its own socket and may land just after the first
-            # frames: hold a few, so that frame 0 can still be the base pose.
-            if self.stream is None:
-                self._early.append((frame, ns))
+        if self.binding.where is None:
+            if self.binding.stream is None:  # its latched layout is on its way: hold the frame
+                self.binding.early.append((frame, ns))
             return
         self._take(frame, ns)
 
     def _take(self, frame: MarkerFrame, ns: int) -> None:
-        pos = frame.positions
-        if pos.shape[0] != len(self.stream.labels):
+        picked = self.binding.pick(frame)
+        if picked is None:
             return  # a frame that does not fit the layout is never a base pose or a gym sample
-        x = pos[self.where]
-        ok = np.isfinite(x).all(1)
-        if frame.valid.shape == (pos.shape[0],):
-            ok &= frame.valid[self.where]
-        x[~ok] = np.nan
-        if self._t_first is None:
-            self._t_first, self._ns0 = 0.0, ns
-        t = (ns - self._ns0) * 1e-9
-        self._frames_used += 1
-        if self.state == FINDING:
-            self._find_step(x, ok, t, frame.frame_number)
-        else:
-            self._gym_step(x, t, frame.rate_hz)
-
-    @property
-    def gym(self) -> list[np.ndarray]:
-        """The gym frames kept so far (layout order, metres, NaN unseen)."""
-        return self.sampler.frames
-
-    def _find_step(self, x: np.ndarray, ok: np.ndarray, t: float, frame_number: int) -> None:
-        found = self.finder.step(ok, t - self._t_first)
+        x, ok = picked
+        cap = self.capture
+        if self.state == CAPTURING:
+            if cap.sample(x, ns):
+                self._finish_capture()
+                return
+            self.progress, self.data = cap.sampler.progress, cap.gym_data(frame.rate_hz)
+            return
+        found = cap.search(x, ok, ns, frame.frame_number)
         if found == FOUND:
-            self.base, self.base_frame = x, frame_number
-            self._set(BASE_FOUND, f"base pose at frame {frame_number}",
-                      data={"base_frame": frame_number, "markers": len(ok)})
+            self._set(BASE_FOUND, f"base pose at frame {cap.base_frame}",
+                      data={"base_frame": cap.base_frame, "markers": len(ok)})
             if self._auto_running:
                 self._begin_capture(self.gym_seconds, self.gym_rate_hz)
         elif found == TIMED_OUT:
-            labels = self.definition.marker_labels
-            never = [labels[m] for m in np.flatnonzero(self.finder.never_seen)]
-            worst = [labels[m] for m in np.flatnonzero(self.finder.best_missing)]
-            span = f"{self.base_pose_timeout_s:g} s of capture"
-            if never:
-                self._error(f"no base pose in {span}: markers never visible: {', '.join(never)}",
-                            {"never_visible": never})
-            else:
-                self._error(f"no base pose in {span}: no frame shows all markers at once "
-                            f"(the best lacks {', '.join(worst)})", {"best_frame_missing": worst})
+            self._error(*base_pose_failure(cap.finder, self.binding.definition.marker_labels))
         else:
-            self.progress = self.finder.progress
-
-    def _gym_step(self, x: np.ndarray, t: float, stream_rate: float) -> None:
-        if self.sampler.step(x, t - self._t_first):
-            self._finish_capture()
-            return
-        self.progress = self.sampler.progress
-        self.data = {"frames": len(self.gym), "seconds": self.sampler.seconds,
-                     "rate_hz": self.sampler.rate_hz or stream_rate}
+            self.progress = cap.finder.progress
 
     # ----- steps --------------------------------------------------------------------------------
     def _begin_find(self) -> None:
         self._reset_capture()
-        if self.stream is not None and self.where is None and not self._bind():
+        if self.binding.stream is not None and self.binding.where is None and not self._bind():
             return
         self._set(FINDING, "waiting for a frame with every marker visible", 0.0)
 
     def _begin_capture(self, seconds: float, rate_hz: float) -> None:
-        self.sampler = GymSampler(seconds, rate_hz)
-        self._t_first = None
-        self._set(CAPTURING, f"capturing {seconds:g} s of gym at "
-                             f"{rate_hz:g} frames/s" if rate_hz else f"capturing {seconds:g} s of gym", 0.0,
-                  {"frames": 0, "seconds": seconds, "rate_hz": rate_hz})
+        self.capture.start_gym(seconds, rate_hz)
+        self._set(CAPTURING, gym_detail(seconds, rate_hz), 0.0, self.capture.gym_data())
 
     def _finish_capture(self) -> None:
-        seconds, rate = self.sampler.seconds, self.sampler.rate_hz
-        self._set(CAPTURED, f"{len(self.gym)} gym frames over {seconds:g} s", 1.0,
-                  {"frames": len(self.gym), "seconds": seconds, "rate_hz": rate})
+        data = self.capture.gym_data()
+        self._set(CAPTURED, f"{data['frames']} gym frames over {data['seconds']:g} s", 1.0, data)
         if self._auto_running:
             self._begin_process()
 
     def _begin_process(self) -> None:
-        self._set(PROCESSING, f"calibrating from base pose + {len(self.gym)} gym frames")
+        self._set(PROCESSING, f"calibrating from base pose + {len(self.capture.gym)} gym frames")
         # Run on the next loop turn: the "processing" status leaves before the work blocks.
         self.call_later(0.0, self._process)
 
     def _process(self) -> None:
         self._auto_running = False
-        frames = np.concatenate([self.base[None], np.asarray(self.gym)]) if self.gym else self.base[None]
-        rate = self.sampler.rate_hz or None
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", CalibrationWarning)
-            try:
-                subject = read_vsk(self.subject_file) if self.subject_file else None
-                model = calibrate(self.definition, frames, base_frame=0, rate_hz=rate,
-                                  min_rom_deg=self.min_rom_deg, source="gym capture", subject=subject,
-                                  centre_order=tuple(m.strip() for m in self.centres.split(",") if m.strip()))
-            except (CalibrationError, SubjectError) as exc:
-                self._error(str(exc))
-                return
+        try:
+            subject = read_vsk(self.subject_file) if self.subject_file else None
+            model, warns = self.capture.process(
+                self.binding.definition, min_rom_deg=self.min_rom_deg, subject=subject,
+                centre_order=tuple(m.strip() for m in self.centres.split(",") if m.strip()))
+        except (CalibrationError, SubjectError) as exc:
+            self._error(str(exc))
+            return
         # The published model is the file form (rounded as saved), so a later run that loads the
         # file interprets the session exactly as this one does.
-        model = ActorModel.from_dict(json.loads(json.dumps(model.to_dict())), source="calibration")
-        saved = ""
-        if self.model_file:
-            try:
-                save_model(model, self.model_file)
-                saved = self.model_file
-            except OSError as exc:
-                self.log.error("cannot save the model to %s: %s", self.model_file, exc)
-        self._publish_model(model, "calibration", saved,
-                            [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)])
+        model = as_saved(model)
+        problem = save_problem(model, self.model_file) if self.model_file else ""
+        if problem:
+            self.log.error("model not saved: %s", problem)
+        saved = "" if problem else self.model_file
+        self._publish_model(model, "calibration", saved, warns)
 
     def _publish_model(self, model: ActorModel, origin: str, path: str, warns: list[str]) -> None:
         self.model = model
-        ml = self.definition.marker_limb if (self.definition is not None
-                                             and self.definition.name == model.layout) else None
-        self.skeleton_model.publish(model_to_message(model, ml))
-        report = quality_report(model, self.min_rom_deg)
-        report.update(origin=origin, model_file=path, base_frame=self.base_frame)
-        weak = [j["joint"] for j in report["joints"] if not j["reliable"]]
-        detail = f"{origin}: {len(model.joint_names)} joints" + (f", saved to {path}" if path and
-                                                                  origin == "calibration" else "")
-        if weak:
-            detail += f"; unreliable (too little motion): {', '.join(weak)}"
+        self.skeleton_model.publish(model_message(model, self.binding.definition))
+        detail, report = model_report(model, self.min_rom_deg, origin, path, self.capture.base_frame)
         for w in warns:
             self.log.warning("%s", w)
         self._set(CALIBRATED, detail, 1.0, report)
 
     def _load(self, path: str) -> bool:
         try:
-            if self.definition is not None:
-                model = load_model(path, self.definition)
-            else:
-                model = load_model(path)
+            model = load_model(path, self.binding.definition)
         except ModelFileError as exc:
             self._error(str(exc))
             return False
@@ -342,38 +254,28 @@ class CalibrationNode(Node):
         if cmd.target not in ("", self.name):
             return
         try:
-            args = json.loads(cmd.args_json or "{}")
-            if not isinstance(args, dict):
-                raise ValueError("not a JSON object")
+            args = parse_command(cmd.command, cmd.args_json, CALIBRATION_COMMANDS)
         except ValueError as exc:
-            self._note(f"command {cmd.command!r}: bad args_json ({exc})")
-            return
-        handler = self._HANDLERS.get(cmd.command)
-        if handler is None:
-            self._note(f"unknown command {cmd.command!r} (expected one of {', '.join(CALIBRATION_COMMANDS)})")
+            self._note(str(exc))
             return
         self._auto_running = False
-        handler(self, args)
+        self._HANDLERS[cmd.command](self, args)
 
     def _cmd_find_base_pose(self, args: dict[str, Any]) -> None:
         self._begin_find()
 
     def _cmd_capture_gym(self, args: dict[str, Any]) -> None:
-        if self.base is None:
+        if self.capture.base is None:
             self._note("capture_gym: no base pose yet (send find_base_pose first)")
             return
         try:
-            seconds = float(args.get("seconds", self.gym_seconds))
-            rate = float(args.get("rate_hz", self.gym_rate_hz))
-            if not (seconds > 0 and rate >= 0):
-                raise ValueError
-        except (TypeError, ValueError):
-            self._note(f"capture_gym: seconds must be > 0 and rate_hz >= 0, got {args}")
-            return
-        self._begin_capture(seconds, rate)
+            self._begin_capture(*GymSampler.checked(args.get("seconds", self.gym_seconds),
+                                                    args.get("rate_hz", self.gym_rate_hz)))
+        except ValueError as exc:
+            self._note(f"capture_gym: {exc}")
 
     def _cmd_process(self, args: dict[str, Any]) -> None:
-        if self.base is None or self.state in (FINDING, CAPTURING, PROCESSING):
+        if self.capture.base is None or self.state in (FINDING, CAPTURING, PROCESSING):
             self._note(f"process: nothing captured to process (state {self.state})")
             return
         self._begin_process()
@@ -387,13 +289,10 @@ class CalibrationNode(Node):
         if self.model is None or not path:
             self._note("save: " + ("no model yet" if self.model is None else "no path given"))
             return
-        try:
-            save_model(self.model, path)
-        except OSError as exc:
-            self._note(f"save: cannot write {path}: {exc.strerror or exc}")
-            return
-        self.data["model_file"] = path
-        self._note(f"saved to {path}", problem=False)
+        problem = save_problem(self.model, path)
+        if not problem:
+            self.data["model_file"] = path
+        self._note(f"save: {problem}" if problem else f"saved to {path}", problem=bool(problem))
 
     def _cmd_load(self, args: dict[str, Any]) -> None:
         path = str(args.get("path") or self.model_file)

@@ -5,6 +5,8 @@ transform, the device clock, counters, and waking the node's loop when the devic
   raise: garbage is skipped and counted (``rejected_bytes``, ``rejected_frames``, ``crc_errors``).
   The counts appear in the node's Diagnostics as an incoming device edge, in ``reader_status``
   and in the log (rate-limited).
+- Axes: the device file's ``to_world``, or the ``up_axis`` param where the file sets no up axis
+  (:meth:`~mocapgraph.formats.device_file.DeviceConfig.with_up_axis`).
 - Channel labels come from the device file's ``channels``; without them the channels are the
   layout's markers in layout order (the counts must agree), or ``M0..`` with ``layout: ""``.
   A frame with another marker count is rejected and counted.
@@ -25,7 +27,7 @@ import zmq
 from ..bus import Param
 from ..formats.wire_protocol import WireFrame, make_decoder
 from ..formats.device_file import DeviceConfig, device_or_default
-from .marker_source import LayoutMap, MarkerSourceNode
+from .marker_source import LayoutMap, MarkerSourceNode, device_up_axis
 from .source_base import INPUT_ERRORS
 
 RESYNC_S = 0.5
@@ -39,6 +41,7 @@ class WireDeviceSource(MarkerSourceNode):
                        "device-to-world transform, nominal rate; '' = device frame is the world frame")
     rate_hz = Param(0.0, "nominal frame rate written into MarkerFrames, Hz; 0 = the device file's, "
                          "else measured from the device time stamps", minimum=0.0)
+    up_axis = device_up_axis()
 
     endpoint = ""
 
@@ -51,7 +54,7 @@ class WireDeviceSource(MarkerSourceNode):
         self.decoder = make_decoder(self.wire_protocol())
         self.config_error = ""
         try:
-            self.dev: DeviceConfig = device_or_default(self.device)
+            self.dev: DeviceConfig = device_or_default(self.device, self.up_axis)
         except INPUT_ERRORS as exc:
             self.config_error = str(exc)
             self.dev = DeviceConfig()

@@ -12,7 +12,7 @@ from pylsl.util import InternalError, LostError, TimeoutError as LSLTimeoutError
 
 from ..bus import Param
 from ..formats.device_file import DeviceConfig, device_or_default
-from .marker_source import LayoutMap, MarkerSourceNode
+from .marker_source import LayoutMap, MarkerSourceNode, device_up_axis
 from .source_base import INPUT_ERRORS, SourceError
 
 AXIS_SUFFIXES = ("_x", "_y", "_z", ".x", ".y", ".z", " x", " y", " z", "x", "y", "z")
@@ -57,6 +57,7 @@ class LSLReader(MarkerSourceNode):
     count does not fit (not 3 per marker) is refused with a one-line error, counted, and skipped
     while the node keeps looking for a stream that fits. Capture stamps are the LSL time stamps
     (clock-synchronised to this host) mapped to our clock. A lost stream is looked for again.
+    Axes: the device file's ``to_world``, or ``up_axis`` where the file sets no up axis.
     """
 
     summary = "LabStreamingLayer marker stream (resolve by name/type, channels -> markers, LSL stamps)"
@@ -66,6 +67,7 @@ class LSLReader(MarkerSourceNode):
                        "device-to-world transform; '' = labels from the stream, metres, world frame")
     units = Param("", "units of the stream's coordinates: m, cm, mm, in; '' = the device file's (default m)",
                   choices=("", "m", "cm", "mm", "in"))
+    up_axis = device_up_axis()
     poll_s = Param(0.002, "how often to pull samples from the inlet, s", minimum=0.0005)
     resolve_s = Param(0.25, "how often to look for the stream while none fits, s", minimum=0.05)
 
@@ -73,7 +75,7 @@ class LSLReader(MarkerSourceNode):
         super().__init__(name, params, wiring)
         self.config_error = ""
         try:
-            self.dev: DeviceConfig = device_or_default(self.device)
+            self.dev: DeviceConfig = device_or_default(self.device, self.up_axis)
         except INPUT_ERRORS as exc:
             self.config_error = str(exc)
             self.dev = DeviceConfig()

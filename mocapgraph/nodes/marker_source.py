@@ -145,6 +145,14 @@ class MarkerSourceNode(SourceNode):
 UP_AXIS_CHOICES = ("auto", "") + tuple(f"{s}{a}" for a in "XYZxyz" for s in ("", "+", "-"))
 
 
+def device_up_axis() -> Param:
+    """The ``up_axis`` param of a device reader (serial, UDP, LSL): see formats/device_file.py."""
+    return Param("auto", "the device axis that points up, made world Z: 'auto' = the device file's "
+                         "to_world (none: the device frame is the world); or x, y, z with an optional "
+                         "sign, where the device file sets no to_world.up (both set and different: "
+                         "refused)", choices=UP_AXIS_CHOICES)
+
+
 class MarkerFilePlayer(FilePlayback, MarkerSourceNode):
     """Replays a MarkerTrial (C3D, TRC) in real time or faster; subclasses only read the file."""
 

@@ -28,7 +28,7 @@ import numpy as np
 from ..bus import Input, Node, Output, Param
 from ..kinematics.character import Character, CharacterError, standard_20
 from ..messages import CharacterInfo, CharacterPose, NodeCommand, NodeStatus, PhysicsScene, PhysicsState
-from ..messages.commands import PHYSICS_COMMANDS
+from ..messages.commands import PHYSICS_COMMANDS, parse_command
 from ..physics.controller import Gains
 from ..physics.posture_db import PostureDB, PostureDBError
 from ..physics.stage import EMPTY_STAGE, StageError, load_stage, shifted
@@ -253,15 +253,11 @@ class PhysicsTrackerNode(Node):
             return
         w = self.world
         try:
-            args = json.loads(cmd.args_json or "{}")
-            if not isinstance(args, dict):
-                raise ValueError("args are not a JSON object")
+            args = parse_command(cmd.command, cmd.args_json, PHYSICS_COMMANDS)
             k = int(args.get("character", 0))
             if not 0 <= k < len(self.order):
                 raise ValueError(f"character {k}: the world has {len(self.order)}")
             c = cmd.command
-            if c not in PHYSICS_COMMANDS:
-                raise ValueError(f"unknown command (known: {', '.join(PHYSICS_COMMANDS)})")
             if c == "push":
                 w.push(k, args.get("joint", "ShoulderCenter"), np.asarray(args["force"], float),
                        float(args.get("duration_s", 0.1)))

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..bus import Input, Interface, Node, Output, Param
+from ..messages.commands import CALIBRATION_COMMANDS, PLAYER_COMMANDS, parse_command
 from ..messages import (QUALITY_ESTIMATED, QUALITY_GOOD, QUALITY_MISSING, TRACK_INFERRED, TRACK_TRACKED,
                          ActorPose, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, Message, NodeCommand,
                          NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose, array)
@@ -248,7 +249,13 @@ class CommandEcho(Node):
     def on_command(self, cmd: NodeCommand) -> None:
         if cmd.target not in ("", self.name):
             return
-        args = json.loads(cmd.args_json or "{}")
+        try:
+            args = parse_command(cmd.command, cmd.args_json, CALIBRATION_COMMANDS if self.role == "calibration"
+                                 else PLAYER_COMMANDS)
+        except ValueError as exc:  # reported like the real nodes do, never a traceback
+            self.detail = str(exc)
+            self.report()
+            return
         if self.role == "calibration":
             allowed, nxt = CALIBRATION_STEPS.get(cmd.command, ((), ""))
             if self.state not in allowed:

@@ -1,8 +1,8 @@
 """The web viewer behind the `visualizer` node: wire format, server and the page's assets.
 
 The page (index.html, viewer.css, js/*.js) is package data served by `server.ViewerServer`;
-nothing is fetched from the internet. `testing_nodes` holds small real nodes used by the
-viewer's tests, benchmark and example graphs.
+nothing is fetched from the internet. The small real nodes that feed it in tests, the
+benchmark and example graphs live in :mod:`mocapgraph.testing.viewer_nodes`.
 """
 from pathlib import Path
 
