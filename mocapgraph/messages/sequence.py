@@ -10,14 +10,17 @@ DUPLICATE = -1
 RESTART = -2
 
 
-def sequence_gap(last: int, seq: int) -> int:
+def sequence_gap(last: int, seq: int, same_stamp: bool = True) -> int:
     """Messages lost between ``last`` (0: none seen yet) and ``seq``; or DUPLICATE, or RESTART.
 
     Joining a running stream (first number > 1) is no loss: those messages were never ours.
+    ``same_stamp``: whether the message carries the publish stamp of the last one. A resend is the
+    same bytes; a restarted sender's latched value repeats the number (1) with a new stamp, and is
+    a RESTART to deliver, not a duplicate to drop.
     """
-    if seq == last or (0 < seq < last and seq != 1):
+    if (seq == last and same_stamp) or (0 < seq < last and seq != 1):
         return DUPLICATE
-    if seq < last:
+    if seq <= last:
         return RESTART
     if last and seq > last + 1:
         return seq - last - 1
