@@ -8,6 +8,7 @@ together as "unexpected", so junk with a fresh sender name per frame costs no me
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Iterable
 
@@ -19,6 +20,8 @@ WINDOW = 512
 #: in the wiring's sender list: senders not named are allowed too (up to MAX_FREE_EDGES of them)
 ANY_SENDER = "*"
 MAX_FREE_EDGES = 8
+# The launcher prefixes each line with the receiving node's name.
+log = logging.getLogger("mocapgraph.bus")
 
 
 @dataclass
@@ -28,6 +31,7 @@ class EdgeStats:
     topic: str
     sender: str
     last_seq: int = 0
+    last_publish_ns: int = 0
     received: int = 0
     gaps: int = 0
     duplicates: int = 0
@@ -42,17 +46,20 @@ class EdgeStats:
 
     def accept(self, seq: int, publish_ns: int, now_ns: int) -> bool:
         """Record one arrival; False when it is a duplicate (a latched resend) to be dropped."""
-        lost = sequence_gap(self.last_seq, seq)
+        lost = sequence_gap(self.last_seq, seq, publish_ns == self.last_publish_ns)
         if lost == DUPLICATE:
             self.duplicates += 1
             return False
         if lost == RESTART:
             self.restarts += 1
+            log.info("%s from %s: the sender restarted (sequence %d after %d): a new stream, not loss",
+                     self.topic, self.sender, seq, self.last_seq)
         elif lost == ANOMALY:
             self.anomalies += 1
         else:
             self.gaps += lost
         self.last_seq = seq
+        self.last_publish_ns = publish_ns
         self.received += 1
         i = self._n % WINDOW
         self._pub[i] = publish_ns

@@ -115,7 +115,7 @@ class Supervisor:
             wiring = plan[rn.name]
             wf = self.run_dir / f"{rn.name}.json"
             wf.write_text(json.dumps({"class": rn.class_path, "params": rn.params, "wiring": wiring.__dict__}))
-            self.children[rn.name] = Child(rn, wiring, wf)
+            self.children[rn.name] = Child(rn, wiring, wf, backoff_s=rn.spec.respawn_delay)
 
     def manifest(self) -> Manifest:
         """Nodes, topics, types and endpoints of the running graph."""

@@ -21,14 +21,17 @@ MAX_GAP = 1 << 24
 DUPLICATE_WINDOW = 4096
 
 
-def sequence_gap(last: int, seq: int) -> int:
+def sequence_gap(last: int, seq: int, same_stamp: bool = True) -> int:
     """Messages lost between ``last`` (0: none seen yet) and ``seq``; or DUPLICATE, RESTART, ANOMALY.
 
     Joining a running stream (first number > 1) is no loss: those messages were never ours.
-    RESTART and ANOMALY both mean: take ``seq`` as the new last number.
+    ``same_stamp``: whether the message carries the publish stamp of the last one. A resend is the
+    same bytes; a restarted sender's latched value repeats the number (1) with a new stamp, and is
+    a RESTART to deliver, not a duplicate to drop. RESTART and ANOMALY both mean: take ``seq`` as
+    the new last number.
     """
     if seq == last:
-        return DUPLICATE
+        return DUPLICATE if same_stamp else RESTART
     if seq < last:
         if seq == 1:
             return RESTART

@@ -56,8 +56,28 @@ nodes:
                    what="the calibration node to find the base pose")
         page.wait('s.calibration === "base_pose_found"')
         page.page.click('[data-calib="capture_gym"]')
-        wait_until(lambda: any(m.state in ("capturing_gym", "gym_captured") for _, m in tap.of("calibration_status")),
-                   what="the calibration node to capture")
+        wait_until(lambda: any(m.state == "gym_captured" for _, m in tap.of("calibration_status")),
+                   what="the calibration node to capture", timeout=30)
+        page.wait('s.calibration === "gym_captured"')
+        page.page.click('[data-calib="process"]')
+        status = wait_until(lambda: [m for _, m in tap.of("calibration_status") if m.state == "calibrated"],
+                            what="the calibration node to calibrate", timeout=60)[-1]
+        page.wait('s.calibration === "calibrated"')
+        # The table shows the node's own report, joint by joint: its reliability and residual.
+        report = {j["joint"]: j for j in json.loads(status.data_json)["joints"]}
+        print({n: (j["reliable"], j["residual_mm"], j["rom_deg"]) for n, j in report.items()})
+        unreliable = sorted(n for n, j in report.items() if not j["reliable"])
+        assert 0 < len(unreliable) < len(report)  # both kinds on show (the gym second moves some joints little)
+        rows = wait_until(lambda: (r := page.page.evaluate("""() => [...document.querySelectorAll('#joint-table tr')]
+                                   .slice(1).map((tr) => [tr.cells[0].textContent, tr.cells[2].textContent,
+                                   tr.querySelector('.qdot').dataset.reliable])""")) and len(r) == len(report) and r,
+                          what="the joint table")
+        for name, residual, reliable in rows:
+            assert reliable == str(report[name]["reliable"]).lower(), (name, report[name])
+            assert residual == f"{report[name]['residual_mm']:.1f}", (name, report[name])
+        shown = sorted(n for n, _, rel in rows if rel == "false")
+        assert shown == unreliable
+        assert page.page.locator('#joint-table .qdot[title="unreliable"]').count() == len(unreliable)
 
         page.wait('s.player === "paused"')
         page.page.click('[data-player="play"]')
