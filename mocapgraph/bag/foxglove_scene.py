@@ -188,6 +188,7 @@ def diagnostics_json(msg: Diagnostics) -> dict[str, Any]:
             "rate_hz": per_edge(msg.edge_rate_hz), "latency_ms": per_edge(msg.edge_latency_ms),
             "latency_max_ms": per_edge(msg.edge_latency_max_ms), "received": per_edge(msg.edge_received),
             "gaps": per_edge(msg.edge_gaps), "rejected": per_edge(msg.edge_rejected),
+            "anomalies": per_edge(msg.edge_anomalies) if msg.edge_anomalies is not None else {},
             "sent": {t.replace(".", "_"): int(n) for t, n in zip(msg.output_topics, msg.output_sent.tolist())}}
 
 
@@ -197,7 +198,8 @@ DIAGNOSTICS_JSON_SCHEMA = {
     "properties": {"node": {"type": "string"}, "pid": {"type": "integer"}, "uptime_s": {"type": "number"},
                    "cpu_s": {"type": "number"},
                    **{k: {"type": "object", "additionalProperties": {"type": ["number", "null"]}}
-                      for k in ("rate_hz", "latency_ms", "latency_max_ms", "received", "gaps", "rejected", "sent")}},
+                      for k in ("rate_hz", "latency_ms", "latency_max_ms", "received", "gaps", "rejected", "anomalies",
+                                "sent")}},
 }
 
 

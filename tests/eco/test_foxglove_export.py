@@ -120,7 +120,7 @@ def test_characters_physics_and_diagnostics_from_constructed_messages(tmp_path, 
                                            edge_senders=["reader"], edge_rate_hz=np.array([240.0]),
                                            edge_latency_ms=np.array([0.4]), edge_latency_max_ms=np.array([2.0]),
                                            edge_received=np.array([240]), edge_gaps=np.array([0]),
-                                           edge_rejected=np.array([0]), output_topics=[], output_sent=np.zeros(0, int)),
+                                           edge_rejected=np.array([0]), edge_anomalies=np.array([1]), output_topics=[], output_sent=np.zeros(0, int)),
                 seq=1, capture_ns=2 * 10**9)
     r = _cli("bag", "export-foxglove", src, "-o", tmp_path / "out.mcap")
     assert r.returncode == 0, r.stderr
@@ -140,6 +140,7 @@ def test_characters_physics_and_diagnostics_from_constructed_messages(tmp_path, 
     assert len(e.cylinders) == 1 and len(e.cubes) == 1 and len(e.spheres) == 2
     ((_, schema, diag),) = got["/diagnostics/solver"]
     assert schema == "mocapgraph.DiagnosticsPlot" and diag["rate_hz"]["markers"] == 240.0
+    assert diag["anomalies"]["markers"] == 1
 
 
 def test_bad_input_is_one_line(tmp_path, capture, _cli):

@@ -112,7 +112,7 @@ def test_diagnostics_become_plot_friendly_json():
     d = Diagnostics(node="solver", pid=1, uptime_s=2.0, cpu_s=0.5, edge_topics=["markers"], edge_senders=["r"],
                     edge_rate_hz=np.array([239.5]), edge_latency_ms=np.array([np.nan]),
                     edge_latency_max_ms=np.array([1.0]), edge_received=np.array([100]), edge_gaps=np.array([0]),
-                    edge_rejected=np.array([0]), output_topics=["actor_pose"], output_sent=np.array([99]))
+                    edge_rejected=np.array([0]), edge_anomalies=np.array([0]), output_topics=["actor_pose"], output_sent=np.array([99]))
     (out,) = SceneBuilder().feed(env("diagnostics", "Diagnostics"), d)
     assert out.topic == "/diagnostics/solver" and out.encoding == "json"
     rec = json.loads(out.data)

@@ -13,6 +13,8 @@ import sys
 import termios
 from pathlib import Path
 
+from mocapgraph.bag.reader import BagReader
+from mocapgraph.bag.writer import BagWriter
 from mocapgraph.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -49,8 +51,13 @@ def _run(args: list[str], tty: bool, cwd: Path, module: bool = True) -> tuple[in
 
 
 def _commands(c, tmp: Path) -> dict[str, list[str]]:
+    # a recorder's bag closes a chunk every flush; cut one mid-way, so whole chunks remain to recover
+    chunked = tmp / "chunked.mcap"
+    with BagReader(c.rom_bag) as src, BagWriter(chunked, chunk_kb=16) as dst:
+        for m in src.messages():
+            dst.write_frames(m.frames(), log_ns=m.log_ns)
     trunc = tmp / "cut.mcap"
-    data = c.rom_bag.read_bytes()
+    data = chunked.read_bytes()
     trunc.write_bytes(data[: int(len(data) * 0.7)])
     cmds = {
         "calibrating": ["calibrate", str(c.rom), "--layout", "kiip_full_body", "-o", str(tmp / "m.json")],
