@@ -209,7 +209,7 @@ class Retargeter:
                 a = src.rest_points[src.point(endsrc.position)] - src.rest_points[src.point(piv_src)]
                 ratio = np.linalg.norm(cpos[endpt] - cpos[chain[0]]) / max(np.linalg.norm(a), 1e-9)
             self._chains.append(dict(
-                start=start, end=end, joints=np.array(chain), frac=frac, endpt=endpt,
+                start=start, end=end, ends=np.array([start, end]), joints=np.array(chain), frac=frac, endpt=endpt,
                 # joints whose bones lie between the pivot and the end point (chain + end if needed)
                 path=np.array(chain + ([end] if endpt != end else [])),
                 pivot_src=src.point(piv_src) if piv_src else -1,
@@ -403,8 +403,8 @@ class Retargeter:
             jq[:, fj] = np.minimum(jq[:, fj], np.minimum(pq[:, self._follow_a], pq[:, self._follow_b]))
         # 2. spread chains
         for c in self._chains:
-            qs = matrix_to_quat(delta[:, c["start"]])
-            qe = matrix_to_quat(delta[:, c["end"]])
+            qse = matrix_to_quat(delta[:, c["ends"]])            # start and end in one call
+            qs, qe = qse[:, 0], qse[:, 1]
             rel = quat_multiply(quat_conjugate(qs), qe)
             qi = quat_multiply(qs[:, None], quat_power(rel[:, None], c["frac"][None, :]))
             delta[:, c["joints"]] = quat_to_matrix(qi)
