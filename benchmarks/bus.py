@@ -7,9 +7,14 @@ Prints:
   (targets: p50 <= 1.3x, p99 <= 1.5x);
 - 1 kHz from one publisher to 4 subscribers for --fanout-s seconds: sequence gaps (target 0);
 - a 100k-message burst into a 1000-deep queue: reported gaps against actual loss (must be equal);
-- time for a 7-node graph to be ready and to shut down (targets < 2 s each).
+- time for a 7-node graph to be ready and to shut down (targets < 2 s each);
+- one-way latency of the same frame at 240 Hz over ipc, plain tcp (loopback) and CurveZMQ tcp
+  (a graph with a security: section), with ratios to ipc measured in the same run;
+- with --soak-minutes N: 1 kHz to 4 subscribers for N minutes (CurveZMQ tcp), gaps and the memory
+  slope of every process (MB/min, from RSS sampled every 5 s).
 
-Usage: python benchmarks/bus.py [--count 3000] [--fanout-s 60] [--burst 100000]
+Usage: python benchmarks/bus.py [--count 3000] [--fanout-s 60] [--burst 100000] [--soak-minutes 10]
+       [--only latency|startup|burst|fanout|transport|soak]
 """
 from __future__ import annotations
 
@@ -39,12 +44,12 @@ PUB_OFFSET = HEADER.size - 8  # publish stamp is the header's last field
 
 
 def run_graph(yaml_text: str, tmp: Path, wait_for: str | None = None, run_s: float | None = None,
-              timeout: float = 600) -> str:
+              timeout: float = 600, master: str = "") -> str:
     """Launch a graph, wait for a line or a duration, stop it with SIGINT; returns its output."""
     path = tmp / f"g{time.monotonic_ns()}.yaml"
     path.write_text(yaml_text)
     env = dict(os.environ, PYTHONPATH=f"{HERE}:{os.environ.get('PYTHONPATH', '')}",
-               MOCAPGRAPH_MASTER=f"ipc://{tmp / ('m' + str(time.monotonic_ns()))}")
+               MOCAPGRAPH_MASTER=master or f"ipc://{tmp / ('m' + str(time.monotonic_ns()))}")
     proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(path)], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, env=env)
     lines: list[str] = []
@@ -66,17 +71,19 @@ def run_graph(yaml_text: str, tmp: Path, wait_for: str | None = None, run_s: flo
     return "\n".join(lines)
 
 
-def mocapgraph_latency(tmp: Path, rate_hz: float, count: int) -> np.ndarray:
+def mocapgraph_latency(tmp: Path, rate_hz: float, count: int, head: str = "", host: str = "",
+                       slack_s: float = 0.0) -> np.ndarray:
     out = tmp / f"lat{rate_hz}.npy"
-    run_graph(f"""
+    host_line = f"\n    host: {host}" if host else ""
+    run_graph(f"""{head}
 nodes:
   - name: sender
-    type: bus_nodes:BenchSender
+    type: bus_nodes:BenchSender{host_line}
     params: {{rate_hz: {rate_hz}, count: {count}}}
   - name: receiver
     type: bus_nodes:BenchReceiver
     params: {{echo: {str(rate_hz == 0).lower()}, out_file: "{out}"}}
-""", tmp, run_s=0.6 + count / (rate_hz or 4000) + 1.5)
+""", tmp, run_s=0.6 + count / (rate_hz or 4000) + 1.5 + slack_s)
     return np.load(out)[20:]  # drop warm-up
 
 
@@ -217,19 +224,115 @@ nodes:
           f"stopped in {stop:.2f} s (targets < 2 s)")
 
 
+def _keys(tmp: Path) -> str:
+    from mocapgraph.bus.curve import generate
+
+    if not (tmp / "keys" / "graph.key_secret").exists():
+        generate(tmp / "keys", "graph")
+    return f"security: {{key: {tmp / 'keys' / 'graph.key_secret'}, authorized: {tmp / 'keys'}}}"
+
+
+def transport_section(tmp: Path, count: int) -> None:
+    print("one-way latency by transport, 64-marker MarkerFrame at 240 Hz, mocapgraph nodes (us)")
+    curve = _keys(tmp)
+    modes = (("ipc", "", ""), ("tcp", "", "127.0.0.1"), ("curve tcp", curve, "127.0.0.1"))
+    got: dict[str, list[np.ndarray]] = {m: [] for m, _, _ in modes}
+    for _ in range(ROUNDS):  # interleaved, so load from elsewhere hits all alike
+        for label, head, host in modes:
+            # slack: on a loaded machine start-up alone can take seconds
+            got[label].append(mocapgraph_latency(tmp, 240.0, count // ROUNDS, head, host, slack_s=6.0))
+    ipc = np.concatenate(got["ipc"])
+    for label, _, _ in modes:
+        a = np.concatenate(got[label])
+        print(f"  {label:<10} p50 {pct(a, 50):8.1f}  p99 {pct(a, 99):8.1f}   x ipc: p50 {pct(a, 50) / pct(ipc, 50):5.2f}, "
+              f"p99 {pct(a, 99) / pct(ipc, 99):5.2f}   (n {len(a)})")
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next(int(x.split()[1]) / 1024 for x in f if x.startswith("VmRSS:"))
+    except (OSError, StopIteration):
+        return float("nan")
+
+
+def soak_section(tmp: Path, minutes: float) -> None:
+    """1 kHz to 4 subscribers over CurveZMQ tcp for ``minutes``: gaps and memory slope per process."""
+    import threading
+
+    from mocapgraph.launch.manifest import fetch_manifest
+
+    seconds = minutes * 60
+    count = int(seconds * 1000)
+    files = [tmp / f"soak{i}.npy" for i in range(4)]
+    receivers = "".join(f"""
+  - name: r{i}
+    type: bus_nodes:BenchReceiver
+    params: {{out_file: "{f}"}}""" for i, f in enumerate(files))
+    master = f"ipc://{tmp / 'soak-master'}"
+    samples: dict[str, list[tuple[float, float]]] = {}
+    done = threading.Event()
+
+    def sample() -> None:
+        pids: dict[str, int] = {}
+        t0 = time.monotonic()
+        while not done.wait(5.0):
+            if not pids:
+                try:
+                    pids = {n["name"]: n["pid"] for n in fetch_manifest(master, 1.0)["nodes"]}
+                except Exception:  # noqa: BLE001 - not up yet
+                    continue
+            for name, pid in pids.items():
+                samples.setdefault(name, []).append((time.monotonic() - t0, _rss_mb(pid)))
+
+    th = threading.Thread(target=sample, daemon=True)
+    th.start()
+    run_graph(f"""{_keys(tmp)}
+nodes:
+  - name: sender
+    type: bus_nodes:BenchSender
+    host: 127.0.0.1
+    params: {{rate_hz: 1000.0, count: {count}}}{receivers}
+""", tmp, run_s=seconds + 3.0, master=master)
+    done.set()
+    th.join()
+    results = [open(str(f) + ".counts").read().split() for f in files]
+    got = [int(r[0]) for r in results]
+    gaps = [int(r[1]) for r in results]
+    verdict = "no gaps" if sum(gaps) == 0 else "GAPS"
+    if max(got) < count:
+        verdict += f"; the sender reached only {max(got)} of {count} in time (CPU-starved machine)"
+    print(f"soak, CurveZMQ tcp, 1 kHz to 4 subscribers for {minutes:g} min: planned {count}, received {got}, "
+          f"gaps {gaps} ({verdict}); receivers keep every latency sample (a Python int each), so their RSS grows "
+          "by design")
+    for name, pts in sorted(samples.items()):
+        t, mb = np.array(pts).T
+        ok = np.isfinite(mb) & (t > t.max() / 2)  # the second half: what still grows is a leak
+        slope = np.polyfit(t[ok], mb[ok], 1)[0] * 60 if ok.sum() >= 3 else float("nan")
+        print(f"  {name:<7} RSS {np.nanmin(mb):6.1f} -> {mb[-1]:6.1f} MB, slope over the second half "
+              f"{slope:+.3f} MB/min")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--count", type=int, default=3000, help="latency samples per mode")
     ap.add_argument("--fanout-s", type=float, default=60.0)
     ap.add_argument("--burst", type=int, default=100_000)
+    ap.add_argument("--soak-minutes", type=float, default=0.0, help="also soak 1 kHz to 4 subscribers for N minutes")
+    ap.add_argument("--only", choices=["latency", "startup", "burst", "fanout", "transport", "soak"],
+                    help="run one section")
     a = ap.parse_args()
     print(f"machine: {os.cpu_count()} cores, pyzmq {zmq.pyzmq_version()}, libzmq {zmq.zmq_version()}")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        latency_section(tmp, a.count)
-        startup_section(tmp)
-        burst_section(tmp, a.burst)
-        fanout_section(tmp, a.fanout_s)
+        sections = {"latency": lambda: latency_section(tmp, a.count), "startup": lambda: startup_section(tmp),
+                    "burst": lambda: burst_section(tmp, a.burst), "fanout": lambda: fanout_section(tmp, a.fanout_s),
+                    "transport": lambda: transport_section(tmp, min(a.count, 2400)),
+                    "soak": lambda: soak_section(tmp, a.soak_minutes or 1.0)}
+        for name, run in sections.items():
+            wanted = a.only == name if a.only else (name != "soak" or a.soak_minutes > 0)
+            if wanted:
+                run()
 
 
 if __name__ == "__main__":

@@ -115,6 +115,8 @@ nodes:
         from mocapgraph.launch.manifest import fetch_manifest
 
         pid = next(n["pid"] for n in fetch_manifest(env["MOCAPGRAPH_MASTER"])["nodes"] if n["name"] == "viz")
+        url = next(x.split("viewer at ", 1)[1].split()[0] for x in lines if "viewer at " in x)  # carries the token
+        stats_url = url.replace("/?", "/stats?")
         time.sleep(1.0)
         idle = cpu_percent(pid, args.seconds)
         print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}; graph: {args.markers} markers at "
@@ -124,7 +126,7 @@ nodes:
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
             page = browser.new_page(viewport={"width": 1280, "height": 720})
-            page.goto(f"http://127.0.0.1:{port}/")
+            page.goto(url)
             page.wait_for_function("() => window.mocapgraphStats && window.mocapgraphStats.markersDrawn > 0",
                                    timeout=20000)
             time.sleep(2.0)
@@ -132,7 +134,7 @@ nodes:
             def sample():
                 s = page.evaluate("() => ({f: mocapgraphStats.framesDrawn, b: mocapgraphStats.bundles, "
                                   "r: mocapgraphStats.records})")
-                with urllib.request.urlopen(f"http://127.0.0.1:{port}/stats") as r:
+                with urllib.request.urlopen(stats_url) as r:
                     c = json.loads(r.read())["clients"][0]
                 return s["f"], s["b"], s["r"], c["bundles"], c["bytes"], time.monotonic()
 

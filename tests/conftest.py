@@ -34,6 +34,7 @@ class LaunchedGraph:
         self.master = f"ipc://{tmp / ('master-' + uuid.uuid4().hex[:8])}"
         self.env = dict(os.environ, MOCAPGRAPH_MASTER=self.master, PYTHONUNBUFFERED="1")
         self.lines: list[str] = []
+        self.line_times: list[float] = []  # monotonic time each line was read, s
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "mocapgraph", "launch", str(graph_file), *args],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=self.env,
@@ -44,6 +45,7 @@ class LaunchedGraph:
 
     def _read(self) -> None:
         for raw in iter(self.proc.stdout.readline, b""):
+            self.line_times.append(time.monotonic())
             self.lines.append(raw.decode(errors="replace").rstrip())
 
     @property
@@ -65,8 +67,9 @@ class LaunchedGraph:
     def wait_ready(self, timeout: float = 20.0) -> None:
         self.wait_for("nodes ready in", timeout)
 
-    def cli(self, *args: str, timeout: float = 20.0) -> subprocess.CompletedProcess:
-        """Run another `mocapgraph` command against this graph."""
+    def cli(self, *args: str, timeout: float = 90.0) -> subprocess.CompletedProcess:
+        """Run another `mocapgraph` command against this graph (the time-out is a deadline against
+        hangs: a heavily loaded machine takes seconds to start an interpreter)."""
         return subprocess.run([sys.executable, "-m", "mocapgraph", *args], env=self.env, capture_output=True,
                               text=True, timeout=timeout)
 

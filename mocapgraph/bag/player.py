@@ -39,6 +39,16 @@ from .reader import BagReader, RawMessage, TopicInfo
 DEFAULT_EXCLUDE = ("diagnostics",)
 LAG_WINDOW = 8192
 LATCHED_GRACE_NS = 100_000_000
+#: a message stamped longer than this before the recorder got it (a latched value published before
+#: the recording began) is scheduled as if published this long before it was recorded
+MAX_RECORD_DELAY_NS = 200_000_000
+
+
+def schedule_stamp(raw: RawMessage) -> int:
+    """The time a message is due on the bag's axis: its publish stamp, but never long before it was
+    recorded (else a latched model published 31 s before the recording made every pass 31 s longer)."""
+    t = raw.publish_ns or raw.log_ns
+    return max(t, raw.log_ns - MAX_RECORD_DELAY_NS) if raw.log_ns else t
 
 
 def set_publish_stamp(header: bytearray, now_ns: int | None = None) -> None:
@@ -126,6 +136,9 @@ class Playback:
         if self.end_ns is not None and self.end_ns <= self.start_ns:
             raise BagError(reader.path, f"--end {end_s} s is not after --start {start_s} s")
         self.origin_ns, last_pub = reader.publish_span(sorted(self.topics))
+        first = next(iter(reader.messages(sorted(self.topics))), None)
+        if first is not None:
+            self.origin_ns = schedule_stamp(first)
         self.duration_s = (end_s if end_s is not None else max(0.0, (last_pub - self.origin_ns) / 1e9))
         self.state = "idle"
         self._buf: deque[tuple[int, RawMessage, int]] = deque()  # (bag time, message, generation)
@@ -184,7 +197,7 @@ class Playback:
                 return False
             if self._sent_early and self._pass == 0 and (raw.topic, raw.log_ns) in self._sent_early:
                 continue  # already sent by latched_first
-            t = raw.publish_ns or raw.log_ns
+            t = schedule_stamp(raw)
             if self._pass_first_ns is None:
                 self._pass_first_ns = t
             t = max(t + self._shift_ns, self._last_t)

@@ -14,7 +14,7 @@ from typing import Sequence
 
 from ..messages import Envelope, decode_envelope
 from ..messages.codec import DecodeError
-from ..messages.sequence import DUPLICATE, RESTART, sequence_gap
+from ..messages.sequence import ANOMALY, DUPLICATE, RESTART, sequence_gap
 from .writer import BagWriter
 
 FLUSH_PERIOD_S = 0.25
@@ -27,7 +27,7 @@ class Recorder:
         self.writer = writer
         self.flush_s = flush_s
         self._next_flush = time.monotonic() + flush_s
-        self._last_seq: dict[tuple[str, str], int] = {}
+        self._last_seq: dict[tuple[str, str], tuple[int, int]] = {}  # (seq, publish ns)
         self.lost: dict[str, int] = {}
         self.received = 0
         self.duplicates = 0
@@ -46,16 +46,18 @@ class Recorder:
                 self.rejected += 1
                 return False
         key = (env.topic, env.sender)
-        lost = sequence_gap(self._last_seq.get(key, 0), env.seq)
+        last, last_pub = self._last_seq.get(key, (0, 0))
+        # A resend repeats the publish stamp too; a restarted sender's new latched value does not.
+        lost = sequence_gap(last, env.seq, env.publish_ns == last_pub)
         if lost == DUPLICATE:
             self.duplicates += 1
             return False
-        if lost == RESTART:
+        if lost in (RESTART, ANOMALY):
             self.restarts += 1
-        elif lost:
+        elif lost > 0:
             self.lost[env.topic] = self.lost.get(env.topic, 0) + lost
             self.writer.set_losses(self.lost)
-        self._last_seq[key] = env.seq
+        self._last_seq[key] = (env.seq, env.publish_ns)
         self.writer.write_frames(frames, log_ns, env)
         self.received += 1
         return True
@@ -65,7 +67,11 @@ class Recorder:
         now = time.monotonic() if now is None else now
         if now >= self._next_flush:
             self.writer.flush()
-            self._next_flush = now + self.flush_s
+            # On the schedule, not from now: a caller that ticks every 50 ms would otherwise
+            # stretch every period by up to a tick (0.30 s for 0.25 s).
+            self._next_flush += self.flush_s
+            if self._next_flush <= now:
+                self._next_flush = now + self.flush_s
 
     def close(self) -> list[Path]:
         self.writer.set_losses(self.lost)

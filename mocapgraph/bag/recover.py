@@ -12,6 +12,7 @@ wrote leave no trace (at most one flush period, 0.25 s by default).
 from __future__ import annotations
 
 import io
+import os
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,16 +69,23 @@ class RecoveryReport:
 
 
 def recover(src: str | Path, dst: str | Path | None = None, *, compression: str = "lz4",
-            progress: Callable[[int, int], None] | None = None) -> RecoveryReport:
-    """Write a new complete bag from every whole chunk of ``src``; returns what was saved and lost."""
+            progress: Callable[[int, int], None] | None = None, force: bool = False) -> RecoveryReport:
+    """Write a new complete bag from every whole chunk of ``src``; returns what was saved and lost.
+
+    An existing ``dst`` is kept unless ``force``; a source with no message to save is an error
+    and leaves no output. The new bag is written beside ``dst`` and renamed into place at the end.
+    """
     src = Path(src)
     if not src.is_file():
         raise BagError(src, "no such file")
     dst = Path(dst) if dst else src.with_name(src.stem + ".recovered.mcap")
     if dst.resolve() == src.resolve():
         raise BagError(dst, "the recovered bag must not overwrite its source")
+    if dst.exists() and not force:
+        raise BagError(dst, "exists; pass --force to overwrite it")
     size = src.stat().st_size
     rep = RecoveryReport(src, dst)
+    tmp = dst.with_name(f".{dst.name}.part-{os.getpid()}")
     with open(src, "rb") as f:
         magic = f.read(len(MCAP_MAGIC))
         if size == 0:
@@ -85,11 +93,19 @@ def recover(src: str | Path, dst: str | Path | None = None, *, compression: str 
         if magic != MCAP_MAGIC:
             kind = sniff_kind(magic, src)
             raise BagError(src, "not an MCAP file: nothing to recover" + (f" (it looks like {kind})" if kind else ""))
-        with open(dst, "wb") as out:
-            w = Writer(out, compression=CompressionType.LZ4 if compression == "lz4" else CompressionType.NONE,
-                       chunk_size=1 << 20)
-            _walk(f, size, w, rep, progress)
-            w.finish()
+        try:
+            with open(tmp, "wb") as out:
+                w = Writer(out, compression=CompressionType.LZ4 if compression == "lz4" else CompressionType.NONE,
+                           chunk_size=1 << 20)
+                _walk(f, size, w, rep, progress)
+                w.finish()
+            if rep.saved == 0:
+                raise BagError(src, f"nothing to recover: no whole chunk with a message in its {size} bytes"
+                               + (f" ({rep.reason})" if rep.reason else ""))
+            os.replace(tmp, dst)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
     return rep
 
 

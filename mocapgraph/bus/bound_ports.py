@@ -9,6 +9,7 @@ import zmq
 from ..messages import DecodeError, Envelope, Message, decode_envelope, decode_payload, encode
 from ..messages.codec import topic_frame
 from ..messages.registry import UnknownTypeError, lookup
+from .curve import CurveKeys, make_client
 from .ports import Input, Output
 from .stats import InputStats
 
@@ -20,6 +21,7 @@ _SNDMORE = int(zmq.SNDMORE)
 _NOBLOCK = int(zmq.NOBLOCK)
 _POLLIN = int(zmq.POLLIN)
 _EVENTS = int(zmq.EVENTS)
+UNEXPECTED_LOG_S = 5.0  # at most one line per this many seconds about frames from unexpected senders
 BATCH = 256  # messages taken from one input per loop turn, so one busy input cannot starve the others
 
 
@@ -72,19 +74,23 @@ class OutputPort:
 class InputPort:
     """A bound input: its SUB socket, the latest message and envelope, per-edge statistics."""
 
-    def __init__(self, node: "Node", decl: Input, topic: str) -> None:
+    def __init__(self, node: "Node", decl: Input, topic: str, senders: list[str] | None = None) -> None:
         self.node = node
         self.decl = decl
         self.topic = topic
         self.latest: Message | None = None
         self.envelope: Envelope | None = None
-        self.stats = InputStats()
+        self.stats = InputStats(senders)
+        self._unexpected_logged = -UNEXPECTED_LOG_S
         self.socket: zmq.Socket | None = None
         self.handler: Callable[..., Any] | None = None
 
-    def open(self, ctx: zmq.Context, endpoints: list[str]) -> zmq.Socket:
-        """Create the SUB socket (queue depth from the declaration) connected to ``endpoints``."""
+    def open(self, ctx: zmq.Context, endpoints: list[str], curve: "CurveKeys | None" = None) -> zmq.Socket:
+        """Create the SUB socket (queue depth from the declaration) connected to ``endpoints``
+        (as a CurveZMQ client when the graph has keys)."""
         sock = ctx.socket(zmq.SUB)
+        if curve is not None:
+            make_client(sock, curve)
         sock.setsockopt(zmq.RCVHWM, 0 if self.decl.queue <= 0 else self.decl.queue)
         sock.setsockopt(zmq.RECONNECT_IVL, 20)
         sock.setsockopt(zmq.RECONNECT_IVL_MAX, 500)
@@ -119,6 +125,9 @@ class InputPort:
             if env.topic != self.topic:
                 continue
             edge = self.stats.edge(env.topic, env.sender)
+            if edge is None:
+                self._unexpected(env.sender)
+                continue
             if not edge.accept(env.seq, env.publish_ns, now):
                 continue
             if self.decl.raw:
@@ -150,6 +159,14 @@ class InputPort:
         self.envelope = env
         if self.handler is not None:
             self.handler(msg)
+
+    def _unexpected(self, sender: str) -> None:
+        n = self.stats.unexpected
+        now = time.monotonic()
+        if n <= 3 or now - self._unexpected_logged >= UNEXPECTED_LOG_S:  # logged, but never a flood
+            self._unexpected_logged = now
+            self.node.log.warning("input %s: %d frame(s) from senders the wiring does not name (latest %r) "
+                                  "rejected", self.decl.name, n, sender[:64])
 
     def _reject(self, exc: Exception) -> None:
         n = self.stats.rejected

@@ -26,18 +26,25 @@ class EdgeRecord:
     received: int = 0
     gaps: int = 0
     rejected: int = 0
+    anomalies: int = 0
+
+
+UNEXPECTED_SENDER = "(unexpected)"
 
 
 def input_edge_records(topic: str, stats: InputStats) -> list[EdgeRecord]:
-    """The edges of one input; frames rejected before any sender was known count on sender '?'."""
+    """The edges of one input; frames rejected before any sender was known count on sender '?',
+    frames of senders the wiring does not name on one record, sender UNEXPECTED_SENDER."""
     edges = list(stats.edges.values())
-    if not edges:
-        return [EdgeRecord(topic, "?", rejected=stats.rejected)] if stats.rejected else []
     out = []
+    if not edges and stats.rejected:
+        out.append(EdgeRecord(topic, "?", rejected=stats.rejected))
     for i, e in enumerate(edges):
         p50, pmax = e.latency_ms()
         out.append(EdgeRecord(e.topic, e.sender, e.rate_hz(), p50, pmax, e.received, e.gaps,
-                              stats.rejected if i == 0 else 0))
+                              stats.rejected if i == 0 else 0, e.anomalies + e.restarts))
+    if stats.unexpected:
+        out.append(EdgeRecord(topic, UNEXPECTED_SENDER, rejected=stats.unexpected))
     return out
 
 
@@ -53,6 +60,6 @@ def build_diagnostics(node: str, uptime_s: float, edges: Iterable[EdgeRecord],
         edge_rate_hz=[float(e.rate_hz) for e in edges], edge_latency_ms=[float(e.latency_ms) for e in edges],
         edge_latency_max_ms=[float(e.latency_max_ms) for e in edges],
         edge_received=[int(e.received) for e in edges], edge_gaps=[int(e.gaps) for e in edges],
-        edge_rejected=[int(e.rejected) for e in edges],
+        edge_rejected=[int(e.rejected) for e in edges], edge_anomalies=[int(e.anomalies) for e in edges],
         output_topics=[t for t, _ in outputs], output_sent=[n for _, n in outputs],
     )

@@ -38,6 +38,8 @@ import zmq
 from ..messages import Diagnostics, Message
 from ..messages.codec import topic_frame
 from .bound_ports import InputPort, OutputPort
+from .curve import CurveKeys, make_server, start_authenticator, stop_authenticators
+from .subscriptions import Subscriptions
 from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, EdgeRecord, build_diagnostics,
                           input_edge_records)
 from .loop import EventLoop, Timer
@@ -72,7 +74,8 @@ class Node:
         self._t0 = time.monotonic()
         self._ctx = zmq.Context.instance()
         self._pub: zmq.Socket | None = None
-        self._sub_counts: dict[bytes, int] = {}
+        self._subs = Subscriptions(lambda: [p for p in self._ports.values() if isinstance(p, OutputPort)],
+                                   self.call_later, lambda: self._loop.timers_on)
         self._ready_sent = False
         self._launcher: LauncherLink | None = None
         self._watchdog = ParentWatchdog()
@@ -172,7 +175,11 @@ class Node:
     def setup(self) -> None:
         """Bind, connect and subscribe according to the wiring."""
         w = self.wiring
+        self._curve = CurveKeys.load(w.curve["key"], w.curve["authorized"]) if w.curve else None
         self._pub = pub = self._ctx.socket(zmq.XPUB)
+        if self._curve is not None:
+            start_authenticator(self._ctx, self._curve)
+            make_server(pub, self._curve)
         pub.setsockopt(zmq.XPUB_VERBOSE, 1)
         # Bounded per subscriber, so a stalled viewer cannot grow this process without limit; a
         # subscriber with no receive limit (a recorder) drains into its own memory and loses nothing.
@@ -190,10 +197,10 @@ class Node:
             self, Output(DIAGNOSTICS_TOPIC, Diagnostics, latched=False, name="diagnostics"), DIAGNOSTICS_TOPIC)
         for name, decl in self._iface.inputs.items():
             spec = w.inputs.get(name, {})
-            port = InputPort(self, decl, spec.get("topic", decl.topic))
+            port = InputPort(self, decl, spec.get("topic", decl.topic), spec.get("senders"))
             self._ports[name] = port
             port.handler = self.input_handler(name)
-            self._loop.watch(port.open(self._ctx, spec.get("endpoints", [])), port.on_readable)
+            self._loop.watch(port.open(self._ctx, spec.get("endpoints", []), self._curve), port.on_readable)
         if w.control:
             self._launcher = LauncherLink(self._ctx, w.control, self.name)
             self._loop.watch(self._launcher.socket, self._on_control)
@@ -211,18 +218,7 @@ class Node:
         return want
 
     def _on_subscription(self) -> None:
-        while True:
-            try:
-                ev = self._pub.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                break
-            if not ev or ev[0] != 1:
-                continue
-            key = ev[1:]
-            self._sub_counts[key] = self._sub_counts.get(key, 0) + 1
-            for port in self._ports.values():
-                if isinstance(port, OutputPort) and port.last_frames is not None and port.topic_key == key:
-                    self._pub.send_multipart(port.last_frames)
+        self._subs.drain(self._pub)
         self.announce_ready()
 
     def announce_ready(self) -> None:
@@ -230,7 +226,7 @@ class Node:
         (without a launcher: start now)."""
         if self._ready_sent:
             return
-        if all(self._sub_counts.get(k, 0) >= n for k, n in self._expected_subscriptions().items()):
+        if all(self._subs.counts.get(k, 0) >= n for k, n in self._expected_subscriptions().items()):
             self._ready_sent = True
             if self._launcher is not None:
                 self._launcher.send(READY)
@@ -302,6 +298,8 @@ class Node:
             self._launcher.close()
         if self._pub is not None:
             self._pub.close()
+        if self._curve is not None:
+            stop_authenticators()
 
 
 def install_signal_handlers(node: Node) -> None:

@@ -5,6 +5,7 @@ reads the same declarations to check a graph before any process starts.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -65,6 +66,8 @@ class Param:
             raise ParamError(f"wants {k}, got {type(value).__name__} {value!r}")
         if k == "float":
             value = float(value)
+            if not math.isfinite(value):  # .nan / .inf pass every bound check and then misbehave (inf: a busy loop)
+                raise ParamError(f"wants a finite number, got {value!r}")
         if self.choices is not None and value not in self.choices:
             raise ParamError(f"{value!r} is not one of {list(self.choices)}")
         if self.minimum is not None and value < self.minimum:

@@ -35,6 +35,7 @@ class Wiring:
     inputs: input name -> {"topic": str, "endpoints": [publisher endpoints]}
     outputs: output name -> {"topic": str, "subscribers": expected subscriber count}
     control: the launcher's control endpoint ("" when the node runs by itself)
+    curve: key file and authorised-keys folder when the graph has a security: section
     """
 
     node: str
@@ -43,6 +44,8 @@ class Wiring:
     outputs: dict[str, dict[str, Any]] = field(default_factory=dict)
     control: str = ""
     diagnostics_subscribers: int = 0
+    #: CurveZMQ on every bus socket: {"key": .key_secret file, "authorized": folder}; empty: plaintext
+    curve: dict[str, str] = field(default_factory=dict)
 
 
 def die_with_parent() -> None:

@@ -1,17 +1,27 @@
-"""Per-edge statistics: rate from sender stamps, latency, sequence gaps, rejects.
+"""Per-edge statistics: rate from sender stamps, latency, sequence gaps, anomalies, rejects.
 
 An edge is one (topic, sending node) pair seen by one subscriber; its sequence numbers are read
-by the one rule in `messages.sequence`.
+by the one rule in `messages.sequence`. The table of edges is bounded: only the senders the
+wiring names get an edge (plus at most MAX_FREE_EDGES others where the wiring allows unnamed
+senders: external publishers, bag replays); frames of any other sender are rejected and counted
+together as "unexpected", so junk with a fresh sender name per frame costs no memory.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
+from typing import Iterable
 
 import numpy as np
 
-from ..messages.sequence import DUPLICATE, RESTART, sequence_gap
+from ..messages.sequence import ANOMALY, DUPLICATE, RESTART, sequence_gap
 
 WINDOW = 512
+#: in the wiring's sender list: senders not named are allowed too (up to MAX_FREE_EDGES of them)
+ANY_SENDER = "*"
+MAX_FREE_EDGES = 8
+# The launcher prefixes each line with the receiving node's name.
+log = logging.getLogger("mocapgraph.bus")
 
 
 @dataclass
@@ -21,10 +31,13 @@ class EdgeStats:
     topic: str
     sender: str
     last_seq: int = 0
+    last_publish_ns: int = 0
     received: int = 0
     gaps: int = 0
     duplicates: int = 0
     restarts: int = 0
+    #: jumps beyond the believable (forged numbers, missed restarts): resynchronised, not counted as loss
+    anomalies: int = 0
     # Plain lists: one store per message is cheaper than a numpy element store; numpy is used
     # once a second when the figures are read.
     _pub: list = field(default_factory=lambda: [0] * WINDOW)
@@ -33,15 +46,20 @@ class EdgeStats:
 
     def accept(self, seq: int, publish_ns: int, now_ns: int) -> bool:
         """Record one arrival; False when it is a duplicate (a latched resend) to be dropped."""
-        lost = sequence_gap(self.last_seq, seq)
+        lost = sequence_gap(self.last_seq, seq, publish_ns == self.last_publish_ns)
         if lost == DUPLICATE:
             self.duplicates += 1
             return False
         if lost == RESTART:
             self.restarts += 1
+            log.info("%s from %s: the sender restarted (sequence %d after %d): a new stream, not loss",
+                     self.topic, self.sender, seq, self.last_seq)
+        elif lost == ANOMALY:
+            self.anomalies += 1
         else:
             self.gaps += lost
         self.last_seq = seq
+        self.last_publish_ns = publish_ns
         self.received += 1
         i = self._n % WINDOW
         self._pub[i] = publish_ns
@@ -67,16 +85,32 @@ class EdgeStats:
         return float(np.median(lat)) / 1e6, float(lat.max()) / 1e6
 
 
-@dataclass
 class InputStats:
-    """All edges of one input, plus frames rejected before a sender was known."""
+    """All edges of one input, frames rejected before a sender was known, unexpected senders.
 
-    edges: dict[tuple[str, str], EdgeStats] = field(default_factory=dict)
-    rejected: int = 0
+    ``senders``: the sending nodes the wiring names (None: a node run by hand, any sender up to
+    MAX_FREE_EDGES); ANY_SENDER among them allows unnamed senders up to that bound too.
+    """
 
-    def edge(self, topic: str, sender: str) -> EdgeStats:
-        key = (topic, sender)
-        e = self.edges.get(key)
+    def __init__(self, senders: Iterable[str] | None = None) -> None:
+        names = None if senders is None else set(senders)
+        self.edges: dict[str, EdgeStats] = {}
+        self.expected: frozenset[str] = frozenset(names - {ANY_SENDER}) if names is not None else frozenset()
+        self.free_left = MAX_FREE_EDGES if names is None or ANY_SENDER in names else 0
+        self.rejected = 0
+        #: frames from senders that got no edge (not named, and the free edges used up)
+        self.unexpected = 0
+
+    def edge(self, topic: str, sender: str) -> EdgeStats | None:
+        """The edge of ``sender``; None (counted as unexpected) for a sender that gets none."""
+        e = self.edges.get(sender)
         if e is None:
-            e = self.edges[key] = EdgeStats(topic, sender)
+            if sender in self.expected:
+                pass
+            elif self.free_left > 0:
+                self.free_left -= 1
+            else:
+                self.unexpected += 1
+                return None
+            e = self.edges[sender] = EdgeStats(topic, sender)
         return e

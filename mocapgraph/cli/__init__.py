@@ -7,7 +7,7 @@ from importlib import import_module
 
 # Command-family modules inside this package, each with register(subparsers).
 COMMAND_MODULES = ("graph_cmds", "topic_cmds", "bag_cmds", "actor_cmds", "device_cmds", "retarget_cmds",
-                   "physics_cmds")
+                   "physics_cmds", "key_cmds")
 
 
 class UserError(Exception):
@@ -22,6 +22,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMAND_MODULES:
         import_module(f"{__name__}.{name}").register(sub)
+    from .examples import attach
+    attach(parser)
     return parser
 
 

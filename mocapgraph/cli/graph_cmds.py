@@ -25,9 +25,10 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def load_checked(path: str, overrides: list[str], check_files: bool = True) -> CheckedGraph:
+def load_checked(path: str, overrides: list[str], check_files: bool = True,
+                 machine: str | None = None) -> CheckedGraph:
     try:
-        return check_graph(load_graph(path, parse_overrides(overrides)), check_files=check_files)
+        return check_graph(load_graph(path, parse_overrides(overrides)), check_files=check_files, machine=machine)
     except GraphError as exc:
         raise UserError(str(exc)) from None
 
@@ -35,11 +36,11 @@ def load_checked(path: str, overrides: list[str], check_files: bool = True) -> C
 def cmd_launch(args: argparse.Namespace) -> int:
     from ..launch.supervisor import run_graph
 
-    graph = load_checked(args.file, args.args)
+    graph = load_checked(args.file, args.args, machine=args.machine)
     if graph.spec.expects:
         raise UserError(f"{args.file}: a piece meant for inclusion: it expects "
                         f"{', '.join(e.topic for e in graph.spec.expects)} from the graph that includes it")
-    return run_graph(graph, master=args.master)
+    return run_graph(graph, master=args.master, machine=args.machine)
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -158,6 +159,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file")
     p.add_argument("args", nargs="*", help="arg overrides as name:=value")
     p.add_argument("--master", help="manifest endpoint (default $MOCAPGRAPH_MASTER or a per-user ipc socket)")
+    p.add_argument("--machine", help="run only the nodes with this machine: and connect to the others' "
+                   "(one graph file for a capture PC and a render PC)")
     p.set_defaults(func=cmd_launch)
 
     g = sub.add_parser("graph", help="check or draw a graph file without running it")

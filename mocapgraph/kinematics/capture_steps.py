@@ -54,8 +54,9 @@ class GymSampler:
             s, r = float(seconds), float(rate_hz)  # type: ignore[arg-type]
         except (TypeError, ValueError):
             s = r = float("nan")
-        if not (s > 0 and r >= 0):
-            raise ValueError(f"seconds must be > 0 and rate_hz >= 0, got {seconds!r}, {rate_hz!r}")
+        if not (0 < s <= 3600 and 0 <= r <= 10_000):  # inf / 1e308 from a command would capture forever
+            raise ValueError(f"seconds must be > 0 (at most 3600) and rate_hz >= 0 (at most 10000), "
+                             f"got {seconds!r}, {rate_hz!r}")
         return s, r
 
     def __init__(self, seconds: float, rate_hz: float) -> None:

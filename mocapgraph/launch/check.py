@@ -6,6 +6,11 @@ The data-flow graph is a networkx DiGraph whose vertices are nodes and topics
 """
 from __future__ import annotations
 
+import functools
+import ipaddress
+import os
+import socket
+import tempfile
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -90,6 +95,59 @@ def _blame_key(spec: NodeSpec, port: str, default_topic: str) -> str:
     return "remap" if port in spec.remap or default_topic in spec.remap else "type"
 
 
+#: longest ipc path the kernel takes (sun_path is 108 bytes with its NUL)
+IPC_PATH_MAX = 107
+_RUN_DIR_ROOM = len("/mocapgraph-4194304-abcdefgh/")  # tempfile.mkdtemp(prefix=f"mocapgraph-{pid}-")
+
+
+def ipc_path_problem(name: str) -> str:
+    """Why the launcher could not bind the ipc socket of node ``name`` here ('' when it can)."""
+    n = len(os.fsencode(tempfile.gettempdir())) + _RUN_DIR_ROOM + len(name.encode()) + len(".pub")
+    if n > IPC_PATH_MAX:
+        return (f"its socket path would be {n} bytes, more than the {IPC_PATH_MAX} the OS allows: "
+                f"set TMPDIR to a shorter directory (now {tempfile.gettempdir()[:60]!r}) or shorten the name")
+    return ""
+
+
+@functools.lru_cache(maxsize=256)
+def host_problem(host: str) -> str:
+    """Why a publisher cannot bind ``host`` ('' when it can): not an address or resolvable name,
+    or not an address of this machine."""
+    if not host or len(host) > 253 or any(c in host for c in "/ \0:") and not _is_ip(host):
+        return f"{host[:80]!r} is not an IP address or host name"
+    try:
+        infos = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError):
+        return f"{host[:80]!r} is neither an IP address nor a name that resolves"
+    for family, _, _, _, addr in infos:
+        try:
+            with socket.socket(family, socket.SOCK_STREAM) as s:
+                s.bind((addr[0], 0))
+            return ""
+        except OSError:
+            continue
+    return f"{host[:80]!r} is not an address of this machine (nothing could bind it)"
+
+
+def _loopback(host: str) -> bool:
+    """True when every address ``host`` stands for is a loopback one."""
+    if host == "localhost":
+        return True
+    try:
+        addrs = {a[4][0] for a in socket.getaddrinfo(host, None)}
+        return all(ipaddress.ip_address(a.split("%")[0]).is_loopback for a in addrs)
+    except (OSError, ValueError):
+        return False
+
+
+def _is_ip(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+        return True
+    except ValueError:
+        return False
+
+
 def _check_files(ns: NodeSpec, iface: Interface, params: dict[str, Any]) -> None:
     """Every ``kind="file"`` param names a file this machine can read (GraphError otherwise)."""
     for key, p in iface.params.items():
@@ -101,8 +159,11 @@ def _check_files(ns: NodeSpec, iface: Interface, params: dict[str, Any]) -> None
             raise ns.error(f"params.{key}", str(exc)) from None
 
 
-def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
+def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None = None) -> CheckedGraph:
     """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault.
+
+    machine: the `--machine` this check is for: only its nodes' hosts must be addresses of this
+    machine (the others' must resolve); None checks every node as local.
 
     check_files: also check that input-file params name readable files (off for drawing a graph).
     """
@@ -113,6 +174,27 @@ def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
             first = seen[ns.name]
             raise ns.error("name", f"duplicate node name (first at {first.file}:{first.line})")
         seen[ns.name] = ns
+        problem = ipc_path_problem(ns.name)
+        if problem:
+            raise ns.error("name", problem)
+        if machine is not None and not ns.machine:
+            raise ns.error("name", "launched with --machine, every node names its machine: (this one does not)")
+        if ns.host and machine is not None and ns.machine != machine:
+            try:
+                socket.getaddrinfo(ns.host, None)
+            except (socket.gaierror, UnicodeError):
+                raise ns.error("host", f"{ns.host[:80]!r} is neither an IP address nor a name that resolves") from None
+            if not _loopback(ns.host) and not (spec.security.curve or spec.security.insecure):
+                raise ns.error("host", f"{ns.host} is reachable from other machines: give the graph a security: "
+                               "section (key:, authorized:) or security: {insecure: true}")
+        elif ns.host:
+            problem = host_problem(ns.host)
+            if problem:
+                raise ns.error("host", problem)
+            if not _loopback(ns.host) and not (spec.security.curve or spec.security.insecure):
+                raise ns.error("host", f"{ns.host} is reachable from other machines: give the graph a security: "
+                               "section (key:, authorized:; see 'mocapgraph keys generate') for CurveZMQ, "
+                               "or security: {insecure: true} to publish plaintext knowingly")
         path, cls = load_node_class(ns.type, ns)
         try:
             iface = cls.interface(ns.params)
@@ -177,6 +259,10 @@ def check_graph(spec: GraphSpec, check_files: bool = True) -> CheckedGraph:
                     raise rn.spec.error(_blame_key(rn.spec, port, decl.topic),
                                         f"input {port!r} wants {decl.type_name} on {topic!r}, but {pub} publishes {t}")
             flow.add_edge(("topic", topic), ("node", rn.name), type=decl.type_name)
+    if machine is not None and not any(rn.spec.machine == machine for rn in resolved):
+        known = sorted({rn.spec.machine for rn in resolved if rn.spec.machine})
+        raise GraphError(spec.file, None, "machine", f"no node runs on machine {machine!r} "
+                         f"(machines: {', '.join(known) or 'none named'})")
     return CheckedGraph(spec, resolved, flow)
 
 

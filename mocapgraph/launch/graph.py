@@ -30,6 +30,7 @@ type (so numbers stay numbers).
 from __future__ import annotations
 
 import difflib
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,12 +38,16 @@ from typing import Any
 
 from ..formats.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
-NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "doc", "if")
-TOP_KEYS = ("args", "include", "nodes", "external", "expects", "description")
+NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "port", "machine",
+             "doc", "if")
+TOP_KEYS = ("args", "include", "nodes", "external", "expects", "description", "security")
+SECURITY_KEYS = ("key", "authorized", "insecure")
 EXPECTS_KEYS = ("topic", "type", "doc")
 INCLUDE_KEYS = ("file", "args", "if")
 EXTERNAL_KEYS = ("topic", "type", "endpoint")
 _SUBST = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
+#: node names become file names (wiring, sockets) and ZeroMQ identities: no '/', NUL, '..', spaces
+NODE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_-]{0,63}")
 
 
 @dataclass
@@ -57,6 +62,8 @@ class NodeSpec:
     respawn_delay: float = 0.5
     required: bool = False
     host: str = ""
+    port: int = 0  # fixed tcp port (needed by nodes that others on other machines connect to)
+    machine: str = ""  # which `launch --machine NAME` runs it ('' : every launch without --machine)
     file: str = ""
     line: int = 0
     key_lines: dict[str, int] = field(default_factory=dict)
@@ -94,6 +101,21 @@ class ExpectedTopic:
 
 
 @dataclass
+class SecuritySpec:
+    """The top file's ``security:``: CurveZMQ key pair and authorised public keys, or plaintext by choice."""
+
+    key: str = ""  # the graph's .key_secret file (mocapgraph keys generate)
+    authorized: str = ""  # folder of public keys (*.key) allowed to subscribe
+    insecure: bool = False  # plaintext tcp beyond loopback, knowingly
+    file: str = ""
+    line: int = 0
+
+    @property
+    def curve(self) -> bool:
+        return bool(self.key)
+
+
+@dataclass
 class GraphSpec:
     """A whole resolved graph: nodes from the file and everything it includes."""
 
@@ -103,6 +125,7 @@ class GraphSpec:
     expects: list[ExpectedTopic] = field(default_factory=list)
     args: dict[str, Any] = field(default_factory=dict)
     description: str = ""
+    security: SecuritySpec = field(default_factory=SecuritySpec)
 
 
 def did_you_mean(word: str, choices: list[str] | tuple[str, ...]) -> str:
@@ -151,11 +174,40 @@ def _condition(d: LinedDict, args: dict[str, Any], file: str, key: str) -> bool:
     return value
 
 
+def _security(doc: LinedDict, path: Path, args: dict[str, Any]) -> SecuritySpec:
+    sec = doc["security"]
+    line = doc.line_of("security")
+    if not isinstance(sec, dict):
+        raise GraphError(path, line, "security", "must be a mapping {key:, authorized:} or {insecure: true}")
+    _check_keys(sec, SECURITY_KEYS, "security.")
+    sec = _substitute(sec, args, str(path), line, "security")
+    out = SecuritySpec(file=str(path), line=line)
+    insecure = sec.get("insecure", False)
+    if not isinstance(insecure, bool):
+        raise GraphError(path, line, "security.insecure", f"wants true or false, got {insecure!r}")
+    out.insecure = insecure
+    if "key" in sec or "authorized" in sec:
+        for key in ("key", "authorized"):
+            if not isinstance(sec.get(key), str) or not sec.get(key):
+                raise GraphError(path, line, f"security.{key}", "needs a path (both key: and authorized:)")
+        out.key = str((path.parent / sec["key"]).resolve())
+        out.authorized = str((path.parent / sec["authorized"]).resolve())
+        from ..bus.curve import CurveKeys, KeyError_
+
+        try:
+            CurveKeys.load(out.key, out.authorized)
+        except KeyError_ as exc:
+            raise GraphError(path, line, "security", str(exc)) from None
+    return out
+
+
 def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> GraphSpec:
     """Read a graph file with its includes and args; GraphError names file, line and key."""
     path = Path(path).resolve()
     spec = GraphSpec(file=str(path))
     _load_into(spec, path, overrides or {}, stack=[], top=True)
+    if not spec.nodes:
+        raise GraphError(path, None, "nodes", "no node to run (every node is missing or switched off by if:)")
     return spec
 
 
@@ -191,8 +243,7 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
         raise GraphError(stack[-1], None, "include", f"include cycle: {chain}")
     doc = load_yaml_file(path)
     if doc is None:
-        doc = LinedDict()
-        doc.file, doc.line, doc.key_lines = str(path), 1, {}
+        raise GraphError(path, None, "", "empty file: a graph file has nodes: (or include:)")
     if not isinstance(doc, dict):
         raise GraphError(path, getattr(doc, "line", 1), "", "a graph file is a mapping with nodes:, args:, include:")
     _check_keys(doc, TOP_KEYS, "")
@@ -200,6 +251,8 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
     if top:
         spec.args = dict(args)
         spec.description = str(doc.get("description", ""))
+        if "security" in doc:
+            spec.security = _security(doc, path, args)
     includes = doc.get("include") or []
     if not isinstance(includes, list):
         raise GraphError(path, doc.line_of("include"), "include", "must be a list of {file:, args:}")
@@ -248,7 +301,11 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
         for key in ("name", "type"):
             if key not in raw:
                 raise GraphError(path, line, f"nodes[{raw.get('name', i)}]", f"needs a '{key}'")
-        name = str(_substitute(raw["name"], args, str(path), raw.line_of("name"), "name"))
+        name = _substitute(raw["name"], args, str(path), raw.line_of("name"), "name")
+        if not isinstance(name, str) or not NODE_NAME.fullmatch(name):
+            raise GraphError(path, raw.line_of("name"), f"nodes[{i}].name",
+                             f"{str(name)[:80]!r} is not a node name (letters, digits, '_' and '-', at most 64, "
+                             "starting with a letter or '_')")
         if not _condition(raw, args, str(path), f"nodes[{name}].if"):
             continue
         params = raw.get("params") or LinedDict()
@@ -268,10 +325,18 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
             key_lines=dict(raw.key_lines),
             param_lines=dict(getattr(params, "key_lines", {})),
         )
-        for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str)):
+        for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str),
+                          ("machine", str), ("port", int)):
             if key in raw:
                 value = _substitute(raw[key], args, str(path), raw.line_of(key), key)
-                if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
-                    raise node.error(key, f"wants {'a number' if key == 'respawn_delay' else kind.__name__}, got {value!r}")
+                if (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))
+                        or (key == "respawn_delay" and not (math.isfinite(value) and 0 <= value <= 3600))):
+                    raise node.error(key, f"wants {'a finite number of seconds in [0, 3600]' if key == 'respawn_delay' else kind.__name__}, "
+                                     f"got {value!r}")
+                if key == "port" and not 1 <= value <= 65535:
+                    raise node.error(key, f"wants a tcp port in 1..65535, got {value!r}")
                 setattr(node, key, float(value) if key == "respawn_delay" else value)
+        if node.machine and not (node.host and node.port):
+            raise node.error("machine", "a node on a named machine needs host: (that machine's address) and port: "
+                             "so the other machines can connect to it")
         spec.nodes.append(node)

@@ -34,6 +34,8 @@ import zmq
 from ..bus.diagnostics import DIAGNOSTICS_TOPIC
 from ..bus.protocol import READY, START, STARTED, STOP, Wiring, die_with_parent
 from .check import CheckedGraph, ResolvedNode, shutdown_order
+from ..bus.curve import CurveKeys
+from .liveness import STALL_S, Liveness, diagnostics_socket, drain_senders
 from .manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
 from .wiring_plan import plan_wiring
 
@@ -74,12 +76,16 @@ class LaunchError(RuntimeError):
 class Supervisor:
     """Starts, watches and stops the processes of a checked graph."""
 
-    def __init__(self, graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None) -> None:
+    def __init__(self, graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None,
+                 machine: str | None = None) -> None:
+        self.machine = machine
         self.graph = graph
         self.master = master or default_master()
         self.out = out or sys.stdout
         self._out_lock = threading.Lock()
         self.run_dir = Path(tempfile.mkdtemp(prefix=f"mocapgraph-{os.getpid()}-"))
+        self.liveness = Liveness()
+        self.diag: zmq.Socket | None = None
         self.ctx = zmq.Context.instance()
         self.control_ep = f"ipc://{self.run_dir / 'control'}"
         self.children: dict[str, Child] = {}
@@ -88,8 +94,14 @@ class Supervisor:
         self._plan()
 
     # ----- planning -----------------------------------------------------------------------
+    def local(self, rn: ResolvedNode) -> bool:
+        """Whether this launcher runs ``rn`` (with --machine: the nodes of that machine only)."""
+        return self.machine is None or rn.spec.machine == self.machine
+
     def _endpoint(self, rn: ResolvedNode) -> str:
         host = rn.spec.host
+        if host and rn.spec.port:
+            return f"tcp://{host}:{rn.spec.port}"
         if host and host not in ("localhost",):
             return f"tcp://{host}:{_free_tcp_port(host)}"
         return f"ipc://{self.run_dir / (rn.name + '.pub')}"
@@ -98,30 +110,16 @@ class Supervisor:
         self.endpoints = {rn.name: self._endpoint(rn) for rn in self.graph.nodes}
         plan = plan_wiring(self.graph, self.endpoints, self.control_ep)
         for rn in self.graph.nodes:
+            if not self.local(rn):
+                continue  # runs on another machine; its endpoint is in the plan all the same
             wiring = plan[rn.name]
             wf = self.run_dir / f"{rn.name}.json"
             wf.write_text(json.dumps({"class": rn.class_path, "params": rn.params, "wiring": wiring.__dict__}))
-            self.children[rn.name] = Child(rn, wiring, wf)
+            self.children[rn.name] = Child(rn, wiring, wf, backoff_s=rn.spec.respawn_delay)
 
     def manifest(self) -> Manifest:
         """Nodes, topics, types and endpoints of the running graph."""
-        types = self.graph.topic_types()
-        m = Manifest(graph=self.graph.spec.file)
-        for rn in self.graph.nodes:
-            for port, t in rn.outputs.items():
-                m.add_publisher(t, types[t], rn.name, self.endpoints[rn.name], rn.iface.outputs[port].is_latched)
-            for port, t in rn.inputs.items():
-                m.add_subscriber(t, types.get(t, "*"), rn.name, port)
-        for ext in self.graph.spec.external:
-            m.add_publisher(ext.topic, ext.type, "external", ext.endpoint)
-        diag = m.topics.pop(DIAGNOSTICS_TOPIC, {"subscribers": []})
-        m.topics[DIAGNOSTICS_TOPIC] = {"type": "Diagnostics", "subscribers": diag["subscribers"], "publishers": []}
-        for n, e in self.endpoints.items():
-            m.add_publisher(DIAGNOSTICS_TOPIC, "Diagnostics", n, e)
-        m.nodes = [NodeEntry(c.node.name, c.node.spec.type, c.node.class_path, c.proc.pid if c.proc else None,
-                             self.endpoints[c.node.name], c.node.params, c.node.inputs, c.node.outputs,
-                             c.restarts, bool(c.proc and c.proc.poll() is None)) for c in self.children.values()]
-        return m
+        return graph_manifest(self.graph, self.endpoints, list(self.children.values()), self.liveness)
 
     # ----- logging --------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -205,7 +203,7 @@ class Supervisor:
             self.control.poll(10)
         # Downstream first, each acknowledged before the next: a node is in its started state
         # (calibration in auto mode, say) before any source upstream of it sends a frame.
-        for name in reversed(shutdown_order(self.graph)):
+        for name in reversed([n for n in shutdown_order(self.graph) if n in self.children]):
             self._send(name, START)
             t_ack = time.monotonic() + START_ACK_TIMEOUT_S
             while not self.children[name].started and time.monotonic() < t_ack:
@@ -215,11 +213,34 @@ class Supervisor:
                 self._serve_control()
                 self._serve_master()  # a node's on_start may ask for the manifest (a recorder's metadata)
         self.ready_time_s = time.monotonic() - t0
+        self._watch_diagnostics()
         self.say(f"[launch] {len(self.children)} nodes ready in {self.ready_time_s:.2f} s "
                  f"(manifest at {self.master})")
 
+    def _watch_diagnostics(self) -> None:
+        """Subscribe to every node's diagnostics: their silence is how a stopped node shows."""
+        sec = self.graph.spec.security
+        self.diag = diagnostics_socket(self.ctx, self.endpoints.values(),
+                                       CurveKeys.load(sec.key, sec.authorized) if sec.curve else None)
+        now = time.monotonic()
+        for name in self.children:
+            self.liveness.watch(name, now)
+
+    def _check_liveness(self, now: float) -> None:
+        if self.diag is None:
+            return
+        for sender in drain_senders(self.diag):
+            silent = self.liveness.heard(sender, now) if sender in self.children else None
+            if silent is not None:
+                self.say(f"[launch] node {sender} is responding again after {silent:.1f} s of silence")
+        running = [n for n, c in self.children.items() if c.proc is not None and c.proc.poll() is None]
+        for name, silent in self.liveness.newly_stalled(now, running):
+            self.say(f"[launch] node {name} stalled: no diagnostics for {silent:.1f} s "
+                     f"(pid {self.children[name].proc.pid}; stopped, or stuck in a handler?)")
+
     def _watch(self) -> None:
         now = time.monotonic()
+        self._check_liveness(now)
         for name in self._serve_control():
             self._send(name, START)  # a respawned node joins the running graph
         for c in self.children.values():
@@ -230,6 +251,7 @@ class Supervisor:
                     c.restarts += 1
                     self.say(f"[launch] respawning {c.node.name} (restart {c.restarts})")
                     self._spawn(c)
+                    self.liveness.watch(c.node.name, now + STALL_S)  # start-up time is not silence
                 continue
             code = c.proc.poll()
             if code is None:
@@ -254,7 +276,7 @@ class Supervisor:
             if all(c.finished and c.respawn_at is None for c in self.children.values()):
                 self.say("[launch] every node has finished")
                 break
-            zmq.select([self.control, self.master_sock], [], [], 0.05)
+            zmq.select([self.control, self.master_sock] + ([self.diag] if self.diag is not None else []), [], [], 0.05)
         return self._exit_code
 
     def request_stop(self) -> None:
@@ -263,7 +285,7 @@ class Supervisor:
     def shutdown(self) -> None:
         """Stop nodes upstream first; escalate to SIGTERM then SIGKILL for stragglers."""
         t0 = time.monotonic()
-        for name in shutdown_order(self.graph):
+        for name in [n for n in shutdown_order(self.graph) if n in self.children]:
             c = self.children[name]
             c.respawn_at = None
             if c.proc is None or c.proc.poll() is not None:
@@ -281,6 +303,8 @@ class Supervisor:
         self.say(f"[launch] stopped in {self.stop_time_s:.2f} s")
         if hasattr(self, "control"):
             self.control.close(0)
+        if self.diag is not None:
+            self.diag.close(0)
         if hasattr(self, "master_server"):
             self.master_server.close()
         shutil.rmtree(self.run_dir, ignore_errors=True)
@@ -291,6 +315,33 @@ class Supervisor:
                 c.proc.kill()
 
 
+
+def graph_manifest(graph: CheckedGraph, endpoints: dict[str, str], children: list[Child],
+                   liveness: Liveness) -> Manifest:
+    """The manifest of a running graph: every node's topics and endpoints (also those on other
+    machines), this launcher's processes, the key files of a CurveZMQ bus."""
+    types = graph.topic_types()
+    m = Manifest(graph=graph.spec.file)
+    sec = graph.spec.security
+    if sec.curve:
+        m.security = {"key": sec.key, "authorized": sec.authorized}
+    for rn in graph.nodes:
+        for port, t in rn.outputs.items():
+            m.add_publisher(t, types[t], rn.name, endpoints[rn.name], rn.iface.outputs[port].is_latched)
+        for port, t in rn.inputs.items():
+            m.add_subscriber(t, types.get(t, "*"), rn.name, port)
+    for ext in graph.spec.external:
+        m.add_publisher(ext.topic, ext.type, "external", ext.endpoint)
+    diag = m.topics.pop(DIAGNOSTICS_TOPIC, {"subscribers": []})
+    m.topics[DIAGNOSTICS_TOPIC] = {"type": "Diagnostics", "subscribers": diag["subscribers"], "publishers": []}
+    for n, e in endpoints.items():
+        m.add_publisher(DIAGNOSTICS_TOPIC, "Diagnostics", n, e)
+    m.nodes = [NodeEntry(c.node.name, c.node.spec.type, c.node.class_path, c.proc.pid if c.proc else None,
+                         endpoints[c.node.name], c.node.params, c.node.inputs, c.node.outputs,
+                         c.restarts, bool(c.proc and c.proc.poll() is None),
+                         stalled=liveness.is_stalled(c.node.name)) for c in children]
+    return m
+
 def _wait(proc: subprocess.Popen, timeout: float) -> bool:
     try:
         proc.wait(timeout)
@@ -299,9 +350,11 @@ def _wait(proc: subprocess.Popen, timeout: float) -> bool:
         return False
 
 
-def run_graph(graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None) -> int:
-    """Launch, supervise and stop a graph; Ctrl-C / SIGTERM stop it in order. Exit code."""
-    sup = Supervisor(graph, master, out)
+def run_graph(graph: CheckedGraph, master: str | None = None, out: IO[str] | None = None,
+              machine: str | None = None) -> int:
+    """Launch, supervise and stop a graph (with ``machine``: only that machine's nodes, connected to
+    the others'); Ctrl-C / SIGTERM stop it in order. Exit code."""
+    sup = Supervisor(graph, master, out, machine)
     hits = {"n": 0}
 
     def on_signal(signum: int, frame: Any) -> None:

@@ -169,7 +169,7 @@ class Diagnostics(Message):
     """A node's health: per incoming edge rate, latency, gaps and rejects; per output counts."""
 
     type_name = "Diagnostics"
-    version = 1
+    version = 2
     node: str = scalar("str", "node name")
     pid: int = scalar("int", "process id")
     uptime_s: float = scalar("float", "seconds since the node started")
@@ -182,6 +182,7 @@ class Diagnostics(Message):
     edge_received = array("int64", ("E",), "messages received since start")
     edge_gaps = array("int64", ("E",), "messages lost according to sequence numbers since start")
     edge_rejected = array("int64", ("E",), "malformed frames rejected on this input since start")
+    edge_anomalies = array("int64", ("E",), "sequence anomalies (restarts, jumps beyond belief) resynchronised since start")
     output_topics = strings("published topics")
     output_sent = array("int64", ("O",), "messages published per output since start")
 

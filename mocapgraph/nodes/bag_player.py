@@ -29,6 +29,8 @@ class BagPlayer(Node):
     """
 
     summary = "replay an MCAP bag with its recorded timing (pause, step, seek, rate, loop)"
+    #: its frames carry the recorded senders' names, not its own (the wiring allows unnamed senders)
+    relays_senders = True
     file = Param("", "the .mcap bag to play")
     rate = Param(1.0, "playback speed factor", minimum=1e-3)
     loop = Param(False, "start over at the end")
@@ -82,6 +84,7 @@ class BagPlayer(Node):
         self._last_state = ""
         self._status_at = 0.0
         self.error = ""
+        self.command_error = ""  # why the last command was refused ('' when it was not)
         self.finished_at: float | None = None
 
     # ----- sending ---------------------------------------------------------------------------------
@@ -169,10 +172,13 @@ class BagPlayer(Node):
     def on_command(self, cmd: NodeCommand) -> None:
         if cmd.target not in ("", self.name):
             return
+        self.command_error = ""
         try:
             self.handle(cmd.command, parse_command(cmd.command, cmd.args_json, PLAYER_COMMANDS))
-        except (ValueError, TypeError, BagError) as exc:
-            self.log.warning("command %s: %s", cmd.command, exc)
+        except (ValueError, TypeError, KeyError, OverflowError, BagError) as exc:
+            # A bad command is answered on player_status and changes nothing: the player plays on.
+            self.command_error = f"command {cmd.command[:40]!r} refused: {exc}"
+            self.log.warning("%s", self.command_error)
         self._publish_status()
 
     def handle(self, command: str, args: dict[str, Any] | None = None) -> None:
@@ -192,10 +198,13 @@ class BagPlayer(Node):
                 pb.pause()
             self._send(pb.step())  # BagError: reported by on_command
         elif command == "seek":
-            pb.seek(float(args["position_s"]))
+            pb.seek(_seconds(args, "position_s", pb.duration_s))
             self.finished_at = None
         elif command == "rate":
-            pb.set_rate(float(args["rate"]))
+            rate = args.get("rate")
+            if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (1e-3 <= rate <= 1e3):
+                raise ValueError(f"rate wants a number in [0.001, 1000], got {str(rate)[:40]}")
+            pb.set_rate(float(rate))
         elif command == "stop":
             self.request_stop()
         if self._timer is not None:
@@ -208,7 +217,8 @@ class BagPlayer(Node):
         def num(x: float) -> float | None:
             return None if math.isnan(x) else round(x, 4)
 
-        return {"position_s": round(pb.position_s, 4), "duration_s": round(pb.duration_s, 4), "rate": pb.rate,
+        return {"error": self.command_error, "position_s": round(pb.position_s, 4),
+                "duration_s": round(pb.duration_s, 4), "rate": pb.rate,
                 "achieved_rate": num(pb.achieved_rate), "lag_p50_ms": num(p50), "lag_p99_ms": num(p99),
                 "lag_max_ms": num(pmax), "sent": pb.sent, "loops": pb.loops, "file": str(self.reader.path)}
 
@@ -218,9 +228,21 @@ class BagPlayer(Node):
         self._status_at = time.monotonic()
         d = self.status_data()
         detail = f"{d['position_s']:.2f}/{d['duration_s']:.2f} s at {pb.rate:g}x"
+        if self.command_error:
+            detail += f"; {self.command_error}"
         progress = d["position_s"] / d["duration_s"] if d["duration_s"] > 0 else float("nan")
         self.status.publish(NodeStatus(node=self.name, state=pb.state, detail=detail, progress=progress,
                                        data_json=json.dumps(d)))
 
     def on_stop(self) -> None:
         self.reader.close()
+
+
+def _seconds(args: dict[str, Any], key: str, duration_s: float) -> float:
+    """``args[key]`` as a position in the bag, s; ValueError unless it is a finite number in [0, duration]."""
+    if key not in args:
+        raise ValueError(f"needs {key!r} (s)")
+    v = args[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+        raise ValueError(f"{key} wants a finite number of seconds >= 0, got {str(v)[:40]}")
+    return min(float(v), duration_s)

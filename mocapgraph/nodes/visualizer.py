@@ -15,6 +15,7 @@ from __future__ import annotations
 import importlib
 import json
 import queue
+import secrets
 import threading
 import webbrowser
 from typing import Any, Callable
@@ -23,6 +24,7 @@ from ..bus import Input, Interface, Node, Output, Param
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
                         NodeCommand, NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel,
                         SkeletonPose)
+from ..launch.user_dir import UnsafeDirError, secret_file
 from ..viewer.server import COMMANDS, LatestStore, ViewerServer, ViewerStartError
 
 FRAME_QUEUE = 64  # messages a per-frame input's socket holds before dropping (counted as gaps)
@@ -72,6 +74,12 @@ class Visualizer(Node):
     message_modules = Param([], "modules to import so that their message types decode (plugins)")
     open_browser = Param(False, "open the page in the default browser at start")
     title = Param("mocapgraph", "page title")
+    allowed_origins = Param([], "further page origins allowed to connect, e.g. ['http://render-pc:8765'] "
+                            "(the page's own origin always is)")
+    allowed_hosts = Param([], "further names this viewer is reached by, as host:port (DNS-rebinding defence: "
+                          "any other Host header is refused)")
+    token = Param("", "access token every connection must present (empty: a random one, kept per user and "
+                  "port in the 0700 run directory so an open tab reconnects after a restart; in the printed URL)")
 
     @classmethod
     def interface(cls, params: dict[str, Any]) -> Interface:
@@ -109,7 +117,15 @@ class Visualizer(Node):
                  "commands": {ch: list(cmds) for ch, cmds in COMMANDS.items()},
                  "command_topics": {"calibration": self.calibration_command.topic,
                                     "player": self.player_command.topic}}
-        self.server = ViewerServer(self.store, hello, self.host, self.port, self.max_rate_hz, self.window)
+        try:
+            token = self.token or (secret_file(f"viewer-{self.port}.token", lambda: secrets.token_urlsafe(18))
+                                   if self.port else "")
+        except (UnsafeDirError, OSError) as exc:
+            self.log.error("viewer token: %s", exc)
+            raise SystemExit(2) from None
+        self.server = ViewerServer(self.store, hello, self.host, self.port, self.max_rate_hz, self.window,
+                                   token=token, allowed_origins=list(self.allowed_origins),
+                                   allowed_hosts=list(self.allowed_hosts))
         try:
             self.server.start()
         except ViewerStartError as exc:

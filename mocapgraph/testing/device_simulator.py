@@ -123,8 +123,11 @@ def run_lsl(sim: SimulatedDevice, name: str, stream_type: str = "Mocap", count: 
                                           "in": "inches"}[sim.dev.units])
     outlet = pylsl.StreamOutlet(info)
     n = 0
+    t0 = pylsl.local_clock()
     for f in paced(sim.frames(count), sim.rate_hz):
-        outlet.push_sample(f.positions.ravel().astype(np.float32), pylsl.local_clock())
+        # Stamped with the frame's capture time, as a device does, not with when this process got
+        # round to pushing it (a late push on a busy machine would squeeze the stamps together).
+        outlet.push_sample(f.positions.ravel().astype(np.float32), t0 + n / sim.rate_hz)
         n += 1
     return n
 

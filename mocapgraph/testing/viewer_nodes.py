@@ -300,7 +300,10 @@ class CommandEcho(Node):
                 self.state, min(0.75, 0.25 + 0.5 * (time.monotonic() - self.gym_started) / max(self.gym_s, 1e-6)))
             data: dict[str, Any] = {"step": self.state}
             if self.state == "calibrated":
-                data["joint_quality"] = {n: (2 if i % 5 else 1) for i, n in enumerate(JOINT_NAMES)}
+                # the real calibration node's report (mocapgraph.nodes.model_messages.quality_report)
+                data["joints"] = [{"joint": n, "residual_mm": 2.0, "rom_deg": 60.0, "reliable": bool(i % 5),
+                                   "warnings": [] if i % 5 else ["move this joint more"]}
+                                  for i, n in enumerate(JOINT_NAMES)]
         else:
             progress = self._position() / self.duration_s
             data = {"position_s": self.t, "duration_s": self.duration_s}  # as the bag player reports

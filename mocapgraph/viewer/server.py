@@ -10,6 +10,13 @@ one value per stream per bundle and never a backlog:
   sending instead of queueing;
 - ``max_rate_hz`` caps bundles per second per connection.
 
+Who may connect. The server hands out nothing to a stranger (a web page in another tab, another
+local user): every WebSocket and /stats request must carry the per-launch ``token`` (in the
+printed URL, as Jupyter does; the page passes it on); the Host header must name this server
+(a DNS-rebinding page's Host is its own name); a browser's Origin must be the page's own
+(or in ``allowed_origins``). Commands are checked against a schema of their arguments and limited
+to COMMAND_RATE_HZ per connection (burst COMMAND_BURST); a refused command gets an error reply.
+
 Messages are encoded for the browser lazily, once per stream version, whichever connection needs
 them first; the bus side only stores references. Commands from the page (JSON text frames) are
 checked here and queued for the node, which publishes them from its own thread (ZeroMQ sockets are
@@ -18,12 +25,17 @@ not thread-safe).
 from __future__ import annotations
 
 import asyncio
+import hmac
 import json
 import logging
+import math
 import mimetypes
 import queue
+import secrets
+import socket
 import threading
 import time
+from urllib.parse import parse_qs, quote
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,7 +55,51 @@ logging.getLogger("websockets").setLevel(logging.WARNING)  # not a line per page
 
 #: commands the page may send, per channel (calibration node / bag player)
 COMMANDS = VIEWER_COMMANDS  # what the page may send; the one list lives in messages/commands.py
+#: the arguments each command takes: name -> (kind, required); kinds: "seconds" (finite, >= 0)
+COMMAND_ARGS: dict[tuple[str, str], dict[str, tuple[str, bool]]] = {
+    ("player", "seek"): {"position_s": ("seconds", True)},
+}
+MAX_SECONDS = 1e7  # no recording or command is longer than this (s); bigger numbers are refused
+COMMAND_RATE_HZ = 10.0
+COMMAND_BURST = 20
 _SERVED_SUFFIXES = (".html", ".js", ".css")
+
+
+def check_command_args(channel: str, name: str, args: Any) -> dict[str, Any]:
+    """``args`` if they match the command's schema; ValueError naming the bad key otherwise."""
+    if not isinstance(args, dict):
+        raise ValueError("args must be an object")
+    schema = COMMAND_ARGS.get((channel, name), {})
+    for key in args:
+        if key not in schema:
+            raise ValueError(f"{channel} {name} takes no argument {str(key)[:40]!r}"
+                             + (f" (takes: {', '.join(schema)})" if schema else ""))
+    for key, (kind, required) in schema.items():
+        if key not in args:
+            if required:
+                raise ValueError(f"{channel} {name} needs {key!r}")
+            continue
+        v = args[key]
+        if kind == "seconds" and not (isinstance(v, (int, float)) and not isinstance(v, bool)
+                                      and math.isfinite(v) and 0 <= v <= MAX_SECONDS):
+            raise ValueError(f"{channel} {name}: {key} must be a finite number of seconds in [0, {MAX_SECONDS:g}]")
+    return args
+
+
+class _Bucket:
+    """Token bucket: ``take()`` is False once more than ``burst`` came faster than ``rate_hz``."""
+
+    def __init__(self, rate_hz: float, burst: int) -> None:
+        self.rate, self.burst, self.level, self.t = rate_hz, burst, float(burst), time.monotonic()
+
+    def take(self) -> bool:
+        now = time.monotonic()
+        self.level = min(self.burst, self.level + (now - self.t) * self.rate)
+        self.t = now
+        if self.level >= 1.0:
+            self.level -= 1.0
+            return True
+        return False
 
 
 class ViewerStartError(RuntimeError):
@@ -129,14 +185,22 @@ class ClientStats:
     acks: int = 0
     credit: int = 0
     commands: int = 0
+    refused: int = 0
+    bucket: _Bucket = field(default_factory=lambda: _Bucket(COMMAND_RATE_HZ, COMMAND_BURST), repr=False)
 
 
 class ViewerServer:
     """Serves the page and streams the store to every connected browser."""
 
     def __init__(self, store: LatestStore, hello: dict[str, Any], host: str = "127.0.0.1", port: int = 8765,
-                 max_rate_hz: float = 60.0, window: int = 2, asset_dir: Path = ASSET_DIR) -> None:
+                 max_rate_hz: float = 60.0, window: int = 2, asset_dir: Path = ASSET_DIR, token: str = "",
+                 allowed_origins: list[str] | None = None, allowed_hosts: list[str] | None = None) -> None:
         self.store = store
+        #: every WebSocket and /stats request must carry it (``?token=``); per launch unless given
+        self.token = token or secrets.token_urlsafe(18)
+        self.allowed_origins = {o.rstrip("/") for o in (allowed_origins or [])}
+        self.extra_hosts = [h.lower() for h in (allowed_hosts or [])]
+        self.refused = 0
         self.hello = hello
         self.host = host
         self.port = port
@@ -173,11 +237,45 @@ class ViewerServer:
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}/"
+        """The page's address with the token: the one URL that works."""
+        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
+        host = f"[{host}]" if ":" in host else host
+        return f"http://{host}:{self.port}/?token={quote(self.token)}"
 
     def stats(self) -> dict[str, Any]:
-        return {"clients": [c.__dict__ for c in list(self.clients.values())], "connects": self.connects,
+        clients = [{k: v for k, v in c.__dict__.items() if k != "bucket"} for c in list(self.clients.values())]
+        return {"clients": clients, "connects": self.connects, "refused": self.refused,
                 "store_puts": self.store.puts, "started_ns": self.started_ns}
+
+    # ----- who may connect --------------------------------------------------------------------
+    def _hosts(self) -> set[str]:
+        names = {"127.0.0.1", "localhost", "[::1]", self.host.lower(), *self.extra_hosts}
+        if self.host in ("0.0.0.0", "::", ""):
+            names.add(socket.gethostname().lower())
+            try:
+                names.update(a[4][0] for a in socket.getaddrinfo(socket.gethostname(), None))
+            except OSError:
+                pass
+        return {f"{h}:{self.port}" for h in names} | set(self.extra_hosts)
+
+    def refusal(self, request: Request, need_token: bool) -> str:
+        """Why ``request`` is refused ('' when it may proceed)."""
+        hosts = request.headers.get_all("Host")
+        host = hosts[0].lower() if len(hosts) == 1 else ""
+        if host not in self._hosts():
+            return f"Host {host[:80]!r} is not this viewer" if len(hosts) <= 1 else "more than one Host header"
+        origins = request.headers.get_all("Origin")
+        if len(origins) > 1:
+            return "more than one Origin header"
+        origin = origins[0] if origins else None
+        if origin is not None and origin.rstrip("/") != f"http://{host}" and origin.rstrip("/") not in self.allowed_origins:
+            return f"Origin {origin[:80]!r} is not allowed"
+        if need_token:
+            query = parse_qs(request.path.partition("?")[2])
+            given = (query.get("token") or [""])[0]
+            if not hmac.compare_digest(given.encode(), self.token.encode()):
+                return "missing or wrong token (open the URL the viewer printed)"
+        return ""
 
     # ----- server thread ----------------------------------------------------------------------
     def _thread_main(self) -> None:
@@ -213,6 +311,13 @@ class ViewerServer:
 
     def _http(self, connection: ServerConnection, request: Request) -> Response | None:
         path = request.path.split("?", 1)[0]
+        why = self.refusal(request, need_token=path in ("/ws", "/stats"))
+        if why:
+            self.refused += 1
+            if self.refused <= 5 or self.refused % 100 == 0:
+                log.warning("viewer: refused %s (%s); %d refused so far", path[:60], why, self.refused)
+            body = (why + "\n").encode()
+            return Response(403, "Forbidden", _headers("text/plain; charset=utf-8", len(body)), body)
         if path == "/ws":
             return None
         if path == "/":
@@ -268,6 +373,8 @@ class ViewerServer:
 
     def _command(self, text: Any, client: ClientStats) -> dict[str, Any]:
         try:
+            if not client.bucket.take():  # first: a flood of bad commands is limited too
+                raise ValueError(f"too many commands (at most {COMMAND_RATE_HZ:g}/s); this one was dropped")
             req = json.loads(text)
             if not isinstance(req, dict) or req.get("type") != "command":
                 raise ValueError("not a command")
@@ -280,7 +387,9 @@ class ViewerServer:
             target = req.get("target") or ""
             if not isinstance(args, dict) or not isinstance(target, str):
                 raise ValueError("args must be an object and target a string")
+            check_command_args(channel, name, args)
         except (ValueError, TypeError) as exc:
+            client.refused += 1
             return {"type": "command_result", "id": _req_id(text), "ok": False, "error": str(exc)}
         client.commands += 1
         self.commands.put({"channel": channel, "command": name, "args": args, "target": target})

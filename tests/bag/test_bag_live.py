@@ -2,6 +2,7 @@
 with SIGKILL then recovered, and the player node driven by NodeCommand messages."""
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -111,9 +112,34 @@ nodes:
         assert verdicts[-1] is None, verdicts
 
 
+# The machine's own wake-up lateness, measured beside each replay: a process sleeping to deadlines
+# at the recorded 240 Hz (the player waits the same way: poll, then sleep the rest). Not at the
+# replay's cadence: at 4x (1 ms) such a process hardly sleeps, so it measures a busy loop's luck,
+# while the player, which does work for every message, is preempted like any busy process.
+PACER = """
+import json, sys, time
+period, seconds = float(sys.argv[1]), float(sys.argv[2])
+t0 = time.monotonic() + 0.02
+late = []
+for k in range(int(seconds / period)):
+    due = t0 + k * period
+    while (wait := due - time.monotonic()) > 0:
+        time.sleep(wait)
+    late.append((time.monotonic() - due) * 1e3)
+print(json.dumps(late))
+"""
+
+
+def baseline_lateness_ms(period_s: float, seconds: float) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-c", PACER, str(period_s), str(seconds)], stdout=subprocess.PIPE,
+                            text=True)
+
+
 def replay_and_check(bag, rate, recorded, recorded_pub) -> str | None:
     """Replay at ``rate``; asserts exact bytes and order, returns what was wrong with the timing (None: ok)."""
+    pacer = baseline_lateness_ms(1 / RATE, 1.0 / rate + 0.5)
     got, out = play_into_subscriber(bag, "--rate", str(rate))
+    base = np.array(json.loads(pacer.communicate(timeout=30)[0]))
     markers = [(t, f) for t, f in got if bytes(f[0]) == b"markers\0"]
     layouts = [f for _, f in got if bytes(f[0]) == b"marker_layout\0"]
     assert len(layouts) == 1 and len(markers) == 240
@@ -129,21 +155,74 @@ def replay_and_check(bag, rate, recorded, recorded_pub) -> str | None:
     expect = pattern_positions(7, N_MARKERS, RATE)
     expect[0] = np.nan
     assert np.array_equal(msg.positions, expect, equal_nan=True) and not msg.valid[0]
-    # timing: each message within 1 ms of its recorded offset scaled by the rate (so proportional)
+    # timing: each message at its recorded offset scaled by the rate (so proportional)
     sent_err = timing_errors_ms([e.publish_ns for e in envs], recorded_pub, rate)
     arrive_err = timing_errors_ms([t for t, _ in markers], recorded_pub, rate)
-    text = (f"rate {rate}: send lateness p50 {np.median(sent_err):.3f} ms, p99 {np.percentile(sent_err, 99):.3f} "
-            f"ms, max {sent_err.max():.3f} ms; arrival p99 {np.percentile(arrive_err, 99):.3f} ms")
+    b50, b90 = np.percentile(base, [50, 90])
+    half = len(sent_err) // 2
+    drift = abs(np.median(sent_err[half:]) - np.median(sent_err[:half]))  # a wrong rate drifts
+    text = (f"rate {rate}: send lateness p50 {np.median(sent_err):.3f} ms, p90 {np.percentile(sent_err, 90):.3f} "
+            f"ms, max {sent_err.max():.3f} ms, drift {drift:.3f} ms; arrival p50 {np.median(arrive_err):.3f} ms; "
+            f"machine baseline (a process sleeping to 240 Hz deadlines) p50 {b50:.3f} ms, p90 {b90:.3f} ms")
     print(text)
-    # On a quiet machine p99 is ~0.3 ms (benchmarks/bags.py). With other suites on the 2 cores a
-    # woken process may wait a scheduler tick, so the bound is held for 90 % of the messages; arrival
-    # also waits for this test process to be scheduled, hence its looser bound.
-    ok = (np.median(sent_err) < 0.5 and np.percentile(sent_err, 90) < 1.0 and sent_err.max() < 10.0
-          and np.percentile(arrive_err, 90) < 1.5)
+    # On a quiet machine the player's p90 is ~0.3 ms and the baseline's ~0.1 ms (benchmarks/bags.py);
+    # with four busy loops on the two cores the baseline's p90 reaches 8-13 ms and the player's 12-21
+    # ms (it works for every message, so it is preempted more). So the player is judged against
+    # the baseline: a few times its lateness plus 1-2 ms, and no drift between the two halves of
+    # the replay beyond the baseline's lateness (arrival also waits for this test process). Ignoring
+    # the rate, or a rate 10 % off, drifts by 25-750 ms; sending in bursts is late by 100s of ms.
+    # The baseline process has its own luck on a very busy machine (load 20: p50 3.9 ms beside a
+    # player at 13 ms, then 12 ms beside 14 ms), so each bound takes both of its percentiles.
+    ok = (np.median(sent_err) < 1.0 + 2 * b50 + b90 and np.percentile(sent_err, 90) < 2.0 + 4 * b90
+          and drift < 1.0 + 2 * b50 + b90 and np.median(arrive_err) < 2.0 + 2 * b50 + 2 * b90)
     return None if ok else text
 
 
+FLUSH_S = 0.25  # the README's promise: a chunk closes every 0.25 s
+# The recorder checks its flush deadline on a 50 ms timer, and a woken process may wait for a core
+# on a busy machine (measured up to ~60 ms with four busy loops on the two cores): the slack.
+FLUSH_SLACK_S = 0.05 + 0.1
+
+
+def test_recorder_closes_a_chunk_every_flush_period(tmp_path, launch_graph):
+    from mcap.reader import make_reader  # the stock library's view of the chunks, not ours
+
+    bag = tmp_path / "chunks.mcap"
+    g = launch_graph(f"""
+nodes:
+  - name: src
+    type: marker_test_pattern
+    params: {{rate_hz: {RATE}, n_markers: 8, count: 720}}
+  - name: rec
+    type: bag_recorder
+    params: {{path: "{bag}", topics: [markers]}}
+""")
+    g.wait_ready()
+    g.wait_for("node src exited", timeout=30)
+    assert g.stop() == 0
+    with open(bag, "rb") as f:
+        chunks = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.message_start_time)
+    starts = np.array([c.message_start_time for c in chunks], np.int64) / 1e9
+    spans = np.array([c.message_end_time - c.message_start_time for c in chunks], np.int64) / 1e9
+    spacing = np.diff(starts)
+    print(f"{len(chunks)} chunks: spacing median {np.median(spacing) * 1e3:.0f} ms, mean {np.mean(spacing) * 1e3:.1f} ms, "
+          f"max {spacing.max() * 1e3:.0f} ms; span max {spans.max() * 1e3:.0f} ms")
+    # 720 frames at 240 Hz: 3 s or more on a busy machine, so 12 chunks or more, closed by time
+    # (far below the size limit)
+    assert len(chunks) >= 11
+    # On schedule (no drift): late flushes are followed by early ones, so the median holds the
+    # period within 30 ms even on a busy machine (measured 250-251 ms); one stretched by the 50 ms
+    # tick each time would be 300 ms.
+    assert FLUSH_S - 0.01 <= np.median(spacing) <= FLUSH_S + 0.03
+    # and on average exactly the period: the last flush's lateness spread over all the periods
+    # (a schedule restarted from each late flush drifts: 273-300 ms measured)
+    assert np.mean(spacing) <= FLUSH_S + 0.012
+    assert spans.max() <= FLUSH_S + 2 * FLUSH_SLACK_S
+
+
 def test_recorder_killed_then_recovered(tmp_path, launch_graph):
+    import random
+
     bag = tmp_path / "killed.mcap"
     g = launch_graph(f"""
 nodes:
@@ -155,11 +234,14 @@ nodes:
     params: {{path: "{bag}", topics: [markers, marker_layout]}}
 """)
     g.wait_ready()
-    time.sleep(1.6)
     nodes = {n["name"]: n for n in fetch_manifest(g.master)["nodes"]}
+    # Killed at a random moment of a flush period, once a second of frames is in.
+    t_kill = time.monotonic() + 1.0 + random.uniform(0.0, FLUSH_S)
+    while time.monotonic() < t_kill:
+        time.sleep(0.005)
     kill_ns = time.time_ns()
     os.kill(nodes["rec"]["pid"], signal.SIGKILL)
-    time.sleep(0.3)
+    g.wait_for("node rec exited")
     g.stop()
     info = g.cli("bag", "info", str(bag))
     assert info.returncode == 2 and "truncated or unfinished" in info.stderr and "bag recover" in info.stderr
@@ -174,8 +256,9 @@ nodes:
     assert seqs[0] == 1 and np.all(np.diff(seqs) == 1)  # everything up to the last flushed chunk
     lost_s = (kill_ns - envs[-1].publish_ns) / 1e9
     print(f"recovered {len(envs)} frames; the last one was published {lost_s * 1e3:.0f} ms before the kill")
-    assert 0 <= lost_s <= 0.5
-    assert len(envs) > 200
+    # At most one flush period plus the slack stated above, and one frame period in between.
+    assert 0 <= lost_s <= FLUSH_S + FLUSH_SLACK_S + 1 / RATE
+    assert len(envs) >= RATE * (1.0 - FLUSH_S - FLUSH_SLACK_S)
 
 
 def test_bag_record_cli_against_a_running_graph(tmp_path, launch_graph):
@@ -197,7 +280,10 @@ nodes:
     assert set(s.topics) == {"markers", "marker_layout"}
     assert len(layouts) == 1 and layouts[0].labels[0] == "P0"  # latched: resent to the late joiner
     seqs = np.array([e.seq for e in envs])
-    assert np.all(np.diff(seqs) == 1) and 180 < len(seqs) < 300
+    # every frame of a one-second stretch of the stream (however fast a busy machine let the
+    # pattern publish: 179 frames seen at load 13, 240 when quiet)
+    span_s = (envs[-1].publish_ns - envs[0].publish_ns) / 1e9
+    assert np.all(np.diff(seqs) == 1) and 0.8 < span_s < 1.3 and len(seqs) > 100, (len(seqs), span_s)
     assert s.metadata["mocapgraph"]["writer"] == "bag record"
     assert s.metadata["mocapgraph"]["graph"].endswith("graph_0.yaml")
     bad = g.cli("bag", "record", "nosuchtopic", "--duration", "0.1")
@@ -226,7 +312,6 @@ nodes:
     m = fetch_manifest(g.master)
     assert m["topics"]["replayed"]["type"] == "MarkerFrame"
     sub = subscribe(m, ["replayed", "marker_layout", "player_status"])
-    time.sleep(0.3)
 
     sent = [0]
 
@@ -237,38 +322,48 @@ nodes:
         cmd.send_multipart(encode("player_command", NodeCommand(target="player", command=command,
                                                                 args_json=json.dumps(args)), sent[0], time.time_ns()))
 
-    def collect(seconds: float) -> list:
-        out, t_end = [], time.monotonic() + seconds
+    got: list = []
+
+    def collect_until(cond, timeout: float = 15.0) -> list:
+        """Messages from now on until ``cond(messages)`` holds (waits on events, not a fixed time)."""
+        out, t_end = [], time.monotonic() + timeout
         while time.monotonic() < t_end:
             if sub.poll(20):
                 out.append(decode(sub.recv_multipart()))
-        return out
+                if cond(out):
+                    return out
+        raise AssertionError(f"timed out; got {[(e.topic, getattr(m, 'state', '')) for e, m in out][-10:]}")
 
     def frames(msgs):
         return [m.frame_number for e, m in msgs if e.topic == "replayed"]
 
-    def last_status(msgs):
+    def statuses(msgs):
         import json
 
-        st = [m for e, m in msgs if e.topic == "player_status"][-1]
-        return st.state, json.loads(st.data_json)
+        return [(m.state, json.loads(m.data_json)) for e, m in msgs if e.topic == "player_status"]
 
-    got = collect(0.6)
-    assert frames(got) == [] and last_status(got)[0] == "paused"  # nothing played yet...
-    assert [e.topic for e, _ in got].count("marker_layout") == 1  # ...but the latched layout reached us
+    # Two status reports while paused (~0.4 s apart): nothing played yet, but the latched layout
+    # reached us.
+    got = collect_until(lambda ms: len(statuses(ms)) >= 2 and any(e.topic == "marker_layout" for e, _ in ms))
+    assert frames(got) == [] and statuses(got)[-1][0] == "paused"
+    assert [e.topic for e, _ in got].count("marker_layout") == 1
     send("step")
     send("step")
-    got = collect(0.4)
+    got = collect_until(lambda ms: len(frames(ms)) >= 2 and statuses(ms)
+                        and statuses(ms)[-1][1]["position_s"] > 0)
     assert frames(got) == [0, 1]
     send("seek", position_s=0.5)
-    got = collect(0.3)
-    state, data = last_status(got)
-    assert state == "paused" and data["position_s"] == pytest.approx(0.5)
+    got = collect_until(lambda ms: statuses(ms) and statuses(ms)[-1][1]["position_s"] == pytest.approx(0.5))
+    assert statuses(got)[-1][0] == "paused" and frames(got) == []
+    pacer = baseline_lateness_ms(0.01, 1.0)  # the machine's wake-up lateness meanwhile
     send("play")
-    got = collect(0.8)
+    got = collect_until(lambda ms: statuses(ms) and statuses(ms)[-1][0] == "finished")
+    base = np.array(json.loads(pacer.communicate(timeout=30)[0]))
     assert frames(got) == list(range(50, 100))
-    state, data = last_status(got)
-    assert state == "finished" and data["sent"] == 53 and data["lag_p50_ms"] < 2
+    state, data = statuses(got)[-1]
+    print(f"player lag p50 {data['lag_p50_ms']:.3f} ms; machine baseline p50 {np.median(base):.3f} ms")
+    # ~0.1 ms on a quiet machine; judged against the baseline, as in the round trip above
+    assert data["sent"] == 53 and data["lag_p50_ms"] < 2.0 + 3 * np.median(base)
     sub.close(0)
     cmd.close(0)
 
@@ -306,7 +401,7 @@ def test_terminal_keys_step_and_quit(tmp_path):
     os.close(slave)
     out = b""
 
-    def read_until(text: bytes, timeout: float = 10.0) -> None:
+    def read_until(text: bytes, timeout: float = 60.0) -> None:  # a deadline against hangs
         nonlocal out
         t_end = time.monotonic() + timeout
         while text not in out and time.monotonic() < t_end:

@@ -178,23 +178,34 @@ def test_noise_std_matches_option_and_truth_is_untouched():
         np.testing.assert_array_equal(getattr(noisy, f), getattr(clean, f), err_msg=f)
 
 
+def band_leak(x: np.ndarray, rate: float, band: tuple[float, float]) -> float:
+    """Fraction of the energy of ``x`` (time on axis 0) outside the frequency ``band``, Hz."""
+    power = np.abs(np.fft.rfft(x - x.mean(axis=0), axis=0)) ** 2
+    f = np.fft.rfftfreq(x.shape[0], 1.0 / rate)
+    inside = (f >= band[0]) & (f <= band[1])
+    return float(power[~inside].sum() / power.sum())
+
+
 def test_soft_tissue_wobble_is_smooth_and_limb_relative():
+    # Expectations from the documented options (4 mm RMS per axis in the limb frame, 0.2-2 Hz) and
+    # the ground-truth limb orientations, never from the actor's own draws.
     clean = SyntheticActor("lower_body", rate=100.0, seed=6).capture()
     wob = SyntheticActor("lower_body", rate=100.0, seed=6, options=CaptureOptions(wobble_mm=4.0)).capture()
     d = (wob.markers - clean.markers) * 1e3
-    rms = np.sqrt((d ** 2).sum(-1).mean() / 3.0)
-    assert 3.0 < rms < 5.0
     # correlated in time: white noise of this RMS would step ~1.4 x RMS per frame
-    assert np.sqrt((np.diff(d, axis=0) ** 2).mean()) < 0.1 * rms
+    assert np.sqrt((np.diff(d, axis=0) ** 2).mean()) < 0.1 * 4.0
     np.testing.assert_array_equal(wob.joint_centres, clean.joint_centres)
-    # limb-relative: in the owning limb's frame the displacement does not depend on its rotation
     sk = wob.skeleton
     R = Rotation.from_quat(wob.limb_quat.reshape(-1, 4), scalar_first=True).as_matrix().reshape(wob.n_frames, -1, 3, 3)
-    local = np.einsum("tmba,tmb->tma", R[:, sk.marker_limb], d)
-    act = SyntheticActor("lower_body", rate=100.0, seed=6, options=CaptureOptions(wobble_mm=4.0))
-    t = wob.times
-    expect = (act._wob_a[None] * np.sin(2 * np.pi * act._wob_f[None] * t[:, None, None, None] + act._wob_p[None])).sum(-1) * 4.0
-    np.testing.assert_allclose(local, expect, atol=1e-6)
+    local = np.einsum("tmba,tmb->tma", R[:, sk.marker_limb], d)  # in the owning limb's frame
+    per_axis = np.sqrt((local ** 2).mean(axis=(0, 1)))
+    assert np.allclose(per_axis, 4.0, atol=0.2), per_axis  # measured 3.96-4.02 mm
+    # Limb-relative: in the limb's frame it stays in its band (measured 0.3 % of the energy outside
+    # 0.15-2.2 Hz), while in the world frame the limb's turning spreads it (2.4 %). A wobble added
+    # in the world frame shows the opposite.
+    leak_local = band_leak(local, 100.0, (0.15, 2.2))
+    leak_world = band_leak(d, 100.0, (0.15, 2.2))
+    assert leak_local < 0.01 and leak_local < leak_world / 3, (leak_local, leak_world)
 
 
 def test_occlusions_and_swaps():

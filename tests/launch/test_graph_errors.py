@@ -35,25 +35,28 @@ def test_good_graph_passes(tmp_path, capsys) -> None:
     assert code == 0 and "OK, 2 nodes" in text
 
 
-@pytest.mark.parametrize("text, line, key, words", [
+# Each message is asserted whole: a hint that names the wrong key, or a part of the message that
+# goes missing, fails (``{path}`` stands for the graph file's path).
+@pytest.mark.parametrize("text, line, key, message", [
     (GOOD.replace("type: topic_logger", "type: topic_loger"), 8, "nodes[logger].type",
-     "did you mean 'topic_logger'"),
+     "unknown node type 'topic_loger' (did you mean 'topic_logger'?)"),
     (GOOD.replace("n_markers: 4", "n_markerz: 4"), 6, "nodes[pattern].params.n_markerz",
-     "did you mean 'n_markers'"),
-    (GOOD.replace('"${rate}"', "fast"), 6, "nodes[pattern].params.rate_hz", "wants float, got str"),
+     "unknown parameter of marker_test_pattern (did you mean 'n_markers'?)"),
+    (GOOD.replace('"${rate}"', "fast"), 6, "nodes[pattern].params.rate_hz",
+     "parameter 'rate_hz' wants float, got str 'fast'"),
     (GOOD.replace("topics: [markers]", "topics: [markerz]"), 8, "nodes[logger].type",
-     "subscribes to topic 'markerz' that no node publishes (did you mean 'markers'?)"),
-    (GOOD.replace("- name: logger", "- name: pattern"), 7, "nodes[pattern].name", "duplicate node name"),
-    (GOOD.replace("    params: {path", "    parms: {path"), 9, "nodes[logger].parms", "did you mean 'params'"),
-    (GOOD.replace('"${rate}"', '"${rat}"'), 6, "nodes[pattern].params.rate_hz", "did you mean ${rate}"[:0] + "rat"),
+     "input 'in0' subscribes to topic 'markerz' that no node publishes (did you mean 'markers'?)"),
+    (GOOD.replace("- name: logger", "- name: pattern"), 7, "nodes[pattern].name",
+     "duplicate node name (first at {path}:4)"),
+    (GOOD.replace("    params: {path", "    parms: {path"), 9, "nodes[logger].parms", "unknown key (did you mean 'params'?)"),
+    (GOOD.replace('"${rate}"', '"${rat}"'), 6, "nodes[pattern].params.rate_hz",
+     "unknown arg ${rat} (did you mean 'rate'?)"),
 ])
-def test_each_fault_names_file_line_and_key(tmp_path, capsys, text, line, key, words) -> None:
+def test_each_fault_names_file_line_and_key(tmp_path, capsys, text, line, key, message) -> None:
     code, msg = check(tmp_path, text, capsys)
+    path = tmp_path / "g.yaml"
     assert code == 2
-    assert msg.count("\n") == 0, msg
-    assert f"g.yaml:{line}: {key}:" in msg
-    assert words in msg
-    assert "Traceback" not in msg
+    assert msg == f"mocapgraph: {path}:{line}: {key}: " + message.replace("{path}", str(path))
 
 
 def test_yaml_syntax_error(tmp_path, capsys) -> None:

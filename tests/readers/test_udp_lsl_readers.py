@@ -66,6 +66,7 @@ def test_udp_reader_fed_by_the_device_simulator_in_real_time(run_node) -> None:
     n.wait_for(lambda: n.messages("reader_status") and n.messages("reader_status")[-1].state == "streaming",
                what="listening")
     sim = SimulatedDevice("plug_in_gait", "example_udp_bridge", rate_hz=240.0, seed=5, start_frame=500)
+    t_send = time.time_ns()
     assert run_udp(sim, "127.0.0.1", port, count=120) == 120             # half a second, paced
     recs = n.wait_for(lambda: n.records("markers") if len(n.records("markers")) >= 120 else None,
                       what="120 frames")
@@ -74,8 +75,11 @@ def test_udp_reader_fed_by_the_device_simulator_in_real_time(run_node) -> None:
     assert all(r.msg.rate_hz == 120.0 for r in recs)                     # the device file's nominal rate
     cap = np.array([r.env.capture_ns for r in recs])
     np.testing.assert_allclose(np.diff(cap), 1e9 / 240, atol=1000)       # device stamps (µs) kept
-    lag = np.array([r.env.publish_ns - r.env.capture_ns for r in recs]) / 1e6
-    assert np.median(np.abs(lag)) < 20                                   # mapped onto our clock
+    # Mapped onto our clock, judged by events of this very run rather than a latency figure (a busy
+    # machine delays the reader by 100 ms and more): the clock is anchored on the first frame's
+    # arrival, so its stamp lies between our sending it and the reader publishing it; the device's
+    # own spacing (checked above) carries the rest.
+    assert t_send <= cap[0] <= recs[0].env.publish_ns <= recs[0].receive_ns
 
 
 def test_udp_port_in_use_is_a_clear_error(run_node) -> None:
@@ -101,7 +105,7 @@ def test_lsl_wrong_channel_count_is_refused_then_the_right_stream_is_read(run_no
     try:
         n = run_node("lsl_reader", {"stream_name": name, "device": "example_lsl_mocap", "layout": "plug_in_gait",
                                     "resolve_s": 0.1})
-        n.wait_for(lambda: any("36 channels" in s.detail for s in n.messages("reader_status")), timeout=8,
+        n.wait_for(lambda: any("36 channels" in s.detail for s in n.messages("reader_status")), timeout=90,
                    what="the wrong stream refused")
         assert any("36 channels, expected 117" in r.getMessage() and r.levelname == "ERROR"
                    for r in caplog.records)
@@ -109,7 +113,7 @@ def test_lsl_wrong_channel_count_is_refused_then_the_right_stream_is_read(run_no
         right = simulate_lsl(name, "plug_in_gait", "example_lsl_mocap", count=400)
         try:
             recs = n.wait_for(lambda: n.records("markers") if len(n.records("markers")) >= 40 else None,
-                              timeout=8, what="frames from the right stream")
+                              timeout=90, what="frames from the right stream")
         finally:
             right.kill()
             right.wait()

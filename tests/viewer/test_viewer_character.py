@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from viewer_support import free_port, image_stats, save_artifact
+from viewer_support import free_port, image_stats, save_artifact, viewer_url
 
 
 def test_character_from_the_retargeter_drawn_solid_and_toggleable(launch_graph, open_page, shared_data, tmp_path):
@@ -22,7 +22,7 @@ nodes:
     params: {{port: {port}}}
 """)
     g.wait_ready(60)
-    page = open_page(f"http://127.0.0.1:{port}/")
+    page = open_page(viewer_url(g))
     page.wait("s.connected && s.characterJointsDrawn >= 20", timeout=30)
     s = page.stats()
     key = next(k for k in s["streams"] if k.startswith("character_pose|"))

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from viewer_support import BusTap, free_port, image_stats, save_artifact, stage_graph, wait_until
+from viewer_support import BusTap, free_port, image_stats, save_artifact, stage_graph, viewer_url, wait_until
 
 
 def finite_rows(a: np.ndarray) -> int:
@@ -20,7 +20,7 @@ def stage(launch_graph, open_page):
     port = free_port()
     g = launch_graph(stage_graph(port))
     g.wait_ready()
-    page = open_page(f"http://127.0.0.1:{port}/")
+    page = open_page(viewer_url(g))
     page.wait("s.connected && s.framesDrawn > 5 && s.actorsDrawn >= 4", timeout=15)
     return g, page, port
 
@@ -83,12 +83,18 @@ def test_stage_draws_what_the_graph_sends(stage, tmp_path):
     assert row.get_attribute("data-drawn") == "not drawn"
     assert "unknown type" in row.inner_text()
 
-    # The side panel's rate comes from the diagnostics topic (the performers publish at 120 Hz).
-    page.wait("s.framesDrawn > 0", timeout=5)
-    wait_until(lambda: page.page.locator('#topic-table tr[data-topic="markers"] td').nth(2).inner_text() not in ("–", ""),
-               what="a rate for markers")
-    rate = float(page.page.locator('#topic-table tr[data-topic="markers"] td').nth(2).inner_text())
-    assert 90 < rate < 150
+    # The side panel's rate is the visualizer's own edge figure from the diagnostics topic (what
+    # the performers reach at 120 Hz on a busy machine, so compared with the message, not 120).
+    diag = BusTap(g.master, ["diagnostics"])
+    try:
+        def shown_and_sent():
+            text = page.page.locator('#topic-table tr[data-topic="markers"] td').nth(2).inner_text()
+            sent = [m.edge_rate_hz[list(m.edge_topics).index("markers")] for _, m in diag.of("diagnostics")
+                    if m.node == "viz" and "markers" in m.edge_topics][-3:]  # the page may be a second behind
+            return text not in ("–", "") and sent and any(abs(float(text) - r) <= 0.5 for r in sent)
+        wait_until(shown_and_sent, what="the page's markers rate to be the visualizer's diagnostics figure")
+    finally:
+        diag.close()
 
     # Each actor can be switched off and on.
     page.page.locator('label.actor[data-key="actor_pose|bob|bob"] input').uncheck()
@@ -147,8 +153,9 @@ def test_buttons_command_calibration_and_player(stage):
         sent = [m for _, m in tap.of("calibration_command")]
         assert [(m.target, m.command) for m in sent] == [
             ("calib", "find_base_pose"), ("calib", "capture_gym"), ("calib", "process")]
-        # Per-joint quality from the calibration status (joint i % 5 == 0 is fair).
-        wait_until(lambda: p.locator('#joint-table .qdot[title="fair"]').count() == 4, what="4 fair joints")
+        # Per-joint reliability from the calibration status (the echo calls joint i % 5 == 0 unreliable).
+        wait_until(lambda: p.locator('#joint-table .qdot[title="unreliable"]').count() == 4, what="4 unreliable joints")
+        assert p.locator('#joint-table .qdot[title="good"]').count() == 12
         assert p.locator("#joint-table tr").count() == 17
         # A refused transition is reported, the state stays.
         p.click('[data-calib="process"]')

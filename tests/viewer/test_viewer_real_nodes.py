@@ -9,7 +9,7 @@ import numpy as np
 from graph_helpers import wait_until
 from mocapgraph.bag.writer import BagWriter
 from mocapgraph.messages import MarkerFrame, MarkerLayout
-from viewer_support import BusTap, free_port
+from viewer_support import BusTap, free_port, viewer_stats, viewer_url
 
 
 def small_bag(path, n: int = 240, rate: float = 120.0) -> None:
@@ -49,15 +49,35 @@ nodes:
     g.wait_ready()
     tap = BusTap(g.master, ["calibration_status", "player_status"])
     try:
-        page = open_page(f"http://127.0.0.1:{port}/")
+        page = open_page(viewer_url(g))
         page.wait('s.connected && s.calibration === "idle"', timeout=15)
         page.page.click('[data-calib="find_base_pose"]')
         wait_until(lambda: any(m.state == "base_pose_found" for _, m in tap.of("calibration_status")),
                    what="the calibration node to find the base pose")
         page.wait('s.calibration === "base_pose_found"')
         page.page.click('[data-calib="capture_gym"]')
-        wait_until(lambda: any(m.state in ("capturing_gym", "gym_captured") for _, m in tap.of("calibration_status")),
-                   what="the calibration node to capture")
+        wait_until(lambda: any(m.state == "gym_captured" for _, m in tap.of("calibration_status")),
+                   what="the calibration node to capture", timeout=30)
+        page.wait('s.calibration === "gym_captured"')
+        page.page.click('[data-calib="process"]')
+        status = wait_until(lambda: [m for _, m in tap.of("calibration_status") if m.state == "calibrated"],
+                            what="the calibration node to calibrate", timeout=60)[-1]
+        page.wait('s.calibration === "calibrated"')
+        # The table shows the node's own report, joint by joint: its reliability and residual.
+        report = {j["joint"]: j for j in json.loads(status.data_json)["joints"]}
+        print({n: (j["reliable"], j["residual_mm"], j["rom_deg"]) for n, j in report.items()})
+        unreliable = sorted(n for n, j in report.items() if not j["reliable"])
+        assert 0 < len(unreliable) < len(report)  # both kinds on show (the gym second moves some joints little)
+        rows = wait_until(lambda: (r := page.page.evaluate("""() => [...document.querySelectorAll('#joint-table tr')]
+                                   .slice(1).map((tr) => [tr.cells[0].textContent, tr.cells[2].textContent,
+                                   tr.querySelector('.qdot').dataset.reliable])""")) and len(r) == len(report) and r,
+                          what="the joint table")
+        for name, residual, reliable in rows:
+            assert reliable == str(report[name]["reliable"]).lower(), (name, report[name])
+            assert residual == f"{report[name]['residual_mm']:.1f}", (name, report[name])
+        shown = sorted(n for n, _, rel in rows if rel == "false")
+        assert shown == unreliable
+        assert page.page.locator('#joint-table .qdot[title="unreliable"]').count() == len(unreliable)
 
         page.wait('s.player === "paused"')
         page.page.click('[data-player="play"]')
@@ -88,7 +108,7 @@ nodes:
 """
     g = launch_graph(graph)
     g.wait_ready()
-    url = f"http://127.0.0.1:{port}/"
+    url = viewer_url(g)
     a, b = open_page(url), open_page(url)
     for p in (a, b):
         p.wait("s.connected && s.markersTotal === 12 && s.framesDrawn > 3", timeout=15)
@@ -121,7 +141,7 @@ nodes:
     params: {{port: {port}}}
 """)
     g.wait_ready()
-    url = f"http://127.0.0.1:{port}/"
+    url = viewer_url(g)
     back, front = open_page(url), open_page(url)
     back.wait("s.connected && s.framesDrawn > 3", timeout=15)
     front.page.bring_to_front()
@@ -131,10 +151,7 @@ nodes:
     before = back.stats()["framesDrawn"]
     back.wait(f"s.framesDrawn > {before} + 10", timeout=15)
     # Credit-based sending: the server never queued more than its window for either tab.
-    import urllib.request
-
-    with urllib.request.urlopen(f"{url}stats", timeout=5) as r:
-        clients = json.loads(r.read())["clients"]
+    clients = viewer_stats(url)["clients"]
     assert len(clients) == 2 and all(c["bundles"] > 0 for c in clients)
     assert all(c["bundles"] - c["acks"] <= 2 for c in clients), clients  # window of 2 unacknowledged
     assert back.errors() == [] and front.errors() == []

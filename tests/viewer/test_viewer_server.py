@@ -11,7 +11,7 @@ import urllib.request
 
 import numpy as np
 import pytest
-from viewer_support import TESTING, BusTap, free_port, run_async, viewer_stats, wait_until
+from viewer_support import TESTING, BusTap, free_port, run_async, viewer_stats, viewer_url, wait_until, ws_url
 
 from mocapgraph.messages import ActorPose, Diagnostics, Envelope, MarkerFrame, NodeStatus
 from mocapgraph.viewer.wire import BundleError, build_bundle, decode_bundle, encode_record
@@ -94,19 +94,20 @@ def test_a_browser_that_does_not_ack_gets_no_backlog(launch_graph):
     port = free_port()
     g = launch_graph(_graph(port))
     g.wait_ready()
+    url = viewer_url(g)
 
     async def run():
-        async with websockets_client.connect(f"ws://127.0.0.1:{port}/ws") as slow, \
-                websockets_client.connect(f"ws://127.0.0.1:{port}/ws") as fast:
+        async with websockets_client.connect(ws_url(url)) as slow, \
+                websockets_client.connect(ws_url(url)) as fast:
             hello = json.loads(await slow.recv())
             json.loads(await fast.recv())
             assert hello["type"] == "hello" and hello["node"] == "viz"
             assert hello["topics"]["markers"] == {"topic": "markers", "type": "MarkerFrame", "latched": False}
-            puts0 = viewer_stats(port)["store_puts"]
+            puts0 = viewer_stats(url)["store_puts"]
             slow_task = asyncio.create_task(_recv_bundles(slow, 1.5, ack=False))
             fast_bundles = await _recv_bundles(fast, 1.5, ack=True)
             slow_bundles = await slow_task
-            puts = viewer_stats(port)["store_puts"] - puts0
+            puts = viewer_stats(url)["store_puts"] - puts0
             # The slow one holds the window (2) and no more, while the bus kept flowing at 240 Hz.
             assert len(slow_bundles) == 2
             assert puts > 300
@@ -131,10 +132,11 @@ def test_commands_are_checked_and_published(launch_graph):
     port = free_port()
     g = launch_graph(_graph(port, rate=60.0))
     g.wait_ready()
+    url = viewer_url(g)
     tap = BusTap(g.master, ["calibration_command", "calibration_status"])
 
     async def run():
-        async with websockets_client.connect(f"ws://127.0.0.1:{port}/ws") as ws:
+        async with websockets_client.connect(ws_url(url)) as ws:
             await ws.recv()
             replies = {}
             for i, req in enumerate([

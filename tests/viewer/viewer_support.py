@@ -59,9 +59,24 @@ nodes:
 """
 
 
-def viewer_stats(port: int) -> dict[str, Any]:
-    """The server's own counters (/stats): connections and bundles sent to each."""
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/stats", timeout=5) as r:
+def viewer_url(graph, timeout: float = 20.0) -> str:
+    """The page URL the viewer printed (with its access token), as a user would copy it."""
+    import re
+
+    line = graph.wait_for("viewer at ", timeout)
+    return re.search(r"viewer at (\S+)", line).group(1)
+
+
+def ws_url(url: str) -> str:
+    """The WebSocket address of a viewer page URL (token kept), as the page builds it."""
+    base, _, query = url.partition("?")
+    return base.replace("http://", "ws://").rstrip("/") + "/ws?" + query
+
+
+def viewer_stats(url: str) -> dict[str, Any]:
+    """The server's own counters (/stats, token of the page URL): connections and bundles sent to each."""
+    base, _, query = url.partition("?")
+    with urllib.request.urlopen(base.rstrip("/") + "/stats?" + query, timeout=5) as r:
         return json.loads(r.read())
 
 

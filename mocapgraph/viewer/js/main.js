@@ -27,7 +27,9 @@ stats.webgl = renderer.rendererName;
 const camera = new OrbitCamera(canvas);
 const store = new Store();
 const scene = new SceneBuilder();
-const wsUrl = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`;
+// The per-launch token of the printed URL goes with every connection (the server refuses any without it).
+const token = new URLSearchParams(location.search).get("token") || "";
+const wsUrl = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws?token=${encodeURIComponent(token)}`;
 let panel = null;
 const link = new Link(wsUrl, store, {
   onStatus: () => {

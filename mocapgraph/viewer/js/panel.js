@@ -2,6 +2,8 @@
 
 import { DRAWN_TYPES, SUPPORT_TYPES, GOOD, ESTIMATED, MISSING } from "./scene.js";
 
+const STALL_MS = 3000;  // launch/liveness.py STALL_S
+
 const $ = (id) => document.getElementById(id);
 const css = (c) => `rgb(${c.map((v) => Math.round(v * 255)).join(",")})`;
 const fmt = (x, d = 1) => (Number.isFinite(x) ? x.toFixed(d) : "–");
@@ -171,19 +173,25 @@ export class Panel {
     const names = model.fields.joint_names;
     const res = model.arrays.joint_residual_rms ? model.arrays.joint_residual_rms.data : null;
     const rom = model.arrays.joint_rom ? model.arrays.joint_rom.data : null;
-    const given = data.joint_quality || {};
-    // The model's own verdict: per-joint method and reliability (a centre from the prior is never good).
+    // The calibration node's report (data_json.joints: reliable, residual_mm, rom_deg, warnings)
+    // and the model's own verdict (extra_json quality: method, reliable): a joint either calls
+    // unreliable is shown so, whatever its residual (a centre from the prior is never good).
+    const report = new Map((Array.isArray(data.joints) ? data.joints : []).map((j) => [j.joint, j]));
     const mq = (parseJson(model.fields.extra_json || "{}") || {}).quality || {};
     const rows = [el("tr", {}, el("th", { text: "joint" }), el("th", { text: "method" }), el("th", { text: "residual mm" }), el("th", { text: "ROM °" }), el("th", { text: "" }))];
     names.forEach((name, i) => {
-      const mm = res ? res[i] * 1000 : NaN;
-      let q = name in given ? Number(given[name]) : !Number.isFinite(mm) ? 0 : mm < 5 ? 2 : mm < 12 ? 1 : 0;
-      const unreliable = Array.isArray(mq.reliable) && mq.reliable[i] === false;
-      if (unreliable) q = 0;
-      const dot = el("span", { class: "qdot", title: unreliable ? "unreliable" : ["poor", "fair", "good"][q] || "" });
+      const r = report.get(name);
+      const mm = r && r.residual_mm != null ? Number(r.residual_mm) : res ? res[i] * 1000 : NaN;
+      const deg = r && r.rom_deg != null ? Number(r.rom_deg) : rom ? rom[i] * 180 / Math.PI : NaN;
+      const reliable = !(r && r.reliable === false) && !(Array.isArray(mq.reliable) && mq.reliable[i] === false);
+      const q = !reliable || !Number.isFinite(mm) ? 0 : mm < 5 ? 2 : mm < 12 ? 1 : 0;
+      const dot = el("span", { class: "qdot", title: reliable ? ["poor", "fair", "good"][q] : "unreliable" });
+      dot.dataset.reliable = String(reliable);
       dot.style.background = css(q >= 2 ? GOOD : q === 1 ? ESTIMATED : MISSING);
-      const method = Array.isArray(mq.method) ? String(mq.method[i] ?? "") : "";
-      rows.push(el("tr", { "data-reliable": unreliable ? "no" : "yes" }, el("td", { text: name }), el("td", { text: method }), el("td", { text: fmt(mm) }), el("td", { text: fmt(rom ? rom[i] * 180 / Math.PI : NaN, 0) }), el("td", {}, dot)));
+      const method = r && r.method ? String(r.method) : Array.isArray(mq.method) ? String(mq.method[i] ?? "") : "";
+      const row = el("tr", { "data-reliable": reliable ? "yes" : "no" }, el("td", { text: name }), el("td", { text: method }), el("td", { text: fmt(mm) }), el("td", { text: fmt(deg, 0) }), el("td", {}, dot));
+      if (r && r.warnings && r.warnings.length) row.title = r.warnings.join("; ");
+      rows.push(row);
     });
     table.replaceChildren(...rows);
   }
@@ -214,6 +222,18 @@ export class Panel {
       if (!r) { r = { topic, type: "", rate: NaN, latency: NaN, drops: 0, edges: 0 }; rows.set(topic, r); }
       return r;
     };
+    // A node whose diagnostics (1 Hz) stopped for 3 s is stalled: stopped, or stuck in a handler.
+    const stalled = [];
+    for (const d of this.store.ofType("Diagnostics")) {
+      if (nowMs - d.receivedMs > STALL_MS) stalled.push(d.fields.node || d.sender);
+    }
+    stalled.sort();
+    const note = $("stalled-nodes");
+    if (note) {
+      note.hidden = stalled.length === 0;
+      note.textContent = stalled.length ? `stalled (no diagnostics for 3 s): ${stalled.join(", ")}` : "";
+    }
+    if (window.mocapgraphStats) window.mocapgraphStats.stalled = stalled;
     for (const d of this.store.ofType("Diagnostics")) {
       const f = d.fields, a = d.arrays;
       f.edge_topics.forEach((topic, i) => {

@@ -1,0 +1,35 @@
+"""The page names a node whose diagnostics stopped for 3 s (SIGSTOP) as stalled, and clears it."""
+from __future__ import annotations
+
+import os
+import signal
+
+from graph_helpers import node_pids
+from viewer_support import free_port, viewer_url
+
+
+def test_the_page_lists_a_stopped_node_as_stalled(launch_graph, open_page) -> None:
+    port = free_port()
+    g = launch_graph(f"""
+nodes:
+  - name: pattern
+    type: marker_test_pattern
+    params: {{rate_hz: 60.0}}
+  - name: viz
+    type: visualizer
+    params: {{port: {port}}}
+""")
+    g.wait_ready()
+    page = open_page(viewer_url(g))
+    page.wait("s.connected && s.framesDrawn > 3 && Array.isArray(s.stalled)", timeout=20)
+    assert page.stats()["stalled"] == []
+    pid = node_pids(g)["pattern"]
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        page.wait('s.stalled.includes("pattern")', timeout=10)
+        assert "viz" not in page.stats()["stalled"]
+        assert "pattern" in page.page.locator("#stalled-nodes").inner_text()
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    page.wait("s.stalled.length === 0", timeout=10)
+    assert page.errors() == []
