@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mocapgraph.kinematics.model import ActorModel
+from mocapgraph.kinematics.quaternion import _SKEW, cross
 from mocapgraph.kinematics.rigid import gather_limb_markers
 
 
@@ -181,7 +182,7 @@ class GlobalFit:
         diag[..., :3, 3:] = sq
         diag[..., 3:, :3] = -sq
         diag[..., 3:, 3:] = wsum[..., None, None] * eye3
-        g = np.concatenate([np.cross(wq, res).sum(2), (wm[..., None] * res).sum(2)], -1)   # [T,L,6]
+        g = np.concatenate([cross(wq, res).sum(2), (wm[..., None] * res).sum(2)], -1)   # [T,L,6]
         # joints: e = q_a + c_a - q_b - c_b, J_a = [-[q_a]x, I], J_b = [[q_b]x, -I]
         qa = (r[:, ja] @ self._p_a[..., None])[..., 0]
         qb = (r[:, jb] @ self._p_b[..., None])[..., 0]
@@ -240,11 +241,8 @@ class GlobalFit:
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
-    """[...,3] -> [...,3,3] with skew(v) @ u = v x u."""
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return out
+    """[...,3] -> [...,3,3] with skew(v) @ u = v x u (one matrix product: this runs ~6 times a step)."""
+    return (v @ _SKEW).reshape(v.shape[:-1] + (3, 3))
 
 
 def _rotvec_matrix(w: np.ndarray) -> np.ndarray:

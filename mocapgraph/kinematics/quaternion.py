@@ -67,10 +67,19 @@ def matrix_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return outer + (v @ _SKEW).reshape(v.shape[:-1] + (3, 3)) + c[..., None, None] * np.eye(3)
 
 
-# Shepperd: with k the largest of the four squared components, the quaternion times 2 s (s = 2|q_k|)
-# is row k of these picks from (s^2, m21-m12, m02-m20, m10-m01, m10+m01, m02+m20, m21+m12)
-_SHEPPERD = np.array([[0, 1, 2, 3], [1, 0, 4, 5], [2, 4, 0, 6], [3, 5, 6, 0]])
-_SQ = np.array([[1.0, 1.0, -1.0, -1.0], [1.0, -1.0, 1.0, -1.0], [1.0, -1.0, -1.0, 1.0]])  # diag -> 4 |q_k|^2 - 1
+# Shepperd: row k of the symmetric matrix C = 4 q q^T is 4 q_k q; with k the largest of the four
+# squared components (the diagonal of C) that row is the quaternion times a scale far from zero,
+# so normalising it loses no precision. Every entry of C is linear in the matrix entries.
+_C = np.zeros((9, 16))
+_C0 = np.zeros(16)
+for _k, _d in enumerate(([1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1])):   # diag: 1 + sum(+-m_ii)
+    _C0[5 * _k] = 1.0
+    _C[[0, 4, 8], 5 * _k] = _d
+for (_a, _b), (_i, _j, _s) in {(0, 1): (7, 5, -1), (0, 2): (2, 6, -1), (0, 3): (3, 1, -1),
+                                 (1, 2): (3, 1, 1), (1, 3): (2, 6, 1), (2, 3): (7, 5, 1)}.items():
+    for _e in (4 * _a + _b, 4 * _b + _a):   # C[a, b] = m_i + s m_j
+        _C[_i, _e], _C[_j, _e] = 1.0, float(_s)
+_EYE4 = np.eye(4)
 
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
@@ -78,16 +87,10 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     each quaternion from the largest of its four squared components, so no precision is lost)."""
     m = np.asarray(m, dtype=np.float64)
     lead = m.shape[:-2]
-    f = m.reshape(-1, 9)
-    sq = f[:, [0, 4, 8]] @ _SQ + 1.0                                    # [N, 4] = 4 q_k^2
-    k = np.argmax(sq, axis=1)
-    rows = np.arange(len(k))
-    s = np.sqrt(np.maximum(sq[rows, k], 1e-300))                       # 2 |q_k|
-    v = np.stack([s * s, f[:, 7] - f[:, 5], f[:, 2] - f[:, 6], f[:, 3] - f[:, 1],
-                  f[:, 3] + f[:, 1], f[:, 2] + f[:, 6], f[:, 7] + f[:, 5]], axis=1)
-    q = v[rows[:, None], _SHEPPERD[k]] / (2.0 * s)[:, None]
-    q /= np.sqrt(np.sum(q * q, axis=1, keepdims=True))
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    c = (m.reshape(-1, 9) @ _C + _C0).reshape(-1, 4, 4)                 # 4 q q^T
+    k = np.argmax(c.reshape(-1, 16)[:, ::5], axis=1)
+    q = np.einsum("nk,nkj->nj", _EYE4[k], c)
+    q *= (np.where(q[:, :1] < 0, -1.0, 1.0) / np.sqrt(np.einsum("nj,nj->n", q, q))[:, None])
     return q.reshape(lead + (4,))
 
 

@@ -29,6 +29,7 @@ from .retarget_mapping import Mapping, MappingError, check_mapping
 from .retarget_source import SourceSkeleton, plan_point_rotations, rotations_from_points
 
 QUALITY_MISSING, QUALITY_ESTIMATED, QUALITY_GOOD = 0, 1, 2
+_EYE3 = np.eye(3)
 
 
 @dataclass
@@ -209,7 +210,7 @@ class Retargeter:
                 a = src.rest_points[src.point(endsrc.position)] - src.rest_points[src.point(piv_src)]
                 ratio = np.linalg.norm(cpos[endpt] - cpos[chain[0]]) / max(np.linalg.norm(a), 1e-9)
             self._chains.append(dict(
-                start=start, end=end, joints=np.array(chain), frac=frac, endpt=endpt,
+                start=start, end=end, ends=np.array([start, end]), joints=np.array(chain), frac=frac, endpt=endpt,
                 # joints whose bones lie between the pivot and the end point (chain + end if needed)
                 path=np.array(chain + ([end] if endpt != end else [])),
                 pivot_src=src.point(piv_src) if piv_src else -1,
@@ -238,6 +239,7 @@ class Retargeter:
         if len(self._aim_joint):
             driven[self._aim_joint] = True
         self._src_post = self._nearest(driven)
+        self._undriven = np.flatnonzero(self._src_post < 0)   # precomputed: the live path runs per frame
         self._driven = driven
         # --- roll joints
         self._rolls = []
@@ -295,6 +297,8 @@ class Retargeter:
                                   l2=np.linalg.norm(cpos[ankle] - cpos[knee], axis=1),
                                   rest_h=cpos[ankle, 2] - c_floor,
                                   toe_h=np.where(toe >= 0, cpos[np.maximum(toe, 0), 2] - c_floor, np.nan))
+        self._eye_j = np.broadcast_to(_EYE3, (J, 3, 3))
+        self._offset = np.asarray(opt.offset, dtype=np.float64)
         # --- positions-only sources
         self._plan = plan_point_rotations(src) if src.derived_rotations else None
         self.reset()
@@ -385,7 +389,7 @@ class Retargeter:
         for i, deps in self._dep:
             for d in deps:
                 qk[:, i] = quat_multiply(qk[:, i], rot[:, d])
-        delta = np.broadcast_to(np.eye(3), (F, J, 3, 3)).copy()
+        delta = np.broadcast_to(self._eye_j, (F, J, 3, 3)).copy()
         d_rot = self._A @ quat_to_matrix(qk) @ self._post
         if len(self._follow_m):
             sub = d_rot[:, self._follow_m]
@@ -403,8 +407,8 @@ class Retargeter:
             jq[:, fj] = np.minimum(jq[:, fj], np.minimum(pq[:, self._follow_a], pq[:, self._follow_b]))
         # 2. spread chains
         for c in self._chains:
-            qs = matrix_to_quat(delta[:, c["start"]])
-            qe = matrix_to_quat(delta[:, c["end"]])
+            qse = matrix_to_quat(delta[:, c["ends"]])            # start and end in one call
+            qs, qe = qse[:, 0], qse[:, 1]
             rel = quat_multiply(quat_conjugate(qs), qe)
             qi = quat_multiply(qs[:, None], quat_power(rel[:, None], c["frac"][None, :]))
             delta[:, c["joints"]] = quat_to_matrix(qi)
@@ -430,7 +434,8 @@ class Retargeter:
                 delta[:, j] = matrix_between(carried, want) @ dp
                 jq[:, j] = np.minimum(pq[:, to], pq[:, frm])
         delta_all = delta[:, np.maximum(self._src_post, 0)]
-        delta_all[:, self._src_post < 0] = np.eye(3)
+        if self._undriven.size:
+            delta_all[:, self._undriven] = _EYE3
         jq = jq[:, np.maximum(self._src_post, 0)]
         world = delta_all @ self._rest_world                     # [F, J, 3, 3]
         # 5. roll joints
@@ -446,7 +451,7 @@ class Retargeter:
             world, pos, contact = self._plant(world, pos, root, t)
         # 7. local rotations: rest⁻¹ · W[parent]⁻¹ · W
         parent_w = world[:, self._par]
-        parent_w[:, self._root] = np.eye(3)
+        parent_w[:, self._root] = _EYE3
         local = self._rest_local_inv @ np.swapaxes(parent_w, -1, -2) @ world
         jq = np.where(self._anc_full[None], jq[:, None, :], 9).min(-1).astype(np.int8)
         return RetargetResult(matrix_to_quat(local), root, pos, jq, contact)
@@ -462,7 +467,7 @@ class Retargeter:
         """Root: horizontal source root times the ratio (A applied), height matched at the floor."""
         p = (self._root_A @ src_root[..., None])[..., 0] * self.ratio
         p[:, 2] = self._h_c + self.ratio * (src_root[:, 2] - self._h_s) + self.options.floor_z
-        return p + np.asarray(self.options.offset, dtype=np.float64)
+        return p + self._offset
 
     def _positions(self, world: np.ndarray, root: np.ndarray) -> np.ndarray:
         ch = self.character
