@@ -20,21 +20,13 @@ import numpy as np
 
 from ..kinematics.character import Character
 from .posture_db import PostureDB
+from .quat_lean import qmul
 
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise Hamilton products of [N, 4] wxyz arrays (lean: the per-frame path)."""
-    aw, ax, ay, az = a.T
-    bw, bx, by, bz = b.T
-    out = np.empty_like(a)
-    out[:, 0] = aw * bw - ax * bx - ay * by - az * bz
-    out[:, 1] = aw * bx + ax * bw + ay * bz - az * by
-    out[:, 2] = aw * by - ax * bz + ay * bw + az * bx
-    out[:, 3] = aw * bz + ax * by - ay * bx + az * bw
-    return out
+_qmul = qmul  # the one-matmul product (quat_lean)
 
 
 def world_orientations(local: np.ndarray, rest: np.ndarray, parents: np.ndarray, levels) -> np.ndarray:
