@@ -140,7 +140,10 @@ class PostureDB:
         self._basis = self.components[:k]
         self._reduced = (self.positions.reshape(len(self.positions), -1) - self.mean) @ self._basis.T
         self._sqnorm = (self._reduced * self._reduced).sum(1)
-        self._reduced_t = np.ascontiguousarray(self._reduced.T)
+        # the brute-force search as one matmul: [q, 1] @ [-2 R^T; |r|^2] = |r|^2 - 2 q.r, the
+        # squared distance less the query's own |q|^2 (the same for every posture)
+        self._search_t = np.ascontiguousarray(np.vstack([-2.0 * self._reduced.T, self._sqnorm[None]]))
+        self._query = np.ones(self.k + 1)
         self._tree = cKDTree(self._reduced)
 
     def __len__(self) -> int:
@@ -157,9 +160,11 @@ class PostureDB:
         how = how or self.search
         if how == "kdtree":
             return self._tree.query(reduced, k=1)[1]
-        if len(reduced) == 1:  # the live case: one vector-matrix product over a k x N copy (2x faster
-            # than N x k: contiguous along the postures)
-            return np.array([np.argmin(self._sqnorm - 2.0 * (reduced[0] @ self._reduced_t))])
+        if len(reduced) == 1:  # the live case: one vector-matrix product over a (k+1) x N matrix
+            # (contiguous along the postures), then the argmin
+            q = self._query
+            q[:-1] = reduced[0]
+            return np.array([np.argmin(q @ self._search_t)])
         d = self._sqnorm[None] - 2.0 * reduced @ self._reduced.T
         return np.argmin(d, axis=1)
 
