@@ -101,8 +101,9 @@ class TargetConditioner:
             # a missing rotation turns with its parent (identity) and its orientation (and those
             # below) are marked unknown
             chain_ok = ok_r.copy()
-            for level in self._levels[1:]:
-                chain_ok[level] &= chain_ok[ch.parents[level]]
+            if not chain_ok.all():  # the usual frame has every rotation: nothing to propagate
+                for level in self._levels[1:]:
+                    chain_ok[level] &= chain_ok[ch.parents[level]]
             world = world_orientations(np.where(ok_r[:, None], rot, IDENTITY), ch.rest_rotations, ch.parents,
                                        self._levels)
             orient = np.where(chain_ok[:, None], world, np.nan)

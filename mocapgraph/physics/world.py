@@ -18,6 +18,7 @@ of every character at once.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import mujoco
@@ -383,10 +384,11 @@ class PhysicsWorld:
         z_ok = np.isfinite(pt).all(1)
         low = pt[:, 2] <= self.pin_rest_z + self.params.contact_height
         high = pt[:, 2] > self.pin_rest_z + self.params.contact_height + 0.01
-        slow = np.linalg.norm(vt[:, :2], axis=1) <= self.params.contact_speed
-        fast = np.linalg.norm(vt[:, :2], axis=1) > 2 * self.params.contact_speed
+        hspeed = np.sqrt((vt[:, :2] ** 2).sum(1))
+        slow = hspeed <= self.params.contact_speed
+        fast = hspeed > 2 * self.params.contact_speed
         on = z_ok & low & slow & ~self.pin_on
-        drift = np.linalg.norm((pt - self.data.mocap_pos[self.pin_mocap])[:, :2], axis=1)
+        drift = np.sqrt((((pt - self.data.mocap_pos[self.pin_mocap])[:, :2]) ** 2).sum(1))
         off = self.pin_on & (~z_ok | high | fast | (drift > self.params.pin_slack))
         if on.any():
             cur = self.point_positions()[self.pin_point[on]]
@@ -472,11 +474,14 @@ class PhysicsWorld:
             v = cv[:, 3:] + cross(cv[:, :3], p - d.subtree_com[root])
             f = kp * (p_t - p) + kd * (vel - v)   # Eq 1 (joint_forces, with the gains premultiplied)
             norm = np.sqrt((f * f).sum(1))
-            if not np.isfinite(norm).all():      # a blown-up state: no force from it
+            top = float(norm.max())                # NaN if any is: one reduction checks both
+            if not math.isfinite(top):             # a blown-up state: no force from it
                 f = np.where(np.isfinite(f), f, 0.0)
                 norm = np.sqrt((f * f).sum(1))
-            f *= np.minimum(1.0, g.max_force / np.maximum(norm, 1e-12))[:, None]
-            fmax = max(fmax, float(np.minimum(norm, g.max_force).max(initial=0.0)))
+                top = float(norm.max())
+            if top > g.max_force:                  # clip_norm, skipped when nothing is over the bound
+                f *= np.minimum(1.0, g.max_force / np.maximum(norm, 1e-12))[:, None]
+            fmax = max(fmax, min(top, g.max_force))
             if i == 0:
                 # Eq 2 once per frame, held over its substeps: gains per unit inertia keep
                 # Kd_rot * frame span well inside the stable range, and it halves the work
