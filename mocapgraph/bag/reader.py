@@ -163,7 +163,7 @@ def check_bag_file(path: str | Path) -> Path:
         kind = sniff_kind(head, p)
         hint = ""
         if kind in ("C3D", "TRC", "BVH", "CSV"):
-            hint = f"it looks like {kind}: turn it into a bag with 'mocapgraph bag convert {p} OUT.mcap'"
+            hint = f"it looks like {kind}: turn it into a bag with 'mocapgraph bag convert {p} -o OUT.mcap'"
         raise BagError(p, "not an MCAP file (bags are MCAP files written by 'mocapgraph bag record' or "
                           "'bag convert')" + (f"; {kind}?" if kind and not hint else ""), hint)
     if tail != MCAP_MAGIC:

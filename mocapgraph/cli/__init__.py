@@ -22,6 +22,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMAND_MODULES:
         import_module(f"{__name__}.{name}").register(sub)
+    from .examples import attach
+    attach(parser)
     return parser
 
 

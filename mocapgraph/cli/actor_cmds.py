@@ -17,12 +17,13 @@ import argparse
 import csv
 import math
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
 from . import UserError
+from .progress import Progress
 
 OUTPUT_KINDS = (".csv", ".trc", ".mcap")
 
@@ -140,9 +141,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     landmark = {definition.marker_labels[k] for pair in (getattr(definition, "joint_landmarks", ()) or ())
                 for k in pair}
     parts, rate, names, inputs = [], None, [], []
+    report = _report_path(args.report, args.output)
+    bar = Progress("calibrating", unit="step", total=len(args.files) + 2 + (report is not None))
     absent_everywhere: set[str] | None = None
     for i, f in enumerate(args.files):
         inp = read_marker_input(f, args.topic, args.up)
+        bar.advance()
         inputs.append(inp)
         where, _ = definition.match_labels(list(inp.labels))
         absent = [definition.marker_labels[m] for m in np.flatnonzero(where < 0)]
@@ -191,6 +195,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             raise UserError(str(exc)) from None
         except IndexError:
             raise UserError(f"--base-frame {args.base_frame} is outside the {len(markers)} frames") from None
+    bar.advance()
     print(f"layout {definition.name}: {len(model.joint_names)} joints from {len(markers)} frames")
     print(quality_table(model))
     for j, inp_j in enumerate(model.quality.inputs):
@@ -207,7 +212,28 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"{args.output}: cannot write ({exc.strerror or exc})") from None
     print(f"wrote {args.output}")
+    if report is not None:
+        from ..reports.calibration_report import write_report
+
+        try:
+            write_report(report, model, markers, source=" + ".join(Path(f).name for f in args.files),
+                         model_path=str(args.output), min_rom_deg=args.min_rom_deg)
+        except OSError as exc:
+            raise UserError(f"{report}: cannot write ({exc.strerror or exc})") from None
+        print(f"wrote {report}")
+    bar.close()
     return 0
+
+
+def _report_path(arg: str | None, model_path: str) -> Path | None:
+    """Where ``--report`` goes: a bare file name lands next to the model file; '' picks the name."""
+    if arg is None:
+        return None
+    model = Path(model_path)
+    p = Path(arg) if arg else model.with_name(model.stem + "_report.html")
+    if p.suffix.lower() not in (".html", ".png"):
+        raise UserError(f"--report {arg}: give a .html or .png file")
+    return model.parent / p if p.parent == Path(".") else p
 
 
 def _subject(args: argparse.Namespace, first: MarkerInput):
@@ -262,7 +288,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
                              fit=args.fit)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    res = solver.solve(x, times)
+    res = _solve_chunks(solver, x, times)
     q = res.joint_quality
     T, J = q.shape
     print(f"{inp.path.name}: {T} frames, {J} joints: {100 * (q == 2).mean():.1f} % good, "
@@ -290,6 +316,23 @@ def cmd_solve(args: argparse.Namespace) -> int:
         raise UserError(f"{out}: cannot write ({exc.strerror or exc})") from None
     print(f"wrote {out}")
     return 0
+
+
+SOLVE_CHUNK = 500  # frames per solver call: a bar that moves, same result as one call
+
+
+def _solve_chunks(solver, x: np.ndarray, times: np.ndarray):
+    """``solver.solve`` over float[T,M,3] in chunks (the solver carries its state across calls)."""
+    from ..kinematics.solver import SolverResult
+
+    parts = []
+    with Progress("solving", total=len(x)) as bar:
+        for a in range(0, len(x), SOLVE_CHUNK):
+            parts.append(solver.solve(x[a:a + SOLVE_CHUNK], times[a:a + SOLVE_CHUNK]))
+            bar.advance(len(parts[-1].joints))
+    if len(parts) == 1:
+        return parts[0]
+    return SolverResult(*(np.concatenate([getattr(r, f.name) for r in parts]) for f in fields(SolverResult)))
 
 
 def _place(model, inp: MarkerInput, allow_missing: bool) -> tuple[np.ndarray, list[str]]:
@@ -354,6 +397,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--base-search-s", type=float, default=10.0, help="seconds searched for a base pose")
     p.add_argument("--min-rom-deg", type=float, default=25.0, help="joints moving less are unreliable, deg")
     p.add_argument("--topic", help="marker topic of bag inputs (when a bag has several)")
+    p.add_argument("--report", nargs="?", const="", metavar="REPORT.html|png",
+                   help="also write a report (per-joint residual and ROM bars, marker residuals over time, "
+                        "joint centres on the base pose); a bare name goes next to the model file, "
+                        "no name gives <model>_report.html")
     p.add_argument("--centres", default="functional,anatomical,regression",
                    help="joint-centre methods in order of preference, per joint the first that applies "
                         "(functional: SCoRE/SARA; anatomical: layout landmarks; regression: Plug-in Gait / "

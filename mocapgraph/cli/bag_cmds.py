@@ -16,7 +16,7 @@ from typing import Any
 import zmq
 
 from ..bag.errors import BagError
-from ..bag.progress import ProgressBar
+from .progress import Progress
 from . import UserError
 
 
@@ -294,7 +294,7 @@ def cmd_info(args: argparse.Namespace) -> int:
             s = r.summary()
             scan = None
             if not args.fast:
-                with ProgressBar("scanning") as bar:
+                with Progress("scanning", unit="msg") as bar:
                     scan = r.scan(progress=lambda i: bar(i, s.count))
     except BagError as exc:
         raise _fail(exc) from None
@@ -363,9 +363,16 @@ def cmd_info(args: argparse.Namespace) -> int:
 def cmd_convert(args: argparse.Namespace) -> int:
     from ..bag.convert import INPUT_KINDS, OUTPUT_KINDS, bag_to_file, file_to_bag
 
-    src, dst = Path(args.input), Path(args.output)
+    if args.output and args.legacy_output:
+        raise UserError(f"two outputs ({args.legacy_output} and -o {args.output}): give one, as -o OUT")
+    if not (args.output or args.legacy_output):
+        raise UserError("no output: bag convert IN -o OUT (e.g. trial.c3d -o trial.mcap)")
+    if args.legacy_output:
+        print(f"note: the output is now given as -o: mocapgraph bag convert {args.input} -o {args.legacy_output}",
+              file=sys.stderr)
+    src, dst = Path(args.input), Path(args.output or args.legacy_output)
     try:
-        with ProgressBar("converting") as bar:
+        with Progress("converting") as bar:
             if src.suffix.lower() == ".mcap":
                 if dst.suffix.lower() not in OUTPUT_KINDS:
                     raise UserError(f"{dst}: a bag converts to {', '.join(sorted(OUTPUT_KINDS))}")
@@ -376,7 +383,8 @@ def cmd_convert(args: argparse.Namespace) -> int:
                 rep = file_to_bag(src, dst, compression=args.compression, start_ns=args.start_ns, progress=bar,
                                   up_axis=args.up)
             else:
-                raise UserError("one side of a conversion is a bag (.mcap): FILE.c3d OUT.mcap or BAG.mcap OUT.trc")
+                raise UserError("one side of a conversion is a bag (.mcap): "
+                                "FILE.c3d -o OUT.mcap or BAG.mcap -o OUT.trc")
     except BagError as exc:
         raise _fail(exc) from None
     print(rep.text())
@@ -387,7 +395,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
     from ..bag.recover import recover
 
     try:
-        with ProgressBar("recovering", unit="bytes") as bar:
+        with Progress("recovering", unit="bytes") as bar:
             rep = recover(args.file, args.output, progress=bar)
     except BagError as exc:
         raise _fail(exc) from None
@@ -442,8 +450,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_info)
 
     p = bs.add_parser("convert", help="C3D/TRC/BVH/Kinect CSV -> bag, or bag -> CSV/TRC/C3D/BVH")
-    p.add_argument("input")
-    p.add_argument("output")
+    p.add_argument("input", metavar="IN", help="C3D, TRC, BVH or Kinect CSV file, or a bag (.mcap)")
+    p.add_argument("legacy_output", nargs="?", help=argparse.SUPPRESS)  # the old positional OUT, still read
+    p.add_argument("-o", "--output", metavar="OUT", help="the bag to write, or CSV/TRC/C3D/BVH from a bag")
     p.add_argument("--topic", help="bag topic to export (default: the only one of the right type)")
     p.add_argument("--units", choices=["mm", "m", "cm"], default="mm", help="TRC/C3D output units")
     p.add_argument("--compression", choices=["lz4", "none"], default="lz4")
@@ -456,3 +465,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file")
     p.add_argument("-o", "--output", help="new bag (default <name>.recovered.mcap)")
     p.set_defaults(func=cmd_recover)
+
+    from .foxglove_cmds import register_bag as register_foxglove
+    register_foxglove(bs)

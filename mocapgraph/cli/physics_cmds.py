@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import UserError
+from .progress import Progress
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("physics", help="the physical character: write its MuJoCo model")
@@ -132,6 +133,7 @@ def cmd_db_build(args: argparse.Namespace) -> int:
     from ..physics.posture_db import PostureDB, PostureDBError
     ch = _character(args.character)
     pos, rot, sources = [], [], []
+    bar = Progress("building", unit="step", total=len(args.clips) + 2)  # each clip, the PCA, the search
     for spec in args.clips:
         if spec.startswith("synthetic:"):
             p, r = synthetic_clip(spec, ch)
@@ -142,6 +144,7 @@ def cmd_db_build(args: argparse.Namespace) -> int:
         else:
             raise UserError(f"{spec}: not a clip (synthetic:NAMES, .mcap bag or .bvh file)")
         print(f"{spec}: {len(p)} postures")
+        bar.advance()
         pos.append(p)
         rot.append(r)
         sources.append(spec)
@@ -150,8 +153,10 @@ def cmd_db_build(args: argparse.Namespace) -> int:
                              min_ssd=args.min_ssd, sources=tuple(sources))
     except PostureDBError as exc:
         raise UserError(str(exc)) from None
+    bar.advance()
     times = db.choose_search()
     db.save(args.output)
+    bar.close()
     total = sum(len(p) for p in pos)
     print(f"{args.output}: {len(db)} of {total} postures kept (SSD >= {args.min_ssd} m^2), k = {db.k}; "
           f"search {db.search} ({times['brute'] * 1e3:.1f} us brute force, {times['kdtree'] * 1e3:.1f} us k-d tree)")

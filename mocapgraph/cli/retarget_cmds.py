@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import UserError
+from .progress import Progress
 
 OUTPUTS = (".bvh", ".mcap", ".csv")
 
@@ -182,7 +183,9 @@ def cmd_retarget(args: argparse.Namespace) -> int:
     out = Path(args.output)
     if out.suffix.lower() not in OUTPUTS:
         raise UserError(f"{out}: unknown output type {out.suffix or '(none)'!r} (expected .bvh, .mcap or .csv)")
+    bar = Progress("retargeting", unit="step", total=3)  # read, retarget, write
     frames = read_source(args.trial, args.model, args.topic)
+    bar.advance()
     try:
         rig = build(args.character, args.mapping, frames.source, _options(args), height_m=args.height,
                     write_derived=args.mapping_out)
@@ -191,6 +194,7 @@ def cmd_retarget(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     res = rig.retargeter.process(frames.points, frames.point_ok, frames.rotations, frames.rotation_ok, frames.times_s)
     dt = time.perf_counter() - t0
+    bar.advance()
     ch = rig.character
     q = res.joint_quality
     print(f"{frames.label} onto {ch.name}: {len(q)} frames, {ch.n_joints} joints in {dt:.2f} s "
@@ -209,6 +213,7 @@ def cmd_retarget(args: argparse.Namespace) -> int:
             _write_csv(out, ch, res, frames)
     except OSError as exc:
         raise UserError(f"{out}: cannot write ({exc.strerror or exc})") from None
+    bar.close()
     print(f"wrote {out}")
     return 0
 

@@ -54,7 +54,7 @@ def test_truncated_bag_says_how_to_recover(tmp_path):
     path = write_bag(tmp_path / "a.mcap", frames=200, chunk_kb=16)
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(path.read_bytes()[:5000])
-    for args in (["info", str(cut)], ["play", str(cut)], ["convert", str(cut), str(tmp_path / "o.trc")]):
+    for args in (["info", str(cut)], ["play", str(cut)], ["convert", str(cut), "-o", str(tmp_path / "o.trc")]):
         assert_clear(cli(*args), "truncated or unfinished", f"mocapgraph bag recover {cut}")
     assert_clear(cli("recover", str(tmp_path / "empty.mcap")), "no such file")
 
@@ -80,7 +80,7 @@ def test_topics_of_unknown_type_or_schema_version(tmp_path):
     assert "played 5 messages" in r.stdout
     # asking for it explicitly is a clear error
     assert_clear(cli("play", str(path), "--topics", "gaze"), "gaze", "unknown to this mocapgraph version")
-    assert_clear(cli("convert", str(path), str(tmp_path / "g.csv"), "--topic", "gaze"), "GazeRay")
+    assert_clear(cli("convert", str(path), "-o", str(tmp_path / "g.csv"), "--topic", "gaze"), "GazeRay")
     # the stored schema record still describes it for other tools
     from mcap.reader import make_reader
 
@@ -91,12 +91,12 @@ def test_topics_of_unknown_type_or_schema_version(tmp_path):
 
 def test_convert_bad_arguments(tmp_path, shared_data):
     bvh = shared_data / "bvh" / "mixamo" / "test_freebvh.bvh"
-    assert_clear(cli("convert", str(bvh), str(tmp_path / "x.trc")), "one side of a conversion is a bag")
-    assert_clear(cli("convert", str(tmp_path / "x.xyz"), str(tmp_path / "x.mcap")), "converts into a bag from")
+    assert_clear(cli("convert", str(bvh), "-o", str(tmp_path / "x.trc")), "one side of a conversion is a bag")
+    assert_clear(cli("convert", str(tmp_path / "x.xyz"), "-o", str(tmp_path / "x.mcap")), "converts into a bag from")
     broken = shared_data / "c3d" / "btkdata" / "mocap36.c3d"
-    assert_clear(cli("convert", str(broken), str(tmp_path / "m.mcap")), "mocap36.c3d")
+    assert_clear(cli("convert", str(broken), "-o", str(tmp_path / "m.mcap")), "mocap36.c3d")
     kin = sorted((shared_data / "kinect2").glob("*.csv"))[0]
-    assert cli("convert", str(kin), str(tmp_path / "k.mcap")).returncode == 0
-    assert_clear(cli("convert", str(tmp_path / "k.mcap"), str(tmp_path / "k.bvh")),
+    assert cli("convert", str(kin), "-o", str(tmp_path / "k.mcap")).returncode == 0
+    assert_clear(cli("convert", str(tmp_path / "k.mcap"), "-o", str(tmp_path / "k.bvh")),
                  "orientations are missing", "Kinect")
-    assert_clear(cli("convert", str(tmp_path / "k.mcap"), str(tmp_path / "k.trc")), "has no MarkerFrame topic")
+    assert_clear(cli("convert", str(tmp_path / "k.mcap"), "-o", str(tmp_path / "k.trc")), "has no MarkerFrame topic")

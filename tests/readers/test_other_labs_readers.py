@@ -128,7 +128,7 @@ def test_graph_check_refuses_a_missing_or_unreadable_capture(tmp_path, capsys) -
 def test_bag_convert_up_option_and_rotation_group(tmp_path, capsys) -> None:
     truth = person_frames(10)
     y = write_points_c3d(tmp_path / "y_up.c3d", PERSON_LABELS, truth @ Y_UP_TO_WORLD, y_screen=None)
-    code, out, _ = run(capsys, "bag", "convert", y, tmp_path / "y.mcap", "--up", "Y")
+    code, out, _ = run(capsys, "bag", "convert", y, "-o", tmp_path / "y.mcap", "--up", "Y")
     assert code == 0
     with BagReader(tmp_path / "y.mcap") as r:
         got = np.array([m.positions for _, m in r.decoded("markers")])
@@ -137,7 +137,7 @@ def test_bag_convert_up_option_and_rotation_group(tmp_path, capsys) -> None:
     poses[:, 0, :3, 3] = truth[:, 1]
     seg = write_points_c3d(tmp_path / "both.c3d", PERSON_LABELS, truth, y_screen="+Z", rotations=poses,
                            rotation_labels=["pelvis"])
-    code, out, _ = run(capsys, "bag", "convert", seg, tmp_path / "both.mcap")
+    code, out, _ = run(capsys, "bag", "convert", seg, "-o", tmp_path / "both.mcap")
     assert code == 0 and "skeleton_pose (10)" in out and "markers (10)" in out, out
     with BagReader(tmp_path / "both.mcap") as r:
         sk = np.array([m.joint_positions[0] for _, m in r.decoded("skeleton_pose")])
@@ -145,7 +145,7 @@ def test_bag_convert_up_option_and_rotation_group(tmp_path, capsys) -> None:
     assert info.joint_names == ["pelvis"]
     np.testing.assert_allclose(sk, truth[:, 1], atol=1e-6)
     with pytest.raises(SystemExit) as e:
-        main(["bag", "convert", str(y), str(tmp_path / "z.mcap"), "--up", "x"])
+        main(["bag", "convert", str(y), "-o", str(tmp_path / "z.mcap"), "--up", "x"])
     assert e.value.code == 2 and "--up: invalid choice: 'x'" in capsys.readouterr().err
 
 
@@ -197,7 +197,7 @@ def test_solve_csv_keeps_the_trial_start_time(arm, capsys, tmp_path) -> None:
     code, _, err = run(capsys, "solve", arm / "late.c3d", "--model", tmp_path / "m.json", "-o", tmp_path / "o.trc",
                        "--up", "z")
     assert code == 0
-    assert run(capsys, "bag", "convert", arm / "late.c3d", tmp_path / "late.mcap")[0] == 0
+    assert run(capsys, "bag", "convert", arm / "late.c3d", "-o", tmp_path / "late.mcap")[0] == 0
     code, _, err = run(capsys, "solve", tmp_path / "late.mcap", "--model", tmp_path / "m.json", "-o",
                        tmp_path / "b.csv", "--up", "y")
     assert code == 2 and err.count("\n") == 1 and "--up y applies to C3D and TRC files; a bag is already" in err

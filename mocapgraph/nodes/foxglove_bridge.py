@@ -1,0 +1,123 @@
+"""Foxglove bridge node: the live graph in the Foxglove app, over Foxglove's WebSocket protocol.
+
+The official foxglove-sdk serves the protocol; our gate (:mod:`mocapgraph.net.ws_gate`) stands in
+front of it on ``host:port`` with a per-launch token, the Origin and the Host check, as the viewer
+does, because the SDK's server has no authentication. In Foxglove: Open connection > Foxglove
+WebSocket > the ``ws://127.0.0.1:<port>/?token=...`` URL the node prints. Channels (created as
+their topics first arrive): ``/markers``, ``/actor_pose``, ``/skeleton_pose``, ``/character_pose``,
+``/physics_state`` as ``foxglove.SceneUpdate`` for the 3D panel (what is drawn:
+:mod:`mocapgraph.bag.foxglove_scene`), ``/diagnostics/<node>`` as JSON for the Plot panel,
+``/calibration_status`` and ``/player_status`` as JSON. A
+frame is encoded only while some client subscribes to its channel.
+"""
+from __future__ import annotations
+
+import secrets
+from typing import Any, Callable
+
+from ..bag.foxglove_scene import FoxgloveMessage, SceneBuilder, scene_schema
+from ..bus import Input, Node, Param
+from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
+                        NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose)
+from ..net.ws_gate import GateStartError, WebSocketGate
+
+QUEUE = 256  # messages per input socket before dropping (counted as gaps)
+FOXGLOVE_APP_ORIGIN = "https://app.foxglove.dev"
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
+
+
+def _frames(topic: str, t: type[Message], doc: str) -> Input:
+    return Input(topic, t, doc, queue=QUEUE, required=False)
+
+
+def _latched(topic: str, t: type[Message], doc: str) -> Input:
+    return Input(topic, t, doc, latched=True, queue=QUEUE, required=False)
+
+
+class FoxgloveBridge(Node):
+    """Serves markers, actors, skeletons, characters, physics bodies and diagnostics to Foxglove."""
+
+    summary = "the live graph in the Foxglove app (foxglove-sdk WebSocket server, token on 127.0.0.1)"
+
+    markers = _frames("markers", MarkerFrame, "markers: spheres, green seen, red not seen")
+    marker_layout = _latched("marker_layout", MarkerLayout, "marker labels")
+    actor_pose = _frames("actor_pose", ActorPose, "solved actors: joints by quality, bones")
+    skeleton_model = _latched("skeleton_model", SkeletonModel, "actor joint parents (bones)")
+    skeleton_pose = _frames("skeleton_pose", SkeletonPose, "Kinect/BVH skeleton streams")
+    skeleton_info = _latched("skeleton_info", SkeletonInfo, "skeleton joint parents")
+    character_pose = _frames("character_pose", CharacterPose, "retargeted characters")
+    character_info = _latched("character_info", CharacterInfo, "character joint parents")
+    physics_state = _frames("physics_state", PhysicsState, "simulated bodies and stage objects")
+    physics_scene = _latched("physics_scene", PhysicsScene, "body shapes and sizes")
+    node_diagnostics = _frames("diagnostics", Diagnostics, "every node's rates, latency, drops (plots)")
+    calibration_status = _frames("calibration_status", NodeStatus, "calibration state (JSON)")
+    player_status = _frames("player_status", NodeStatus, "bag player state (JSON)")
+
+    host = Param("127.0.0.1", "address Foxglove connects to (loopback unless you mean otherwise)")
+    port = Param(8766, "WebSocket port; 0 picks a free one (printed at start)", minimum=0, maximum=65535)
+    token = Param("", "token clients must give as ?token=; '' makes a new one each start (printed)")
+    allowed_origins = Param([FOXGLOVE_APP_ORIGIN], "browser origins allowed to connect (the Foxglove web app); "
+                            "the desktop app sends none and is allowed")
+    backlog = Param(1024, "messages buffered per client before the oldest are dropped", minimum=16)
+
+    def __init__(self, name: str, params: dict[str, Any] | None = None, wiring: Any = None) -> None:
+        super().__init__(name, params, wiring)
+        self.builder = SceneBuilder()
+        self.channels: dict[str, Any] = {}
+        self.server: Any = None
+        self.gate: WebSocketGate | None = None
+        self.sent = 0
+
+    def input_handler(self, port_name: str) -> Callable[[Message], Any]:
+        port = self._ports[port_name]
+        feed = self.builder.feed
+
+        def handle(msg: Message) -> None:
+            for m in feed(port.envelope, msg, port.topic):
+                ch = self.channels.get(m.topic) or self._channel(m)
+                if ch.has_sinks():
+                    ch.log(m.data, log_time=m.log_ns)
+                    self.sent += 1
+
+        return handle
+
+    def _channel(self, m: FoxgloveMessage) -> Any:
+        import foxglove
+
+        if m.encoding == "protobuf":
+            name, data = scene_schema()
+            schema = foxglove.Schema(name=name, encoding="protobuf", data=data)
+        else:
+            schema = foxglove.Schema(name=m.schema, encoding="jsonschema", data=m.schema_data)
+        ch = self.channels[m.topic] = foxglove.Channel(m.topic, schema=schema, message_encoding=m.encoding,
+                                                       context=self._fox)
+        return ch
+
+    def setup(self) -> None:
+        import foxglove
+
+        # The SDK would announce its inner port at INFO; only the gate's URL is for people.
+        foxglove.set_log_level("WARNING")
+        self._fox = foxglove.Context()
+        # The SDK's server on a free loopback port; only the gate is told to the world.
+        self.server = foxglove.start_server(name=f"mocapgraph {self.name}", host="127.0.0.1", port=0,
+                                            context=self._fox, message_backlog_size=self.backlog)
+        token = self.token or secrets.token_urlsafe(18)
+        self.gate = WebSocketGate(f"ws://127.0.0.1:{self.server.port}/", self.host, self.port, token,
+                                  self.allowed_origins, SUBPROTOCOLS, SUBPROTOCOLS[0])
+        try:
+            self.gate.start()
+        except GateStartError as exc:
+            self.log.error("%s", exc)
+            self.server.stop()
+            raise SystemExit(2) from None
+        super().setup()
+        self.log.info("foxglove bridge at %s (Foxglove: Open connection > Foxglove WebSocket)", self.gate.url)
+
+    def on_stop(self) -> None:
+        if self.gate is not None:
+            self.gate.stop()
+            self.log.info("foxglove bridge: %d messages sent, %d connections, refused %s", self.sent,
+                          self.gate.accepted, self.gate.refused or "none")
+        if self.server is not None:
+            self.server.stop()

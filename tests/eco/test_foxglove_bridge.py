@@ -1,0 +1,117 @@
+"""The foxglove_bridge node in a real graph, seen by a Foxglove WebSocket client written from the
+protocol's documentation: advertised channels with their schemas, a subscribed scene decoded with
+the advertised schema (the right markers, where the pattern put them), JSON diagnostics; the
+token, Origin and Host checks refuse strangers."""
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import re
+import struct
+
+import numpy as np
+import pytest
+import websockets
+from websockets.exceptions import InvalidStatus
+
+from foxglove_decode import message_class
+from eco_support import STAGE_PERFORMER, pattern_positions
+
+N, RATE, TOKEN = 10, 120.0, "s3cret-token"
+GRAPH = f"""
+nodes:
+  - name: pattern
+    type: marker_test_pattern
+    params: {{rate_hz: {RATE}, n_markers: {N}, missing_every: 5}}
+  - name: performer
+    type: {STAGE_PERFORMER}
+    params: {{actor: ann, rate_hz: 30.0, publish: [actor]}}
+  - name: fox
+    type: foxglove_bridge
+    params: {{port: 0, token: {TOKEN}}}
+"""
+
+
+async def _session(url: str, frames: dict[str, int]):
+    """Connect as Foxglove does, collect advertisements, subscribe to the topics of ``frames`` and
+    collect that many messages of each."""
+    want = set(frames)
+    async with websockets.connect(url, subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"],
+                                  max_size=None) as ws:
+        info = json.loads(await asyncio.wait_for(ws.recv(), 10))
+        assert info["op"] == "serverInfo"
+        channels: dict[str, dict] = {}
+        while not want <= set(channels):
+            msg = json.loads(await asyncio.wait_for(ws.recv(), 10))
+            if msg["op"] == "advertise":
+                channels.update({c["topic"]: c for c in msg["channels"]})
+        subs = {i + 1: channels[t] for i, t in enumerate(sorted(want))}
+        await ws.send(json.dumps({"op": "subscribe",
+                                  "subscriptions": [{"id": i, "channelId": c["id"]} for i, c in subs.items()]}))
+        got: dict[str, list] = {t: [] for t in want}
+        while any(len(got[t]) < n for t, n in frames.items()):
+            m = await asyncio.wait_for(ws.recv(), 10)
+            if isinstance(m, str):
+                continue  # further advertisements, status
+            assert m[0] == 0x01  # MessageData: opcode, subscription id, timestamp ns, payload
+            sub, stamp = struct.unpack_from("<IQ", m, 1)
+            got[subs[sub]["topic"]].append((stamp, m[13:]))
+        return info, channels, got
+
+
+def test_foxglove_client_decodes_the_scene(launch_graph):
+    g = launch_graph(GRAPH)
+    g.wait_ready()
+    line = g.wait_for("foxglove bridge at ")
+    url = re.search(r"(ws://\S+)", line).group(1)
+    assert url.startswith("ws://127.0.0.1:") and url.endswith(f"?token={TOKEN}")
+    info, channels, got = asyncio.run(_session(url, {"/markers": 60, "/actor_pose": 5, "/diagnostics/pattern": 1}))
+    assert "mocapgraph fox" in info["name"]
+    scene = channels["/markers"]
+    assert (scene["encoding"], scene["schemaName"], scene["schemaEncoding"]) == \
+        ("protobuf", "foxglove.SceneUpdate", "protobuf")
+    SceneUpdate = message_class("foxglove.SceneUpdate", base64.b64decode(scene["schema"]))
+    counts = set()
+    for stamp, data in got["/markers"]:
+        (ent,) = SceneUpdate.FromString(data).entities
+        frame = int(dict((kv.key, kv.value) for kv in ent.metadata)["frame"])
+        expect = pattern_positions(frame, N, RATE)
+        if frame % 5 == 0:
+            expect = expect[1:]  # marker 0 missing on every 5th frame: not drawn
+        pos = np.array([[s.pose.position.x, s.pose.position.y, s.pose.position.z] for s in ent.spheres])
+        np.testing.assert_array_equal(pos, expect)
+        assert ent.timestamp.seconds * 10**9 + ent.timestamp.nanos == stamp
+        counts.add(len(ent.spheres))
+    assert counts == {N, N - 1}
+    actor = SceneUpdate.FromString(got["/actor_pose"][-1][1]).entities[0]
+    assert actor.id == "actor_pose/ann" and len(actor.spheres) == 16 and len(actor.lines[0].points) == 30
+    diag = channels["/diagnostics/pattern"]
+    assert diag["encoding"] == "json" and diag["schemaEncoding"] == "jsonschema"
+    rec = json.loads(got["/diagnostics/pattern"][-1][1])
+    assert rec["node"] == "pattern" and rec["sent"]["markers"] > 0
+
+
+async def _refused(url: str, headers: dict | None = None, **kw) -> int:
+    try:
+        async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"], additional_headers=headers, **kw):
+            return 101
+    except InvalidStatus as exc:
+        return exc.response.status_code
+
+
+def test_strangers_are_refused(launch_graph):
+    g = launch_graph(GRAPH)
+    g.wait_ready()
+    url = re.search(r"(ws://\S+)", g.wait_for("foxglove bridge at ")).group(1)
+    bare = url.split("?")[0]
+    assert asyncio.run(_refused(bare)) == 403
+    assert asyncio.run(_refused(bare + "?token=guess")) == 403
+    assert asyncio.run(_refused(url, {"Origin": "https://evil.example"})) == 403
+    assert asyncio.run(_refused(url, {"Origin": "https://app.foxglove.dev"})) == 101
+    port = bare.rsplit(":", 1)[1].rstrip("/")
+    assert asyncio.run(_refused(url.replace("127.0.0.1", "localhost"))) == 101
+    # DNS rebinding: a page of evil.example resolved to 127.0.0.1 sends Host: evil.example
+    assert asyncio.run(_refused(url.replace("127.0.0.1", "evil.example"), host="127.0.0.1", port=int(port))) == 403
+    g.stop()
+    assert "refused" in g.output and "'token': 2" in g.output
