@@ -191,13 +191,18 @@ def main() -> None:
     print(f"  {total:.3f} ms per frame (Shum & Ho 0.65 ms: x{0.65 / total:.2f}; target 0.3 ms): "
           f"conditioning incl. search {r['cond']:.3f} ms (search alone {r['search']:.3f} ms; S&H 0.10), "
           f"simulation {r['sim']:.3f} ms (S&H 0.55)")
+    # the load-independent figure: CPU time in units of the in-run small-op cost (a run on an idle
+    # core and one at load 15 give about the same count; compare runs by this, not by ms)
+    print(f"  = {1e3 * total / op:.0f} small-op equivalents per frame (conditioning {1e3 * r['cond'] / op:.0f}, "
+          f"simulation {1e3 * r['sim'] / op:.0f}); at the idle-core 0.5 us per op that is {total * 0.5 / op:.3f} ms")
     fit = 0
     for n in (1, 2, 4, 8, 12):
         ms = many(clip, n, min(opts.frames, 240))
         ok = ms <= FRAME_MS
         fit = n if ok else fit
         print(f"  {n:2d} characters in one world: {ms:6.2f} ms per frame, {ms / n:.3f} ms per character "
-              f"({'real time' if ok else 'slower than real time'} at 120 Hz)")
+              f"({'real time' if ok else 'slower than real time'} at 120 Hz; "
+              f"{1e3 * ms / n / op:.0f} small-op equivalents per character)")
     print(f"characters in real time at 120 Hz on one core: {fit} of those tried (target >= 8)")
     us = mj_step_us(clip)
     print(f"MuJoCo mj_step, one character: {us:.1f} us per step, {2 * us / 1000:.3f} ms per 120 Hz frame (2 steps)")

@@ -35,13 +35,22 @@ class Gains:
         return self
 
 
+def _cross_table() -> np.ndarray:
+    t = np.zeros((3, 3, 3))
+    for i, j, k in ((1, 2, 0), (2, 0, 1), (0, 1, 2)):
+        t[i, j, k], t[j, i, k] = 1.0, -1.0
+    return t.reshape(9, 3)
+
+
+_CROSS = _cross_table()  # component k of a x b = sum over (i, j) of table * a_i b_j
+
+
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a x b of [N, 3] arrays (np.cross costs ~30 us a call in its axis handling)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
+    """Row-wise a x b of [N, 3] arrays, as one outer product and one matmul (np.cross costs ~30 us
+    a call in its axis handling; column arithmetic ~10 small operations). Exact: each component is
+    two products and zeros."""
+    ab = a[..., :, None] * b[..., None, :]
+    return ab.reshape(ab.shape[:-2] + (9,)) @ _CROSS
 
 
 def clip_norm(v: np.ndarray, limit: float | np.ndarray) -> np.ndarray:

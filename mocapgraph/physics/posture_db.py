@@ -15,6 +15,7 @@ Stored as ``.npz`` (arrays plus a JSON header); units metres, world Z up.
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..kinematics.quaternion import quat_multiply
+from .quat_lean import qmul
 
 FORMAT = "mocapgraph.posture_db/1"
 
@@ -58,17 +60,24 @@ class Frame:
         return Frame(root, tuple(pairs))
 
     def yaw_and_origin(self, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per posture [N, J, 3]: heading yaw [N] rad, origin [N, 3] m, and whether both were found."""
+        """Per posture [N, J, 3]: heading yaw [N] rad, origin [N, 3] m, and whether both were found.
+
+        The heading comes from the first pair whose joints are both there; the origin is the root,
+        else the midpoint of the first complete pair (all pairs at once: this runs every frame)."""
+        L = np.array([l for l, _ in self.pairs])
+        R = np.array([r for _, r in self.pairs])
+        pl, pr = pos[:, L], pos[:, R]                    # [N, P, 3]
+        left = pl - pr
+        y = np.arctan2(-left[..., 0], left[..., 1])      # [N, P]; left along +Y means heading along +X
+        mid = 0.5 * (pl + pr)
+        good = np.isfinite(mid).all(2)                   # a pair is usable iff both joints are there
+        first = np.argmax(good, axis=1)
+        rows = np.arange(len(pos))
+        found = good[rows, first]
+        yaw = np.where(found, y[rows, first], np.nan)
         origin = pos[:, self.root].copy()
-        yaw = np.full(len(pos), np.nan)
-        for l, r in self.pairs:
-            left = pos[:, l] - pos[:, r]
-            y = np.arctan2(-left[:, 0], left[:, 1])  # left along +Y means heading along +X
-            fill = np.isnan(yaw) & np.isfinite(y)
-            yaw[fill] = y[fill]
-            mid = 0.5 * (pos[:, l] + pos[:, r])
-            bad = ~np.isfinite(origin).all(1) & np.isfinite(mid).all(1)
-            origin[bad] = mid[bad]
+        bad = ~np.isfinite(origin).all(1) & found
+        origin[bad] = mid[rows, first][bad]
         ok = np.isfinite(yaw) & np.isfinite(origin).all(1)
         return yaw, origin, ok
 
@@ -140,7 +149,10 @@ class PostureDB:
         self._basis = self.components[:k]
         self._reduced = (self.positions.reshape(len(self.positions), -1) - self.mean) @ self._basis.T
         self._sqnorm = (self._reduced * self._reduced).sum(1)
-        self._reduced_t = np.ascontiguousarray(self._reduced.T)
+        # the brute-force search as one matmul: [q, 1] @ [-2 R^T; |r|^2] = |r|^2 - 2 q.r, the
+        # squared distance less the query's own |q|^2 (the same for every posture)
+        self._search_t = np.ascontiguousarray(np.vstack([-2.0 * self._reduced.T, self._sqnorm[None]]))
+        self._query = np.ones(self.k + 1)
         self._tree = cKDTree(self._reduced)
 
     def __len__(self) -> int:
@@ -157,9 +169,11 @@ class PostureDB:
         how = how or self.search
         if how == "kdtree":
             return self._tree.query(reduced, k=1)[1]
-        if len(reduced) == 1:  # the live case: one vector-matrix product over a k x N copy (2x faster
-            # than N x k: contiguous along the postures)
-            return np.array([np.argmin(self._sqnorm - 2.0 * (reduced[0] @ self._reduced_t))])
+        if len(reduced) == 1:  # the live case: one vector-matrix product over a (k+1) x N matrix
+            # (contiguous along the postures), then the argmin
+            q = self._query
+            q[:-1] = reduced[0]
+            return np.array([np.argmin(q @ self._search_t)])
         d = self._sqnorm[None] - 2.0 * reduced @ self._reduced.T
         return np.argmin(d, axis=1)
 
@@ -187,11 +201,13 @@ class PostureDB:
 
     def posture_world(self, index: int, yaw: float, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Database posture ``index`` put at ``origin`` with heading ``yaw``: positions, local rotations."""
-        p = self.positions[index]
-        c, s = np.cos(yaw), np.sin(yaw)
-        world = np.stack([c * p[:, 0] - s * p[:, 1], s * p[:, 0] + c * p[:, 1], p[:, 2]], axis=1) + origin
+        c, s = math.cos(yaw), math.sin(yaw)
+        Rz_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # rows times this: about +Z by yaw
+        world = self.positions[index] @ Rz_t + origin
         rot = self.rotations[index].copy()
-        rot[self.frame.root] = quat_multiply(_yaw_quat(np.array(yaw)), rot[self.frame.root])
+        r = self.frame.root
+        half = 0.5 * yaw
+        rot[r] = qmul(np.array([[math.cos(half), 0.0, 0.0, math.sin(half)]]), rot[r:r + 1])[0]
         return world, rot
 
     def complete(self, positions: np.ndarray, rotations: np.ndarray

@@ -20,21 +20,13 @@ import numpy as np
 
 from ..kinematics.character import Character
 from .posture_db import PostureDB
+from .quat_lean import qmul
 
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise Hamilton products of [N, 4] wxyz arrays (lean: the per-frame path)."""
-    aw, ax, ay, az = a.T
-    bw, bx, by, bz = b.T
-    out = np.empty_like(a)
-    out[:, 0] = aw * bw - ax * bx - ay * by - az * bz
-    out[:, 1] = aw * bx + ax * bw + ay * bz - az * by
-    out[:, 2] = aw * by - ax * bz + ay * bw + az * bx
-    out[:, 3] = aw * bz + ax * by - ay * bx + az * bw
-    return out
+_qmul = qmul  # the one-matmul product (quat_lean)
 
 
 def world_orientations(local: np.ndarray, rest: np.ndarray, parents: np.ndarray, levels) -> np.ndarray:
@@ -109,8 +101,9 @@ class TargetConditioner:
             # a missing rotation turns with its parent (identity) and its orientation (and those
             # below) are marked unknown
             chain_ok = ok_r.copy()
-            for level in self._levels[1:]:
-                chain_ok[level] &= chain_ok[ch.parents[level]]
+            if not chain_ok.all():  # the usual frame has every rotation: nothing to propagate
+                for level in self._levels[1:]:
+                    chain_ok[level] &= chain_ok[ch.parents[level]]
             world = world_orientations(np.where(ok_r[:, None], rot, IDENTITY), ch.rest_rotations, ch.parents,
                                        self._levels)
             orient = np.where(chain_ok[:, None], world, np.nan)

@@ -18,6 +18,7 @@ of every character at once.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import mujoco
@@ -26,7 +27,8 @@ import numpy as np
 from ..kinematics.character import Character
 from ..kinematics.quaternion import matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix
 from .body import CharacterBody, add_character, add_pins, character_body, fmt, to_xml, world_root
-from .controller import Gains, clip_norm, cross, joint_forces, twist_torques
+from .controller import Gains, clip_norm, cross, twist_torques
+from .quat_lean import qmul_conj as _qmul_conj
 from .stage import EMPTY_STAGE, PARK_X, Stage, add_stage
 
 import xml.etree.ElementTree as ET
@@ -382,10 +384,11 @@ class PhysicsWorld:
         z_ok = np.isfinite(pt).all(1)
         low = pt[:, 2] <= self.pin_rest_z + self.params.contact_height
         high = pt[:, 2] > self.pin_rest_z + self.params.contact_height + 0.01
-        slow = np.linalg.norm(vt[:, :2], axis=1) <= self.params.contact_speed
-        fast = np.linalg.norm(vt[:, :2], axis=1) > 2 * self.params.contact_speed
+        hspeed = np.sqrt((vt[:, :2] ** 2).sum(1))
+        slow = hspeed <= self.params.contact_speed
+        fast = hspeed > 2 * self.params.contact_speed
         on = z_ok & low & slow & ~self.pin_on
-        drift = np.linalg.norm((pt - self.data.mocap_pos[self.pin_mocap])[:, :2], axis=1)
+        drift = np.sqrt((((pt - self.data.mocap_pos[self.pin_mocap])[:, :2]) ** 2).sum(1))
         off = self.pin_on & (~z_ok | high | fast | (drift > self.params.pin_slack))
         if on.any():
             cur = self.point_positions()[self.pin_point[on]]
@@ -446,19 +449,39 @@ class PhysicsWorld:
         self._update_pins()
         self._update_dodge()
         g = self.params.gains
+        fixed = np.isfinite(self.override) | np.isfinite(self.dodge_override)
         target = np.where(np.isfinite(self.override), self.override, self.p_t)
         target = np.where(np.isfinite(self.dodge_override), self.dodge_override, target)
-        vel = np.where(np.isfinite(self.override) | np.isfinite(self.dodge_override), 0.0, self.v_t)
         has_t = np.isfinite(target).all(1)
+        # per frame, not per substep: a point without a target gets zero gains (so no force) and
+        # finite zeros for its target, which is what masking the NaN force after the fact gave
+        mask = has_t.astype(np.float64)
+        kp = (g.kp * self.scale_pt * mask)[:, None]
+        kd = (g.kd * self.scale_pt * mask)[:, None]
+        vel = np.where(fixed | ~has_t[:, None], 0.0, self.v_t)
+        target = np.where(has_t[:, None], target, 0.0)
         dt_frame = n * m.opt.timestep
-        mask = has_t[:, None].astype(np.float64)
+        pt, local, root = self.pt_body, self.pt_local[:, :, None], self.pt_root
+        A = self._pt_to_body
+        wrench = np.empty((len(pt), 6))
+        fmax = 0.0
         for i in range(n):
             mujoco.mj_step1(m, d)
             # targets move on between frames at their velocity (the input arrives per frame)
             p_t = target + vel * ((i + 1) * m.opt.timestep - dt_frame)
-            p = self.point_positions()
-            v = self.point_velocities(p)
-            f = joint_forces(g, p, v, p_t, vel, self.scale_pt) * mask
+            p = d.xpos[pt] + (d.xmat[pt].reshape(-1, 3, 3) @ local)[:, :, 0]
+            cv = d.cvel[pt]
+            v = cv[:, 3:] + cross(cv[:, :3], p - d.subtree_com[root])
+            f = kp * (p_t - p) + kd * (vel - v)   # Eq 1 (joint_forces, with the gains premultiplied)
+            norm = np.sqrt((f * f).sum(1))
+            top = float(norm.max())                # NaN if any is: one reduction checks both
+            if not math.isfinite(top):             # a blown-up state: no force from it
+                f = np.where(np.isfinite(f), f, 0.0)
+                norm = np.sqrt((f * f).sum(1))
+                top = float(norm.max())
+            if top > g.max_force:                  # clip_norm, skipped when nothing is over the bound
+                f *= np.minimum(1.0, g.max_force / np.maximum(norm, 1e-12))[:, None]
+            fmax = max(fmax, min(top, g.max_force))
             if i == 0:
                 # Eq 2 once per frame, held over its substeps: gains per unit inertia keep
                 # Kd_rot * frame span well inside the stable range, and it halves the work
@@ -467,20 +490,22 @@ class PhysicsWorld:
                 tq = twist_torques(g, d.xquat[self.b_body], d.cvel[self.b_body, :3], axis, self.q_t, self.w_t,
                                    self.scale_body) * self.has_rot[:, None]
                 self.max_applied_torque = max(self.max_applied_torque, float(np.sqrt((tq * tq).sum(1).max(initial=0.0))))
-            wrench = np.concatenate([f, cross(p - d.xipos[self.pt_body], f)], axis=1)
+                # what each body gets besides the joint forces, the same every substep
+                extra = np.zeros((m.nbody, 6))
+                extra[self.b_body, 3:] = tq
+                if self._comp is not None:
+                    extra[self.b_body, 2] = self._comp
+            arm = p - d.xipos[pt]
+            wrench[:, :3] = f
+            wrench[:, 3:] = cross(arm, f)
             if self._pushes:
-                arm = p - d.xipos[self.pt_body]
                 for push in self._pushes:
                     if d.time < push.until:
                         wrench[push.point, :3] += push.force
                         wrench[push.point, 3:] += np.cross(arm[push.point], push.force)
-            xf = self._pt_to_body @ wrench
-            xf[self.b_body, 3:] += tq
-            if self._comp is not None:
-                xf[self.b_body, 2] += self._comp
-            d.xfrc_applied[:] = xf
+            np.add(A @ wrench, extra, out=d.xfrc_applied)
             mujoco.mj_step2(m, d)
-            self.max_applied_force = max(self.max_applied_force, float(np.sqrt((f * f).sum(1).max(initial=0.0))))
+        self.max_applied_force = max(self.max_applied_force, fmax)
         self.last_forces, self.last_torques = f, tq
         self._pushes = [p for p in self._pushes if d.time < p.until]
         self.frames_stepped += 1
@@ -521,18 +546,6 @@ class PhysicsWorld:
                  mujoco.mjtGeom.mjGEOM_CAPSULE: "capsule", mujoco.mjtGeom.mjGEOM_CYLINDER: "cylinder"}
         shapes = tuple(names.get(int(t), "mesh") for t in self.model.geom_type[self.geom_ids])
         return shapes, self.model.geom_size[self.geom_ids].copy()
-
-
-def _qmul_conj(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a * conj(b) of [N, 4] wxyz arrays."""
-    aw, ax, ay, az = a.T
-    bw, bx, by, bz = b.T
-    out = np.empty_like(a)
-    out[:, 0] = aw * bw + ax * bx + ay * by + az * bz
-    out[:, 1] = -aw * bx + ax * bw - ay * bz + az * by
-    out[:, 2] = -aw * by + ax * bz + ay * bw - az * bx
-    out[:, 3] = -aw * bz - ax * by + ay * bx + az * bw
-    return out
 
 
 def lift_above_floor(p: np.ndarray, parents: np.ndarray, min_z: np.ndarray) -> np.ndarray:
