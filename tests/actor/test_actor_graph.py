@@ -21,7 +21,8 @@ SOURCE = """\
 
 def _pipeline_graph(log, model_file) -> str:
     """The shipped actor pipeline on the real synthetic actor node: 1 s base pose, 16 s gym, 5 s of
-    performance at 6x real time."""
+    performance at 3x real time (360 frames/s: what two loaded cores carry through reader, calibration,
+    solver and logger; at 6x the solver's input queue overflowed on such a machine)."""
     return f"""\
 include:
   - file: {PIPELINE}
@@ -29,7 +30,7 @@ include:
 nodes:
   - name: reader
     type: synthetic_actor
-    params: {{noise_mm: 1.0, rate_scale: 6.0, duration_s: 22.0, loop: false, seed: 2}}
+    params: {{noise_mm: 1.0, rate_scale: 3.0, duration_s: 22.0, loop: false, seed: 2}}
   - name: logger
     type: topic_logger
     params: {{path: {log}, topics: [actor_pose, ground_truth, calibration_status]}}
@@ -42,6 +43,9 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
     g = launch_graph(_pipeline_graph(log1, model_file))
     g.wait_ready()
     g.wait_for("node reader exited with code 0", timeout=30)
+    # the source may finish ahead of the solver (faster than real time): stop once the
+    # last frame's pose has reached the log, so nothing still queued is cut off by the stop
+    wait_until(lambda: 2639 in poses(log1), timeout=30, what="the last frame's pose", graph=g)
     assert g.stop() == 0
     seq = states(log1, "calibration")
     assert seq == ["finding_base_pose", "base_pose_found", "capturing_gym", "gym_captured", "processing",
@@ -53,7 +57,7 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
     assert all(j["reliable"] and j["residual_mm"] < 5.0 and j["rom_deg"] > 25 for j in report["joints"])
     capturing = [m["progress"] for m in statuses(log1, "calibration") if m["state"] == "capturing_gym"]
     assert capturing == sorted(capturing) and capturing[0] == 0.0 and 0.5 < capturing[-1] <= 1.0
-    assert len(capturing) >= 2  # periodic 2 Hz reports during the 2.7 s (wall) capture; fewer on a loaded machine
+    assert len(capturing) >= 2  # periodic 2 Hz reports during the 5.3 s (wall) capture; fewer on a loaded machine
     model = load_model(model_file, "kiip_full_body", load_model(model_file).marker_labels)
     assert model.n_gym_frames == 961  # base pose + 16 s at 60 frames/s
 
@@ -71,6 +75,7 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
     g2 = launch_graph(_pipeline_graph(log2, model_file))
     g2.wait_ready()
     g2.wait_for("node reader exited with code 0", timeout=30)
+    wait_until(lambda: 2639 in poses(log2), timeout=30, what="the last frame's pose", graph=g2)
     assert g2.stop() == 0
     assert states(log2, "calibration") == ["calibrated"]
     assert json.loads(statuses(log2, "calibration")[-1]["data_json"])["origin"] == f"loaded {model_file}"
