@@ -15,6 +15,9 @@ segment-wise fit could not place starts from its previous pose (warm start) and 
 joints and remaining markers. The limbs form a tree, so the normal matrix is block-tridiagonal
 along it: it is solved by block elimination from the leaves to the root and back (6x6 blocks,
 one batched step per tree level: O(limbs), no per-frame, per-limb or per-joint Python loops).
+Frames step until no point moves more than ``tolerance`` (only the unconverged ones go on). Live
+frames are instead tracked from the previous frame's optimum (:mod:`global_track`); this fit
+starts and restarts that tracking.
 """
 from __future__ import annotations
 
@@ -37,7 +40,8 @@ class GlobalFitOptions:
     joint_sigma: float = 0.0002
     unreliable_joint_sigma: float = 0.02
     hinge_sigma: float = 0.01
-    iterations: int = 1
+    iterations: int = 4
+    tolerance: float = 1e-5
     chunk_frames: int = 128
 
 
@@ -77,6 +81,11 @@ class GlobalFit:
         self._Eb = np.zeros((L, J))
         self._Eb[self._jb, np.arange(J)] = 1.0
         self._eye6 = np.eye(6)
+        # Lever arm per limb (m): a rotation step of w rad moves its points up to |w| * radius.
+        rad = np.sqrt(np.where(idx >= 0, (self._a ** 2).sum(-1), 0.0).max(1))
+        np.maximum.at(rad, np.concatenate([self._ja, self._jb]),
+                      np.sqrt((np.concatenate([self._p_a, self._p_b]) ** 2).sum(-1)))
+        self._radius = np.maximum(rad, 0.05)
         # Tree levels for the block elimination: (limbs, their joints, parents, incidence) per
         # depth, deepest first; a limb's joint is the one whose distal limb it is.
         parent = np.asarray(model.limb_parent)
@@ -105,6 +114,11 @@ class GlobalFit:
         """Forget the previous frame's poses."""
         self._last = None
 
+    def remember(self, rot: np.ndarray, cen: np.ndarray) -> None:
+        """A frame solved elsewhere (the live tracker): its poses (rot [L,3,3], base-marker
+        centroids cen [L,3]) are the warm start for limbs a later frame cannot place."""
+        self._last = (rot, cen)
+
     # ---- warm start ------------------------------------------------------------------------
     def _initial(self, rot: np.ndarray, cen: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Kabsch poses where valid; elsewhere the latest earlier pose (this batch, then the last
@@ -123,16 +137,15 @@ class GlobalFit:
 
     # ---- the fit ---------------------------------------------------------------------------
     def refine(self, markers: np.ndarray, rot: np.ndarray, trans: np.ndarray, valid: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """markers float[T,M,3]; segment-wise rot [T,L,3,3], trans [T,L,3] (``x = R x_ref + t``),
-        valid bool[T,L] -> globally fitted (rot, trans) in the same convention, every limb set."""
-        out_r, out_t = [], []
+        valid bool[T,L] -> globally fitted (rot, trans) in the same convention, every limb set,
+        and rms float[T,L] m: each limb's seen markers about the fitted pose (NaN if none)."""
+        out = []
         n = max(1, int(self.options.chunk_frames))
         for a in range(0, valid.shape[0], n):
-            r, t = self._refine(markers[a:a + n], rot[a:a + n], trans[a:a + n], valid[a:a + n])
-            out_r.append(r)
-            out_t.append(t)
-        return np.concatenate(out_r), np.concatenate(out_t)
+            out.append(self._refine(markers[a:a + n], rot[a:a + n], trans[a:a + n], valid[a:a + n]))
+        return tuple(np.concatenate(x) for x in zip(*out))
 
     def _refine(self, markers, rot, trans, valid):
         T, L = valid.shape
@@ -143,14 +156,19 @@ class GlobalFit:
         wm = np.where(seen, self._wm, 0.0)                                            # [T,L,K]
         y = np.where(seen[..., None], y, 0.0)
         wsum = wm.sum(-1)                                                             # [T,L]
+        # Only the frames whose last step still moved a point go on (a convergence test).
+        r, c = r.copy(), c.copy()
+        act = np.arange(T)
         for _ in range(max(1, self.options.iterations)):
-            r, c = self._step(r, c, y, wm, wsum)
-        # Frames with a limb started from an old pose get one more step (it may be far off).
-        far = np.flatnonzero(~valid.all(1))
-        if far.size:
-            r[far], c[far] = self._step(r[far], c[far], y[far], wm[far], wsum[far])
+            r[act], c[act], moved = self._step(r[act], c[act], y[act], wm[act], wsum[act])
+            act = act[moved.max(1) > self.options.tolerance]
+            if not act.size:
+                break
         self._update_last(rot, cen, valid)
-        return r, c - (r @ self._c0[:, :, None])[..., 0]
+        res = self._a @ np.swapaxes(r, -1, -2) + c[:, :, None] - y
+        n = seen.sum(-1)
+        rms = np.sqrt(np.where(seen, (res * res).sum(-1), 0.0).sum(-1) / np.maximum(n, 1))
+        return r, c - (r @ self._c0[:, :, None])[..., 0], np.where(n > 0, rms, np.nan)
 
     def _update_last(self, rot, cen, valid) -> None:
         """The warm start for the next call: per limb its latest segment-wise pose (so that a
@@ -166,7 +184,8 @@ class GlobalFit:
                       np.where(has[:, None], cen[last, li], prev_c))
 
     def _step(self, r, c, y, wm, wsum):
-        """One Gauss-Newton step of every frame's poses (r [T,L,3,3], c [T,L,3])."""
+        """One Gauss-Newton step of every frame's poses (r [T,L,3,3], c [T,L,3]) -> new poses and
+        how far each limb's points moved (m, [T,L])."""
         T, L = r.shape[:2]
         ja, jb, hj = self._ja, self._jb, self._hj
         J = ja.size
@@ -215,7 +234,9 @@ class GlobalFit:
         tr = np.einsum("tlii->tl", diag)[..., None, None] / 6.0
         diag = diag + (1e-9 * tr + 1e-12) * self._eye6
         step = self._tree_solve(diag, hab, -g)
-        return _rotvec_matrix(step[..., :3]) @ r, c + step[..., 3:]
+        w, v = step[..., :3], step[..., 3:]
+        moved = np.sqrt((v * v).sum(-1)) + np.sqrt((w * w).sum(-1)) * self._radius   # [T,L] m
+        return _rotvec_matrix(w) @ r, c + v, moved
 
     def _tree_solve(self, diag: np.ndarray, hab: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Solve the block tree system (diag [T,L,6,6], parent-child blocks hab [T,J,6,6] =

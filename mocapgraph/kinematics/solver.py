@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from mocapgraph.kinematics.filters import GapFiller, make_filter
 from mocapgraph.kinematics.model import Quality, ActorModel
 from mocapgraph.kinematics.global_fit import GlobalFit, GlobalFitOptions
+from mocapgraph.kinematics.global_track import GlobalTracker
 from mocapgraph.kinematics.regression import RegressionStage
 from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
 
@@ -135,6 +136,10 @@ class FrameSolver:
             if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
         ]
         self._setup_joint_points(model)
+        # Live global frames track the last frame's optimum; limbs fitted through joint points
+        # need the segment-wise fit's second pass, so those layouts always start from it.
+        self._tracker = (GlobalTracker(self._global, tol, tolerance=self._global.options.tolerance)
+                         if self._global is not None and not self._pl.size else None)
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter_spec = (filter, dict(filter_params or {}))
         self._filter = make_filter(filter, self._J, **self._filter_spec[1])
@@ -170,6 +175,17 @@ class FrameSolver:
         keeps the last poses as its warm start)."""
         markers = np.asarray(markers, dtype=float)
         J = self._J
+        tracked = self._tracker.track(markers[0]) if self._tracker is not None and len(markers) == 1 else None
+        if tracked is not None:
+            rot, trans, valid = tracked.rot[None], tracked.trans[None], tracked.valid[None]
+            rms_l, nfit = tracked.rms[None], tracked.n_visible[None]
+            self._global.remember(tracked.rot, (tracked.rot @ self._global._c0[:, :, None])[..., 0] + tracked.trans)
+            return self._joints_from_limbs(markers, rot, trans, valid, rms_l, nfit, nfit)
+        rot, trans, valid, rms_l, nfit, n_seen = self._fit_limbs(markers)
+        return self._joints_from_limbs(markers, rot, trans, valid, rms_l, nfit, n_seen)
+
+    def _fit_limbs(self, markers: np.ndarray):
+        """Limb poses of [T] frames by the segment-wise fit, then (global) the full global fit."""
         fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
         rot, trans, valid, rms_l, nfit = fit.rotation, fit.translation, fit.valid, fit.rms, fit.n_visible
         n_seen = fit.n_visible
@@ -185,10 +201,19 @@ class FrameSolver:
             rot[:, pl], trans[:, pl], valid[:, pl] = fit2.rotation, fit2.translation, fit2.valid
             rms_l[:, pl], nfit[:, pl] = fit2.rms, fit2.n_visible
         if self._global is not None:
-            rot, trans = self._global.refine(markers, rot, trans, valid)
+            rot, trans, rms_g = self._global.refine(markers, rot, trans, valid)
+            # The poses are the global fit's, so is the fit RMS each limb reports.
+            rms_l = np.where(valid, rms_g, np.nan)
+            if self._tracker is not None:
+                self._tracker.seed(rot[-1], trans[-1], bool(valid[-1].all() and (rms_l[-1] <= self._rms_tol).all()))
             nan = ~valid
             rot = np.where(nan[..., None, None], np.nan, rot)
             trans = np.where(nan[..., None], np.nan, trans)
+        return rot, trans, valid, rms_l, nfit, n_seen
+
+    def _joints_from_limbs(self, markers, rot, trans, valid, rms_l, nfit, n_seen) -> SolverResult:
+        """Joints, qualities and the length correction from limb poses of [T] frames."""
+        J = self._J
         est, ok = self._limb_estimates(rot, trans, valid)
         lab = self._labs
         n = nfit[:, lab]
@@ -264,3 +289,5 @@ class FrameSolver:
         self._frame = 0
         if self._global is not None:
             self._global.reset()
+        if self._tracker is not None:
+            self._tracker.reset()

@@ -56,7 +56,10 @@ def test_live_steps_give_the_batch_result_and_an_occluded_limb_is_held_by_its_jo
     batch = FrameSolver(model, rate_hz=120.0, fit="global", max_gap_s=0.0).solve(x)
     live = FrameSolver(model, rate_hz=120.0, fit="global", max_gap_s=0.0)
     steps = np.array([live.step(f).joints for f in x])
-    assert np.allclose(steps, batch.joints, atol=1e-9, equal_nan=True)
+    # Live frames start from the last frame's optimum, batch ones from the segment-wise fit:
+    # both stop within the convergence tolerance (10 um of point motion) of the same optimum.
+    assert (np.isnan(steps) == np.isnan(batch.joints)).all()
+    assert np.nanmax(np.abs(steps - batch.joints)) < 2e-5
     e = np.linalg.norm(batch.joints - truth[:240], axis=-1)
     assert np.nanmax(e[100:140]) < 0.006
     elbow, wrist = model.joint_names.index("elbow_r"), model.joint_names.index("wrist_r")

@@ -1,0 +1,248 @@
+"""Live global fit: one frame at a time, Gauss-Newton from the previous frame's optimum.
+
+The same weighted least-squares problem as :mod:`mocapgraph.kinematics.global_fit` (markers,
+joints, hinges; its weights), solved for a live frame starting from the last frame's optimum
+instead of a fresh segment-wise (Kabsch) guess, so a frame needs no SVD. What keeps a frame to a
+few dozen small numpy calls:
+
+- poses step in the limb's own frame (``R <- R cay(w)``, ``c <- c + R v``): the normal matrix's
+  diagonal blocks are then constant for a set of seen markers and only the joints' coupling
+  blocks depend on the poses (through the relative rotations); it is assembled dense (6L x 6L)
+  and Cholesky-factored by LAPACK in one call, and the factor made after a frame's first step
+  also serves the next frame's first step (a few milliseconds of motion older);
+- the residuals are linear in the stacked state [R, c] of every limb: markers, joint points
+  and hinge axes are one matrix product, and so is the gradient.
+
+Steps stop when the estimated distance to the optimum (from the observed linear convergence
+rate) or the last step is within ``tolerance`` (m of point motion). The tracker declines a frame
+(returns None; the caller solves it from the segment-wise fit and reseeds it) when it has no good
+last frame, a limb cannot be fixed by its own markers, a limb's fit is poor, or the steps do not
+converge.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mocapgraph.kinematics.global_fit import GlobalFit, _skew
+from mocapgraph.kinematics.rigid import fit_rigid
+from scipy.linalg.lapack import dpotrf, dpotrs
+
+
+@dataclass
+class Tracked:
+    """One tracked frame: rot [L,3,3], trans [L,3] (``x = R x_ref + t``), valid bool[L],
+    rms float[L] m (fit RMS of the limb's seen markers), n_visible int[L], iterations used."""
+
+    rot: np.ndarray
+    trans: np.ndarray
+    valid: np.ndarray
+    rms: np.ndarray
+    n_visible: np.ndarray
+    iterations: int
+
+
+class GlobalTracker:
+    """Warm-started live global fit over one frame at a time (see the module docstring).
+
+    rms_tol: float[L] m, a limb fit worse than this makes the tracker decline the frame;
+    tolerance: m of point motion (see the module docstring); max_iterations per frame.
+    """
+
+    def __init__(self, fit: GlobalFit, rms_tol: np.ndarray, tolerance: float = 1e-5,
+                 max_iterations: int = 4) -> None:
+        self.tolerance = float(tolerance)
+        self.max_iterations = int(max_iterations)
+        self.exact = True
+        self._rms_tol = np.asarray(rms_tol, dtype=float)
+        idx = fit._idx
+        L, K = idx.shape
+        self.L, self.K = L, K
+        self._pad = idx >= 0
+        self._idx0 = np.where(self._pad, idx, 0)
+        self._c0 = fit._c0
+        ja, jb, hj = fit._ja, fit._jb, fit._hj
+        J, H = ja.size, hj.size
+        LK = L * K
+        # The point list: markers (L*K, padding included with weight 0), the joints' two sides,
+        # the hinges' two axis copies (directions: no translation part).
+        limb = np.concatenate([np.repeat(np.arange(L), K), ja, jb, ja[hj], jb[hj]])
+        local = np.concatenate([fit._a.reshape(LK, 3), fit._p_a, fit._p_b, fit._axis, fit._axis])
+        move = np.concatenate([np.ones(LK + 2 * J), np.zeros(2 * H)])
+        P = limb.size
+        # Residual rows: one per marker (point - target), one per joint and hinge (side a - side b).
+        R_ = LK + J + H
+        S = np.zeros((R_, P))
+        S[np.arange(LK), np.arange(LK)] = 1.0
+        rj = LK + np.arange(J)
+        S[rj, LK + np.arange(J)] = 1.0
+        S[rj, LK + J + np.arange(J)] = -1.0
+        rh = LK + J + np.arange(H)
+        S[rh, LK + 2 * J + np.arange(H)] = 1.0
+        S[rh, LK + 2 * J + H + np.arange(H)] = -1.0
+        # Residuals are linear in the stacked state X = [R (row-major), c] per limb [L,12]:
+        # world_p[i] = sum_j R[i,j] p[j] + m c[i]. One matrix M maps X to every residual.
+        A = np.zeros((P, 3, L, 12))
+        pi = np.arange(P)
+        for i in range(3):
+            A[pi, i, limb, 3 * i:3 * i + 3] = local
+            A[pi, i, limb, 9 + i] = move
+        M = np.einsum("rp,piq->riq", S, A.reshape(P, 3, L * 12)).reshape(3 * R_, L * 12)
+        self._M, self._MT = M, np.ascontiguousarray(M.T)
+        self._LK, self._rows = LK, R_
+        self._w_fixed = np.concatenate([fit._wj, fit._wh])                       # joint, hinge rows
+        self._wm0 = fit._wm.reshape(LK)
+        # Point Jacobians in the limb frame, B = [-[p]x, m I] (3x6); world ones are R B.
+        B = np.concatenate([-_skew(local), move[:, None, None] * np.eye(3)], -1)   # [P,3,6]
+        self._BT = np.ascontiguousarray(np.swapaxes(B, -1, -2))                  # [P,6,3]
+        self._BB = (self._BT @ B).reshape(P, 36)
+        E = np.zeros((L, P))
+        E[limb, np.arange(P)] = 1.0
+        self._E = E
+        # Pairs (joint and hinge rows) couple limbs a and b: H[a,b] -= w B_a^T R_a^T R_b B_b.
+        pa = np.concatenate([LK + np.arange(J), LK + 2 * J + np.arange(H)])
+        pb = np.concatenate([LK + J + np.arange(J), LK + 2 * J + H + np.arange(H)])
+        self._pair_a, self._pair_b = limb[pa], limb[pb]
+        self._BTa, self._Bb = self._BT[pa], B[pb]
+        # Row weight per point (each point is in exactly one row): markers' are per frame.
+        self._u_fixed = np.concatenate([fit._wj, fit._wj, fit._wh, fit._wh])
+        # Every joint's pair (a, b) is a parent-child edge; hinges reuse their joint's edge.
+        self._edge_of_pair = np.concatenate([np.arange(J), hj])
+        Ep = np.zeros((J, J + H))
+        Ep[self._edge_of_pair, np.arange(J + H)] = 1.0
+        self._Ep = Ep
+        self._ea, self._eb = ja, jb
+        radius = np.sqrt(np.where(self._pad, (fit._a ** 2).sum(-1), 0.0).max(1))
+        jr = np.sqrt((np.concatenate([fit._p_a, fit._p_b]) ** 2).sum(-1))
+        rad = radius.copy()
+        np.maximum.at(rad, np.concatenate([ja, jb]), jr)
+        self._radius = np.maximum(rad, 0.05)                                     # [L] m lever arm
+        # tr(A [w]x) = (A.flat @ V) . w: the limb-frame rotation gradient from dC/dR.
+        self._V = np.stack([_skew(np.eye(3)[k]).T.reshape(9) for k in range(3)], 1)
+        self._bits = (1 << np.arange(K))
+        self._valid_table = self._visibility_table(fit)
+        self._Y = np.zeros(3 * R_)
+        self._W = np.repeat(np.concatenate([np.zeros(LK), self._w_fixed]), 3)
+        self.reset()
+
+    def _visibility_table(self, fit: GlobalFit) -> np.ndarray:
+        """bool[L, 2^K]: can the limb be fixed by this subset of its markers alone (>= 3, not
+        collinear)? The same test as the segment-wise fit, on the calibrated marker geometry."""
+        codes = np.arange(1 << self.K)
+        mask = (codes[:, None] & self._bits[None]) > 0                          # [C,K]
+        a = np.where(self._pad[:, None, :, None], fit._a[:, None], np.nan)       # [L,1,K,3]
+        w = (mask[None] & self._pad[:, None]).astype(float)                      # [L,C,K]
+        f = fit_rigid(np.broadcast_to(a, w.shape + (3,)), np.broadcast_to(a, w.shape + (3,)), w)
+        return f.valid
+
+    def reset(self) -> None:
+        """Forget the last frames (the next frame is declined)."""
+        self._R = self._c = None
+        self._chol = None
+        self._code = None
+
+    # ---- state handed over from the full fit ------------------------------------------------
+    def seed(self, rot: np.ndarray, trans: np.ndarray, good: bool) -> None:
+        """The frame just solved by the full fit (rot [L,3,3], trans [L,3]); good: every limb was
+        fixed by its markers and fit well. A bad frame leaves nothing to start from."""
+        if not good:
+            self.reset()
+            return
+        c = (rot @ self._c0[:, :, None])[..., 0] + trans
+        self._R, self._c = rot.copy(), c
+
+    # ---- the normal matrix --------------------------------------------------------------------
+    def _refresh(self, R: np.ndarray, u_markers: np.ndarray) -> None:
+        L = self.L
+        u = np.concatenate([u_markers, self._u_fixed])
+        D = self._E @ (u[:, None] * self._BB)                                    # [L,36]
+        Rrel = np.swapaxes(R[self._pair_a], -1, -2) @ R[self._pair_b]
+        off = (self._Ep @ (-(self._w_fixed[:, None, None] * (self._BTa @ Rrel @ self._Bb))).reshape(-1, 36))
+        H = np.zeros((L, L, 6, 6))
+        ar = np.arange(L)
+        H[ar, ar] = D.reshape(L, 6, 6)
+        off = off.reshape(-1, 6, 6)
+        H[self._ea, self._eb] = off
+        H[self._eb, self._ea] = np.swapaxes(off, -1, -2)
+        H = H.transpose(0, 2, 1, 3).reshape(6 * L, 6 * L)
+        # Directions no residual sees stay put (as in the batch fit).
+        H[np.diag_indices(6 * L)] += 1e-9 * np.trace(H) / (6 * L) + 1e-12
+        chol, info = dpotrf(H, lower=False, clean=False, overwrite_a=True)
+        self._chol = chol if info == 0 else None
+
+    # ---- one frame -----------------------------------------------------------------------------
+    def track(self, markers: np.ndarray) -> Tracked | None:
+        """markers float[M,3] (NaN = unseen) -> the frame's global optimum, or None (declined)."""
+        if self._R is None:
+            return None
+        y = markers[self._idx0]                                                   # [L,K,3]
+        seen = np.isfinite(y).all(-1) & self._pad
+        code = seen @ self._bits
+        if not self._valid_table[np.arange(self.L), code].all():
+            self.reset()
+            return None
+        LK, L = self._LK, self.L
+        self._Y[:3 * LK] = np.where(seen[..., None], y, 0.0).reshape(-1)
+        u = self._wm0 * seen.reshape(LK)
+        self._W[:3 * LK] = np.repeat(u, 3)
+        R, c = self._R, self._c
+        if self._chol is None or not np.array_equal(code, self._code):
+            self._refresh(R, u)
+            self._code = code
+            if self._chol is None:
+                self.reset()
+                return None
+        X = np.empty((L, 12))
+        it, last = 0, np.inf
+        while True:
+            it += 1
+            X[:, :9] = R.reshape(L, 9)
+            X[:, 9:] = c
+            res = self._M @ X.reshape(-1) - self._Y                                  # [3 rows]
+            gX = (self._MT @ (self._W * res)).reshape(L, 12)                          # dC/dX
+            a = np.swapaxes(gX[:, :9].reshape(L, 3, 3), -1, -2) @ R                   # (dC/dR)^T R
+            G = np.concatenate([a.reshape(L, 9) @ self._V, (gX[:, None, 9:] @ R)[:, 0]], 1)
+            x = dpotrs(self._chol, G.reshape(-1), lower=False)[0].reshape(L, 6)
+            w, v = -x[:, :3], -x[:, 3:]
+            c = c + (R @ v[..., None])[..., 0]
+            R = R @ _cayley(w)
+            moved = np.sqrt((v * v).sum(1)) + np.sqrt((w * w).sum(1)) * self._radius
+            # Gauss-Newton converges linearly here (per limb, rate ~ this step / the last):
+            # stop once every limb's estimated distance to the optimum, rate * step / (1 -
+            # rate), or its last step is within tolerance.
+            rate = moved / last                                                      # 0 on the first step
+            left = np.where(rate < 1.0, rate * moved / np.maximum(1.0 - rate, 1e-12), np.inf)
+            if it > 1 and (np.minimum(left, moved) <= self.tolerance).all() or moved.max() <= self.tolerance:
+                break
+            if it >= self.max_iterations:
+                self.reset()
+                return None
+            last = moved
+            # The normal matrix at the new poses (it depends on them through the relative
+            # rotations at the joints, which the stiff joint terms make matter): it also
+            # serves the next frame's first step.
+            self._refresh(R, u)
+            if self._chol is None:
+                self.reset()
+                return None
+        X[:, :9] = R.reshape(L, 9)
+        X[:, 9:] = c
+        r = (self._M[:3 * LK] @ X.reshape(-1) - self._Y[:3 * LK]).reshape(L, self.K, 3)
+        n = seen.sum(1)
+        rms = np.sqrt((r * r).sum(-1).sum(1, where=seen) / n)
+        if (rms > self._rms_tol).any():
+            self.reset()
+            return None
+        self._R, self._c = R, c
+        trans = c - (R @ self._c0[..., None])[..., 0]
+        return Tracked(R, trans, np.ones(L, dtype=bool), rms, n, it)
+
+
+def _cayley(w: np.ndarray) -> np.ndarray:
+    """Rotation matrices [L,3,3] of small rotation vectors w [L,3] (Cayley map; exact rotations,
+    equal to exp([w]x) to second order, so a Gauss-Newton step keeps its fixed point)."""
+    h = 0.5 * w
+    k = _skew(h)
+    f = 2.0 / (1.0 + (h * h).sum(-1))[:, None, None]
+    return np.eye(3) + f * (k + k @ k)
