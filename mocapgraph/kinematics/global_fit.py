@@ -137,10 +137,9 @@ class GlobalFit:
 
     # ---- the fit ---------------------------------------------------------------------------
     def refine(self, markers: np.ndarray, rot: np.ndarray, trans: np.ndarray, valid: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+               ) -> tuple[np.ndarray, np.ndarray]:
         """markers float[T,M,3]; segment-wise rot [T,L,3,3], trans [T,L,3] (``x = R x_ref + t``),
-        valid bool[T,L] -> globally fitted (rot, trans) in the same convention, every limb set,
-        and rms float[T,L] m: each limb's seen markers about the fitted pose (NaN if none)."""
+        valid bool[T,L] -> globally fitted (rot, trans) in the same convention, every limb set."""
         out = []
         n = max(1, int(self.options.chunk_frames))
         for a in range(0, valid.shape[0], n):
@@ -165,10 +164,7 @@ class GlobalFit:
             if not act.size:
                 break
         self._update_last(rot, cen, valid)
-        res = self._a @ np.swapaxes(r, -1, -2) + c[:, :, None] - y
-        n = seen.sum(-1)
-        rms = np.sqrt(np.where(seen, (res * res).sum(-1), 0.0).sum(-1) / np.maximum(n, 1))
-        return r, c - (r @ self._c0[:, :, None])[..., 0], np.where(n > 0, rms, np.nan)
+        return r, c - (r @ self._c0[:, :, None])[..., 0]
 
     def _update_last(self, rot, cen, valid) -> None:
         """The warm start for the next call: per limb its latest segment-wise pose (so that a

@@ -62,6 +62,7 @@ class GlobalTracker:
         self._pad = idx >= 0
         self._idx0 = np.where(self._pad, idx, 0)
         self._c0 = fit._c0
+        self._a = fit._a                                                         # [L,K,3]
         ja, jb, hj = fit._ja, fit._jb, fit._hj
         J, H = ja.size, hj.size
         LK = L * K
@@ -171,6 +172,21 @@ class GlobalTracker:
         chol, info = dpotrf(H, lower=False, clean=False, overwrite_a=True)
         self._chol = chol if info == 0 else None
 
+    def _own_rms(self, y: np.ndarray, seen: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """Each limb's segment-wise fit RMS (m; its seen markers y [L,K,3] about their best rigid
+        pose, as the batch path reports), from the singular values of the Kabsch covariance alone:
+        min sum |b - R a|^2 = sum |a|^2 + sum |b|^2 - 2 (s1 + s2 + sign(det) s3)."""
+        m = seen[..., None]
+        a = np.where(m, self._a, 0.0)
+        b = np.where(m, y, 0.0)
+        nn = n[:, None]
+        ca, cb = a.sum(1) / nn, b.sum(1) / nn
+        h = np.swapaxes(a, 1, 2) @ b - nn[..., None] * (ca[:, :, None] * cb[:, None, :])   # [L,3,3]
+        ss = (a * a).sum((1, 2)) + (b * b).sum((1, 2)) - n * ((ca * ca).sum(1) + (cb * cb).sum(1))
+        sv = np.sqrt(np.maximum(np.linalg.eigvalsh(np.swapaxes(h, 1, 2) @ h), 0.0))  # ascending
+        best = sv[:, 1] + sv[:, 2] + np.where(np.linalg.det(h) < 0.0, -sv[:, 0], sv[:, 0])
+        return np.sqrt(np.maximum(ss - 2.0 * best, 0.0) / n)
+
     # ---- one frame -----------------------------------------------------------------------------
     def track(self, markers: np.ndarray) -> Tracked | None:
         """markers float[M,3] (NaN = unseen) -> the frame's global optimum, or None (declined)."""
@@ -188,8 +204,8 @@ class GlobalTracker:
         self._W[:3 * LK] = np.repeat(u, 3)
         R, c = self._R, self._c
         if self._chol is None or not np.array_equal(code, self._code):
-            self._refresh(R, u)
             self._code = code
+            self._refresh(R, u)
             if self._chol is None:
                 self.reset()
                 return None
@@ -228,9 +244,8 @@ class GlobalTracker:
                 return None
         X[:, :9] = R.reshape(L, 9)
         X[:, 9:] = c
-        r = (self._M[:3 * LK] @ X.reshape(-1) - self._Y[:3 * LK]).reshape(L, self.K, 3)
         n = seen.sum(1)
-        rms = np.sqrt((r * r).sum(-1).sum(1, where=seen) / n)
+        rms = self._own_rms(y, seen, n)
         if (rms > self._rms_tol).any():
             self.reset()
             return None

@@ -201,9 +201,7 @@ class FrameSolver:
             rot[:, pl], trans[:, pl], valid[:, pl] = fit2.rotation, fit2.translation, fit2.valid
             rms_l[:, pl], nfit[:, pl] = fit2.rms, fit2.n_visible
         if self._global is not None:
-            rot, trans, rms_g = self._global.refine(markers, rot, trans, valid)
-            # The poses are the global fit's, so is the fit RMS each limb reports.
-            rms_l = np.where(valid, rms_g, np.nan)
+            rot, trans = self._global.refine(markers, rot, trans, valid)
             if self._tracker is not None:
                 self._tracker.seed(rot[-1], trans[-1], bool(valid[-1].all() and (rms_l[-1] <= self._rms_tol).all()))
             nan = ~valid
