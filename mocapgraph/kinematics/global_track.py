@@ -105,7 +105,8 @@ class GlobalTracker:
         pa = np.concatenate([LK + np.arange(J), LK + 2 * J + np.arange(H)])
         pb = np.concatenate([LK + J + np.arange(J), LK + 2 * J + H + np.arange(H)])
         self._pair_a, self._pair_b = limb[pa], limb[pb]
-        self._BTa, self._Bb = self._BT[pa], B[pb]
+        wpair = np.concatenate([fit._wj, fit._wh])
+        self._BTa_w, self._Bb = -wpair[:, None, None] * self._BT[pa], B[pb]
         # Row weight per point (each point is in exactly one row): markers' are per frame.
         self._u_fixed = np.concatenate([fit._wj, fit._wj, fit._wh, fit._wh])
         # Every joint's pair (a, b) is a parent-child edge; hinges reuse their joint's edge.
@@ -113,7 +114,11 @@ class GlobalTracker:
         Ep = np.zeros((J, J + H))
         Ep[self._edge_of_pair, np.arange(J + H)] = 1.0
         self._Ep = Ep
-        self._ea, self._eb = ja, jb
+        # Where each edge's 6x6 coupling block goes in the flat 6L x 6L matrix, and its transpose.
+        i6 = np.arange(6)
+        n6 = 6 * L
+        self._flat_ab = ((6 * ja[:, None, None] + i6[:, None]) * n6 + 6 * jb[:, None, None] + i6).reshape(J, 36)
+        self._flat_ba = ((6 * jb[:, None, None] + i6) * n6 + 6 * ja[:, None, None] + i6[:, None]).reshape(J, 36)
         radius = np.sqrt(np.where(self._pad, (fit._a ** 2).sum(-1), 0.0).max(1))
         jr = np.sqrt((np.concatenate([fit._p_a, fit._p_b]) ** 2).sum(-1))
         rad = radius.copy()
@@ -154,35 +159,46 @@ class GlobalTracker:
         self._R, self._c = rot.copy(), c
 
     # ---- the normal matrix --------------------------------------------------------------------
-    def _refresh(self, R: np.ndarray, u_markers: np.ndarray) -> None:
-        L = self.L
+    def _new_markers(self, seen: np.ndarray, u_markers: np.ndarray) -> None:
+        """Another set of seen markers: the normal matrix's diagonal blocks (constant while the
+        set holds) and the limbs' own-marker sums for the fit RMS."""
+        L, n6 = self.L, 6 * self.L
         u = np.concatenate([u_markers, self._u_fixed])
-        D = self._E @ (u[:, None] * self._BB)                                    # [L,36]
+        D = (self._E @ (u[:, None] * self._BB)).reshape(L, 6, 6)
+        H = np.zeros((L, 6, L, 6))
+        H[np.arange(L), :, np.arange(L)] = D
+        H = H.reshape(n6, n6)
+        # Directions no residual sees stay put (as in the batch fit); the coupling blocks add
+        # nothing to the trace.
+        H[np.diag_indices(n6)] += 1e-9 * np.trace(H) / n6 + 1e-12
+        self._Hbase = H
+        m = seen[..., None]
+        a = np.where(m, self._a, 0.0)
+        n = seen.sum(1)
+        ca = a.sum(1) / n[:, None]
+        self._own = (np.ascontiguousarray(np.swapaxes(a, 1, 2)), ca, n,
+                     (a * a).sum((1, 2)) - n * (ca * ca).sum(1))
+
+    def _refresh(self, R: np.ndarray) -> None:
+        """Factor the normal matrix at poses R: the coupling blocks H[a,b] = -w B_a^T R_a^T R_b B_b."""
         Rrel = np.swapaxes(R[self._pair_a], -1, -2) @ R[self._pair_b]
-        off = (self._Ep @ (-(self._w_fixed[:, None, None] * (self._BTa @ Rrel @ self._Bb))).reshape(-1, 36))
-        H = np.zeros((L, L, 6, 6))
-        ar = np.arange(L)
-        H[ar, ar] = D.reshape(L, 6, 6)
-        off = off.reshape(-1, 6, 6)
-        H[self._ea, self._eb] = off
-        H[self._eb, self._ea] = np.swapaxes(off, -1, -2)
-        H = H.transpose(0, 2, 1, 3).reshape(6 * L, 6 * L)
-        # Directions no residual sees stay put (as in the batch fit).
-        H[np.diag_indices(6 * L)] += 1e-9 * np.trace(H) / (6 * L) + 1e-12
+        off = self._Ep @ (self._BTa_w @ Rrel @ self._Bb).reshape(-1, 36)
+        H = self._Hbase.copy()
+        flat = H.reshape(-1)
+        flat[self._flat_ab] = off
+        flat[self._flat_ba] = off
         chol, info = dpotrf(H, lower=False, clean=False, overwrite_a=True)
         self._chol = chol if info == 0 else None
 
-    def _own_rms(self, y: np.ndarray, seen: np.ndarray, n: np.ndarray) -> np.ndarray:
+    def _own_rms(self, y: np.ndarray, seen: np.ndarray) -> np.ndarray:
         """Each limb's segment-wise fit RMS (m; its seen markers y [L,K,3] about their best rigid
         pose, as the batch path reports), from the singular values of the Kabsch covariance alone:
         min sum |b - R a|^2 = sum |a|^2 + sum |b|^2 - 2 (s1 + s2 + sign(det) s3)."""
-        m = seen[..., None]
-        a = np.where(m, self._a, 0.0)
-        b = np.where(m, y, 0.0)
-        nn = n[:, None]
-        ca, cb = a.sum(1) / nn, b.sum(1) / nn
-        h = np.swapaxes(a, 1, 2) @ b - nn[..., None] * (ca[:, :, None] * cb[:, None, :])   # [L,3,3]
-        ss = (a * a).sum((1, 2)) + (b * b).sum((1, 2)) - n * ((ca * ca).sum(1) + (cb * cb).sum(1))
+        aT, ca, n, saa = self._own
+        b = np.where(seen[..., None], y, 0.0)
+        cb = b.sum(1) / n[:, None]
+        h = aT @ b - n[:, None, None] * (ca[:, :, None] * cb[:, None, :])          # [L,3,3]
+        ss = saa + (b * b).sum((1, 2)) - n * (cb * cb).sum(1)
         sv = np.sqrt(np.maximum(np.linalg.eigvalsh(np.swapaxes(h, 1, 2) @ h), 0.0))  # ascending
         best = sv[:, 1] + sv[:, 2] + np.where(np.linalg.det(h) < 0.0, -sv[:, 0], sv[:, 0])
         return np.sqrt(np.maximum(ss - 2.0 * best, 0.0) / n)
@@ -194,18 +210,19 @@ class GlobalTracker:
             return None
         y = markers[self._idx0]                                                   # [L,K,3]
         seen = np.isfinite(y).all(-1) & self._pad
-        code = seen @ self._bits
-        if not self._valid_table[np.arange(self.L), code].all():
-            self.reset()
-            return None
         LK, L = self._LK, self.L
         self._Y[:3 * LK] = np.where(seen[..., None], y, 0.0).reshape(-1)
-        u = self._wm0 * seen.reshape(LK)
-        self._W[:3 * LK] = np.repeat(u, 3)
         R, c = self._R, self._c
-        if self._chol is None or not np.array_equal(code, self._code):
-            self._code = code
-            self._refresh(R, u)
+        key = seen.tobytes()
+        if self._chol is None or key != self._code:
+            if not self._valid_table[np.arange(L), seen @ self._bits].all():
+                self.reset()
+                return None
+            self._code = key
+            u = self._wm0 * seen.reshape(LK)
+            self._W[:3 * LK] = np.repeat(u, 3)
+            self._new_markers(seen, u)
+            self._refresh(R)
             if self._chol is None:
                 self.reset()
                 return None
@@ -238,14 +255,14 @@ class GlobalTracker:
             # The normal matrix at the new poses (it depends on them through the relative
             # rotations at the joints, which the stiff joint terms make matter): it also
             # serves the next frame's first step.
-            self._refresh(R, u)
+            self._refresh(R)
             if self._chol is None:
                 self.reset()
                 return None
         X[:, :9] = R.reshape(L, 9)
         X[:, 9:] = c
-        n = seen.sum(1)
-        rms = self._own_rms(y, seen, n)
+        rms = self._own_rms(y, seen)
+        n = self._own[2]
         if (rms > self._rms_tol).any():
             self.reset()
             return None
