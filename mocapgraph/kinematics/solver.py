@@ -112,11 +112,14 @@ class FrameSolver:
         self._sig2 = np.maximum(sig, 2e-4) ** 2                           # [L]
         tol = np.maximum(4.0 * sig, 0.005) if limb_rms_tol is None else np.full_like(sig, limb_rms_tol)
         self._rms_tol = tol
+        self._sig2_lab, self._tol_lab = self._sig2[lab], tol[lab]
         self._J = len(model.joint_names)
         # A joint whose calibrated centre is unreliable (from the prior, too little motion) is at
         # best ESTIMATED, however well its limbs are seen: quality flags tell the truth.
         rel = np.asarray(model.quality.reliable, dtype=bool).reshape(-1)
         self._unreliable = ~rel if rel.shape == (self._J,) else np.zeros(self._J, dtype=bool)
+        self._may_be_good = ~self._unreliable
+        self._n_need = has.reshape(2, self._J).sum(0)
         # Bone-length correction order: joints grouped by depth so each level is one vector op.
         parent = np.asarray(model.joint_parent)
         depth = np.zeros(self._J, dtype=int)
@@ -211,35 +214,38 @@ class FrameSolver:
 
     def _joints_from_limbs(self, markers, rot, trans, valid, rms_l, nfit, n_seen) -> SolverResult:
         """Joints, qualities and the length correction from limb poses of [T] frames."""
-        J = self._J
-        est, ok = self._limb_estimates(rot, trans, valid)
+        J, T = self._J, valid.shape[0]
         lab = self._labs
-        n = nfit[:, lab]
+        ok = valid[:, lab] & self._has                                          # [T,2J]
         rms = rms_l[:, lab]
-        var = (self._sig2[lab] + rms * rms) / np.maximum(n, 1) * self._var_static
-        w = np.where(ok, 1.0 / np.where(ok, var, 1.0), 0.0)
-        w = np.where(ok & (rms > self._rms_tol[lab]), w * 1e-3, w)
-        est = np.where(ok[..., None], est, 0.0)
-        wsum = w[:, :J] + w[:, J:]
-        joints = (w[:, :J, None] * est[:, :J] + w[:, J:, None] * est[:, J:]) / np.where(
-            wsum > 0, wsum, 1.0)[..., None]
-        n_ok = ok[:, :J].astype(np.int8) + ok[:, J:]
-        n_need = self._has[:J].astype(np.int8) + self._has[J:]
-        jq = np.where(n_ok == 0, _MISS, np.where((n_ok >= n_need) & ~self._unreliable, _GOOD, _EST)
-                      ).astype(np.int8)
-        joints[jq == _MISS] = np.nan
+        # Inverse-variance weights of the two estimates; a poor limb fit weighs 1000x less.
+        var = (self._sig2_lab + rms * rms) * (self._var_static / np.maximum(nfit[:, lab], 1))
+        w = np.where(ok, 1.0 / np.where(ok, var, 1.0), 0.0) * np.where(rms > self._tol_lab, 1e-3, 1.0)
+        est = np.where(ok[..., None], (rot[:, lab] @ self._pt)[..., 0] + trans[:, lab], 0.0)
+        w2 = w.reshape(T, 2, J)
+        wsum = w2.sum(1)[..., None]
+        joints = np.divide((w2[..., None] * est.reshape(T, 2, J, 3)).sum(1), wsum,
+                           out=np.full((T, J, 3), np.nan), where=wsum > 0)
+        n_ok = ok.reshape(T, 2, J).sum(1)
+        jq = np.where(n_ok == 0, _MISS, np.where((n_ok >= self._n_need) & self._may_be_good, _GOOD, _EST))
         if self._regression:
             self._regression.apply(markers, joints, jq, _GOOD)
         if self.enforce_lengths:
+            complete = bool(np.isfinite(joints).all())
             for c, p, length in self._levels:
-                v = joints[:, c] - joints[:, p]
+                pj = joints[:, p]
+                v = joints[:, c] - pj
                 d = np.sqrt((v * v).sum(-1))
+                if complete:
+                    # Coincident joints (d = 0) stay put, as below.
+                    joints[:, c] = pj + v * (length / np.maximum(d, 1e-9))[..., None]
+                    continue
                 good = d > 1e-9
                 scale = np.where(good, length / np.where(good, d, 1.0), 1.0)
                 # NaN parents leave the child as measured.
-                moved = joints[:, p] + v * scale[..., None]
+                moved = pj + v * scale[..., None]
                 joints[:, c] = np.where(np.isfinite(moved), moved, joints[:, c])
-        lq = np.where(~valid, _MISS, np.where(rms_l > self._rms_tol, _EST, _GOOD)).astype(np.int8)
+        lq = np.where(valid, np.where(rms_l > self._rms_tol, _EST, _GOOD), _MISS)
         return SolverResult(joints, jq, rot, lq, n_seen, rms_l)
 
     # ---- temporal stage (frame by frame, shared by live and batch) -------------------------
