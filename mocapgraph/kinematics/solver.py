@@ -120,6 +120,9 @@ class FrameSolver:
         self._unreliable = ~rel if rel.shape == (self._J,) else np.zeros(self._J, dtype=bool)
         self._may_be_good = ~self._unreliable
         self._n_need = has.reshape(2, self._J).sum(0)
+        # Qualities when every limb is seen and fits well (None: some joint has no limb at all).
+        self._jq_all_seen = (np.where(self._may_be_good, _GOOD, _EST).astype(np.int8)
+                             if (self._n_need > 0).all() else None)
         # Bone-length correction order: joints grouped by depth so each level is one vector op.
         parent = np.asarray(model.joint_parent)
         depth = np.zeros(self._J, dtype=int)
@@ -216,18 +219,25 @@ class FrameSolver:
         """Joints, qualities and the length correction from limb poses of [T] frames."""
         J, T = self._J, valid.shape[0]
         lab = self._labs
-        ok = valid[:, lab] & self._has                                          # [T,2J]
         rms = rms_l[:, lab]
         # Inverse-variance weights of the two estimates; a poor limb fit weighs 1000x less.
         var = (self._sig2_lab + rms * rms) * (self._var_static / np.maximum(nfit[:, lab], 1))
-        w = np.where(ok, 1.0 / np.where(ok, var, 1.0), 0.0) * np.where(rms > self._tol_lab, 1e-3, 1.0)
-        est = np.where(ok[..., None], (rot[:, lab] @ self._pt)[..., 0] + trans[:, lab], 0.0)
-        w2 = w.reshape(T, 2, J)
-        wsum = w2.sum(1)[..., None]
-        joints = np.divide((w2[..., None] * est.reshape(T, 2, J, 3)).sum(1), wsum,
-                           out=np.full((T, J, 3), np.nan), where=wsum > 0)
-        n_ok = ok.reshape(T, 2, J).sum(1)
-        jq = np.where(n_ok == 0, _MISS, np.where((n_ok >= self._n_need) & self._may_be_good, _GOOD, _EST))
+        est = (rot[:, lab] @ self._pt)[..., 0] + trans[:, lab]                  # [T,2J,3]
+        if self._jq_all_seen is not None and valid.all() and (rms_l <= self._rms_tol).all():
+            # Every limb seen and fit well (the common live frame): no masking, known qualities.
+            w2 = (self._has / var).reshape(T, 2, J)
+            joints = (w2[..., None] * est.reshape(T, 2, J, 3)).sum(1) / w2.sum(1)[..., None]
+            jq = np.repeat(self._jq_all_seen[None], T, axis=0)
+        else:
+            ok = valid[:, lab] & self._has                                      # [T,2J]
+            w = np.where(ok, 1.0 / np.where(ok, var, 1.0), 0.0) * np.where(rms > self._tol_lab, 1e-3, 1.0)
+            est = np.where(ok[..., None], est, 0.0)
+            w2 = w.reshape(T, 2, J)
+            wsum = w2.sum(1)[..., None]
+            joints = np.divide((w2[..., None] * est.reshape(T, 2, J, 3)).sum(1), wsum,
+                               out=np.full((T, J, 3), np.nan), where=wsum > 0)
+            n_ok = ok.reshape(T, 2, J).sum(1)
+            jq = np.where(n_ok == 0, _MISS, np.where((n_ok >= self._n_need) & self._may_be_good, _GOOD, _EST))
         if self._regression:
             self._regression.apply(markers, joints, jq, _GOOD)
         if self.enforce_lengths:
