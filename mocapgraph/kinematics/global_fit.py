@@ -15,9 +15,9 @@ segment-wise fit could not place starts from its previous pose (warm start) and 
 joints and remaining markers. The limbs form a tree, so the normal matrix is block-tridiagonal
 along it: it is solved by block elimination from the leaves to the root and back (6x6 blocks,
 one batched step per tree level: O(limbs), no per-frame, per-limb or per-joint Python loops).
-Frames step until no point moves more than ``tolerance`` (only the unconverged ones go on). Live
-frames are instead tracked from the previous frame's optimum (:mod:`global_track`); this fit
-starts and restarts that tracking.
+Frames step until no point is estimated to be more than ``tolerance`` from the optimum (only
+the unconverged ones go on). Live frames are instead tracked from the previous frame's optimum
+(:mod:`global_track`); this fit starts and restarts that tracking.
 """
 from __future__ import annotations
 
@@ -158,9 +158,17 @@ class GlobalFit:
         # Only the frames whose last step still moved a point go on (a convergence test).
         r, c = r.copy(), c.copy()
         act = np.arange(T)
+        last = np.full((T, L), np.inf)
+        tol = self.options.tolerance
         for _ in range(max(1, self.options.iterations)):
             r[act], c[act], moved = self._step(r[act], c[act], y[act], wm[act], wsum[act])
-            act = act[moved.max(1) > self.options.tolerance]
+            # Linear convergence (rate ~ this step / the last, per limb): a frame is done once
+            # every limb's last step, or its estimated distance to the optimum, is within tol.
+            rate = moved / last[act]                                                 # 0 on the first step
+            left = np.where((rate > 0.0) & (rate < 1.0), rate * moved / np.maximum(1.0 - rate, 1e-12), np.inf)
+            going = ~(np.minimum(left, moved) <= tol).all(1)
+            last[act] = moved
+            act = act[going]
             if not act.size:
                 break
         self._update_last(rot, cen, valid)

@@ -245,8 +245,8 @@ class GlobalTracker:
             # stop once every limb's estimated distance to the optimum, rate * step / (1 -
             # rate), or its last step is within tolerance.
             rate = moved / last                                                      # 0 on the first step
-            left = np.where(rate < 1.0, rate * moved / np.maximum(1.0 - rate, 1e-12), np.inf)
-            if it > 1 and (np.minimum(left, moved) <= self.tolerance).all() or moved.max() <= self.tolerance:
+            left = np.where((rate > 0.0) & (rate < 1.0), rate * moved / np.maximum(1.0 - rate, 1e-12), np.inf)
+            if (np.minimum(left, moved) <= self.tolerance).all():
                 break
             if it >= self.max_iterations:
                 self.reset()
