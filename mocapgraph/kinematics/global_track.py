@@ -32,11 +32,13 @@ from scipy.linalg.lapack import dpotrf, dpotrs
 
 @dataclass
 class Tracked:
-    """One tracked frame: rot [L,3,3], trans [L,3] (``x = R x_ref + t``), valid bool[L],
+    """One tracked frame: rot [L,3,3], trans [L,3] (``x = R x_ref + t``), centroid [L,3] (m,
+    where each limb's base-pose marker centroid is), valid bool[L],
     rms float[L] m (fit RMS of the limb's seen markers), n_visible int[L], iterations used."""
 
     rot: np.ndarray
     trans: np.ndarray
+    centroid: np.ndarray
     valid: np.ndarray
     rms: np.ndarray
     n_visible: np.ndarray
@@ -124,11 +126,13 @@ class GlobalTracker:
         rad = radius.copy()
         np.maximum.at(rad, np.concatenate([ja, jb]), jr)
         self._radius = np.maximum(rad, 0.05)                                     # [L] m lever arm
+        self._lever = np.stack([self._radius, np.ones(L)], 1)                    # |w|, |v| -> motion
         # tr(A [w]x) = (A.flat @ V) . w: the limb-frame rotation gradient from dC/dR.
         self._V = np.stack([_skew(np.eye(3)[k]).T.reshape(9) for k in range(3)], 1)
         self._bits = (1 << np.arange(K))
         self._valid_table = self._visibility_table(fit)
         self._Y = np.zeros(3 * R_)
+        self._all_valid = np.ones(L, dtype=bool)
         self._W = np.repeat(np.concatenate([np.zeros(LK), self._w_fixed]), 3)
         self.reset()
 
@@ -192,15 +196,15 @@ class GlobalTracker:
 
     def _own_rms(self, y: np.ndarray, seen: np.ndarray) -> np.ndarray:
         """Each limb's segment-wise fit RMS (m; its seen markers y [L,K,3] about their best rigid
-        pose, as the batch path reports), from the singular values of the Kabsch covariance alone:
-        min sum |b - R a|^2 = sum |a|^2 + sum |b|^2 - 2 (s1 + s2 + sign(det) s3)."""
+        pose, as the batch path reports) without solving for that pose: min sum |b - R a|^2 =
+        sum |a|^2 + sum |b|^2 - 2 max_R sum b . R a, and the maximum is the largest eigenvalue
+        of Horn's (1987) symmetric 4x4 matrix of the centred covariance sum a b^T."""
         aT, ca, n, saa = self._own
         b = np.where(seen[..., None], y, 0.0)
         cb = b.sum(1) / n[:, None]
         h = aT @ b - n[:, None, None] * (ca[:, :, None] * cb[:, None, :])          # [L,3,3]
         ss = saa + (b * b).sum((1, 2)) - n * (cb * cb).sum(1)
-        sv = np.sqrt(np.maximum(np.linalg.eigvalsh(np.swapaxes(h, 1, 2) @ h), 0.0))  # ascending
-        best = sv[:, 1] + sv[:, 2] + np.where(np.linalg.det(h) < 0.0, -sv[:, 0], sv[:, 0])
+        best = np.linalg.eigvalsh((h.reshape(-1, 9) @ _HORN).reshape(-1, 4, 4))[:, 3]
         return np.sqrt(np.maximum(ss - 2.0 * best, 0.0) / n)
 
     # ---- one frame -----------------------------------------------------------------------------
@@ -227,7 +231,7 @@ class GlobalTracker:
                 self.reset()
                 return None
         X = np.empty((L, 12))
-        it, last = 0, np.inf
+        it, last, tol = 0, np.inf, self.tolerance
         while True:
             it += 1
             X[:, :9] = R.reshape(L, 9)
@@ -236,22 +240,22 @@ class GlobalTracker:
             gX = (self._MT @ (self._W * res)).reshape(L, 12)                          # dC/dX
             a = np.swapaxes(gX[:, :9].reshape(L, 3, 3), -1, -2) @ R                   # (dC/dR)^T R
             G = np.concatenate([a.reshape(L, 9) @ self._V, (gX[:, None, 9:] @ R)[:, 0]], 1)
+            # The step is minus this solution: applied as c - R v and R cay(-w).
             x = dpotrs(self._chol, G.reshape(-1), lower=False)[0].reshape(L, 6)
-            w, v = -x[:, :3], -x[:, 3:]
-            c = c + (R @ v[..., None])[..., 0]
-            R = R @ _cayley(w)
-            moved = np.sqrt((v * v).sum(1)) + np.sqrt((w * w).sum(1)) * self._radius
-            # Gauss-Newton converges linearly here (per limb, rate ~ this step / the last):
-            # stop once every limb's estimated distance to the optimum, rate * step / (1 -
-            # rate), or its last step is within tolerance.
-            rate = moved / last                                                      # 0 on the first step
-            left = np.where((rate > 0.0) & (rate < 1.0), rate * moved / np.maximum(1.0 - rate, 1e-12), np.inf)
-            if (np.minimum(left, moved) <= self.tolerance).all():
+            c = c - (R @ x[:, 3:, None])[..., 0]
+            sq = np.sqrt((x * x).reshape(L, 2, 3).sum(-1))                            # |w|, |v|
+            R = R @ _cayley_neg(x[:, :3], sq[:, 0])
+            step = float((sq * self._lever).sum(1).max())                             # largest point motion, m
+            # Gauss-Newton converges linearly here (rate ~ this step / the last): stop once the
+            # step, or the estimated distance to the optimum rate * step / (1 - rate), is within
+            # tolerance.
+            rate = step / last                                                       # 0 on the first step
+            if step <= tol or 0.0 < rate < 1.0 and rate * step <= (1.0 - rate) * tol:
                 break
             if it >= self.max_iterations:
                 self.reset()
                 return None
-            last = moved
+            last = step
             # The normal matrix at the new poses (it depends on them through the relative
             # rotations at the joints, which the stiff joint terms make matter): it also
             # serves the next frame's first step.
@@ -259,22 +263,34 @@ class GlobalTracker:
             if self._chol is None:
                 self.reset()
                 return None
-        X[:, :9] = R.reshape(L, 9)
-        X[:, 9:] = c
         rms = self._own_rms(y, seen)
-        n = self._own[2]
         if (rms > self._rms_tol).any():
             self.reset()
             return None
         self._R, self._c = R, c
         trans = c - (R @ self._c0[..., None])[..., 0]
-        return Tracked(R, trans, np.ones(L, dtype=bool), rms, n, it)
+        return Tracked(R, trans, c, self._all_valid, rms, self._own[2], it)
 
 
-def _cayley(w: np.ndarray) -> np.ndarray:
-    """Rotation matrices [L,3,3] of small rotation vectors w [L,3] (Cayley map; exact rotations,
-    equal to exp([w]x) to second order, so a Gauss-Newton step keeps its fixed point)."""
-    h = 0.5 * w
-    k = _skew(h)
-    f = 2.0 / (1.0 + (h * h).sum(-1))[:, None, None]
-    return np.eye(3) + f * (k + k @ k)
+def _cayley_neg(w: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """cay(-w) [L,3,3] for rotation vectors w [L,3] of length ``size`` [L] (the Cayley map: exact
+    rotations, equal to exp(-[w]x) to second order, so a Gauss-Newton step keeps its fixed
+    point): I + f ([h]^2 - [h]), h = w / 2, f = 2 / (1 + |h|^2)."""
+    k = _skew(0.5 * w)
+    f = (2.0 / (1.0 + 0.25 * size * size))[:, None, None]
+    return _EYE3 + f * (k @ k - k)
+
+
+_EYE3 = np.eye(3)
+# Horn's matrix N (row-major 4x4) as a linear map of the covariance S (row-major 3x3, S_ij =
+# sum a_i b_j): N = [[tr S, D^T], [D, S + S^T - tr S I]], D = (S_yz - S_zy, S_zx - S_xz, S_xy - S_yx).
+_HORN = np.zeros((9, 16))
+for _i in range(3):
+    _HORN[4 * _i, 0] = 1.0
+    for _k in range(3):
+        _HORN[4 * _i, 5 * (_k + 1)] = 1.0 if _k == _i else -1.0
+for (_r, _c), _terms in {(0, 1): ((5, 1), (7, -1)), (0, 2): ((6, 1), (2, -1)), (0, 3): ((1, 1), (3, -1)),
+                         (1, 2): ((1, 1), (3, 1)), (1, 3): ((6, 1), (2, 1)), (2, 3): ((5, 1), (7, 1))}.items():
+    for _e, _sgn in _terms:
+        _HORN[_e, 4 * _r + _c] += _sgn
+        _HORN[_e, 4 * _c + _r] += _sgn

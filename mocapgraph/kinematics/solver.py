@@ -185,7 +185,7 @@ class FrameSolver:
         if tracked is not None:
             rot, trans, valid = tracked.rot[None], tracked.trans[None], tracked.valid[None]
             rms_l, nfit = tracked.rms[None], tracked.n_visible[None]
-            self._global.remember(tracked.rot, (tracked.rot @ self._global._c0[:, :, None])[..., 0] + tracked.trans)
+            self._global.remember(tracked.rot, tracked.centroid)
             return self._joints_from_limbs(markers, rot, trans, valid, rms_l, nfit, nfit)
         rot, trans, valid, rms_l, nfit, n_seen = self._fit_limbs(markers)
         return self._joints_from_limbs(markers, rot, trans, valid, rms_l, nfit, n_seen)
