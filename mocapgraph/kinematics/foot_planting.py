@@ -1,7 +1,7 @@
 """Foot planting (Kiip 3.5.6): contact from height and speed, planted targets, two-bone leg IK.
 
 World frame, metres, seconds. A foot is in contact while its ankle is within ``height_m`` of its
-rest height above the floor and moves slower than ``speed_mps`` horizontally. While in contact the
+rest height above the floor (or of the lowest it has been, when it never came down that far) and moves slower than ``speed_mps`` horizontally. While in contact the
 ankle's horizontal position stays where the contact began; at every frame the ankle and toe stay at
 or above their rest heights (the sole on the floor); after a contact ends the planted offset fades
 out over ``release_s``. The hip-knee-ankle chain reaches the target by two-bone IK in the leg's
@@ -27,10 +27,12 @@ class PlantState:
     history_t: list = None       # recent frame times, s (the speed window)
     history_xy: list = None      # recent ankle xy [2, 2] per frame
     last_t: float = float("nan")
+    low: np.ndarray = None       # [2] lowest ankle height above the floor so far, m (NaN: none yet)
 
     @classmethod
     def fresh(cls) -> "PlantState":
-        return cls(np.zeros(2, bool), np.zeros((2, 2)), np.zeros((2, 2)), np.full((2, 2), np.nan), [], [])
+        return cls(np.zeros(2, bool), np.zeros((2, 2)), np.zeros((2, 2)), np.full((2, 2), np.nan), [], [],
+                   low=np.full(2, np.nan))
 
 
 def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np.ndarray,
@@ -72,7 +74,13 @@ def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarra
     ok = np.isfinite(ankle).all(axis=2)                                 # [F, 2]
     xy = np.where(ok[..., None], ankle[..., :2], np.nan)
     speed = _window_speeds(state, np.asarray(times_s, dtype=np.float64), xy, window_s)   # [F, 2]
-    h = ankle[..., 2] - (floor_z + rest_height)
+    # height above the lowest the ankle has been (never below its rest height): a character whose
+    # retargeted feet never come down to their rest height (a source's rest unlike its stance) still
+    # plants them where they stand
+    h_rest = ankle[..., 2] - (floor_z + rest_height)
+    low = np.fmin.accumulate(np.concatenate([state.low[None], h_rest]), axis=0)[1:]
+    state.low = low[-1].copy() if F else state.low
+    h = h_rest - np.maximum(np.nan_to_num(low, nan=0.0), 0.0)
     enter = ok & (h < height_m) & (speed < speed_mps)
     keep = ok & (h < 1.5 * height_m) & (speed < 2.0 * speed_mps)
     # sequential part (a plant starts where the last contact did not): plain floats, two feet

@@ -265,6 +265,8 @@ class Retargeter:
             self.ratio = float(opt.scale)
         elif m.scale is not None:
             self.ratio = float(m.scale)
+        if s_floor != 0.0:
+            self._standing_heights(cpos, c_floor, s_floor)
         # --- positions: ancestor matrix (P = root + Anc @ bone vectors)
         anc = np.zeros((J, J))
         for j in range(J):
@@ -333,6 +335,26 @@ class Retargeter:
         if ratios:
             return float(np.mean(ratios))
         return float(self._h_c / self._h_s) if self._h_s > 1e-6 else 1.0
+
+    def _standing_heights(self, cpos: np.ndarray, c_floor: float, s_floor: float) -> None:
+        """The source root's height above the floor when standing, for a source whose rest pose hangs
+        from the origin (a BVH): its lowest rest joint is no floor when the rest is no standing pose
+        (CMU: the feet level, the ankles 2.5 cm above the toe joints, where a standing foot has them
+        9 cm above the floor, which left the character's feet 15 cm up and never in contact). The
+        source's ankles are taken to stand at least as high as the character's scaled by the leg
+        ratio (its feet no flatter than the character's); the rest's vertical root-to-ankle extent
+        stays. Unchanged when a leg is not mapped to source points, and for a source onto itself."""
+        m, src = self.mapping, self.source
+        lift = []
+        for names in m.legs.values():
+            e = self._by.get(names[2])
+            if e is None or e.position is None:
+                return
+            c_ankle = cpos[self.character.index(names[2]), 2] - c_floor
+            s_ankle = src.rest_points[src.point(e.position), 2] - s_floor
+            lift.append(max(0.0, c_ankle / max(self.ratio, 1e-9) - s_ankle))
+        if lift:
+            self._h_s += float(np.mean(lift))
 
     def reset(self) -> None:
         """Forget held source values and plants (the next frame starts afresh)."""
@@ -526,6 +548,10 @@ class Retargeter:
         hip, knee = pos[:, L["hip"]], pos[:, L["knee"]]
         pole = (world[:, L["hip"]] @ np.array([1.0, 0.0, 0.0]))  # the thigh's forward axis
         s1, s2, _ = two_bone_ik(hip, knee, ankle, target, L["l1"][None], L["l2"][None], pole)
+        # a foot already where it should be keeps its leg (IK would bend a straight one by its reach margin),
+        # so a frame's result does not depend on the other frames of its batch
+        need = (np.abs(target - ankle).max(-1) >= 1e-12)[..., None, None]
+        s1, s2 = np.where(need, s1, _EYE3), np.where(need, s2, _EYE3)
         for i in range(2):
             above_knee = L["sub"][i].copy()
             thigh = above_knee & ~L["below_knee"][i]

@@ -47,6 +47,7 @@ def test_live_equals_batch_cmu_onto_mixamo_with_gaps(shared_data, planting):
     print(f"\nCMU 131_01 onto Mixamo, planting {planting}: live - batch max " +
           ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
     assert (batch.joint_quality < 2).any()          # the gaps did reach the comparison
+    assert batch.contact.any() == planting          # and the plants, with planting on
     for k, v in worst.items():
         assert v < 1e-12 if k != "joint_quality" and k != "contact" else v == 0, (k, v)
 
