@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .quaternion import matrix_to_quat, quat_multiply, quat_to_matrix
+from .foot_planting import plant_one
 from .retarget_source import rotations_from_points
 
 if TYPE_CHECKING:
@@ -107,6 +108,52 @@ def _mul1(a: list, b: list) -> list:
     bw, bx, by, bz = b
     return [aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
             aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw]
+
+
+def _v_between(a: list, b: list) -> list:
+    """Shortest-arc unit quaternion (floats) turning direction a onto b (3 floats each); the
+    antiparallel case through the batched helpers' own choice."""
+    dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    ab = math.sqrt((a[0] * a[0] + a[1] * a[1] + a[2] * a[2]) * (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]))
+    w = ab + dot
+    if w < 1e-9 * ab:
+        return _between(np.array([a]), np.array([b]))[0].tolist()
+    q = [w, a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return [x / n for x in q]
+
+
+def _v_rotate(q: list, v: list) -> list:
+    """v rotated by the unit quaternion q (floats)."""
+    w, x, y, z = q
+    tx, ty, tz = 2 * (y * v[2] - z * v[1]), 2 * (z * v[0] - x * v[2]), 2 * (x * v[1] - y * v[0])
+    return [v[0] + w * tx + y * tz - z * ty, v[1] + w * ty + z * tx - x * tz, v[2] + w * tz + x * ty - y * tx]
+
+
+def _leg_ik(hip: list, knee: list, ankle: list, target: list, l1: float, l2: float, pole: list):
+    """foot_planting.two_bone_ik for one leg in plain floats: (thigh turn, shin turn) as unit
+    quaternions, the knee kept in the leg's bend plane (``pole`` where the leg is straight)."""
+    to = [target[i] - hip[i] for i in range(3)]
+    dist = math.sqrt(to[0] ** 2 + to[1] ** 2 + to[2] ** 2)
+    u = [x / max(dist, 1e-12) for x in to]
+    d = min(max(dist, abs(l1 - l2) + 1e-6), l1 + l2 - 1e-6)
+    cos_a = min(max((l1 * l1 + d * d - l2 * l2) / (2 * l1 * d), -1.0), 1.0)
+    sin_a = math.sqrt(1.0 - cos_a * cos_a)
+    k = [knee[i] - hip[i] for i in range(3)]
+    ku = k[0] * u[0] + k[1] * u[1] + k[2] * u[2]
+    perp = [k[i] - ku * u[i] for i in range(3)]
+    if math.sqrt(perp[0] ** 2 + perp[1] ** 2 + perp[2] ** 2) > 1e-6 * l1:
+        v = perp
+    else:
+        pu = pole[0] * u[0] + pole[1] * u[1] + pole[2] * u[2]
+        v = [pole[i] - pu * u[i] for i in range(3)]
+    vn = max(math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2), 1e-12)
+    knee_new = [hip[i] + l1 * (cos_a * u[i] + sin_a * v[i] / vn) for i in range(3)]
+    reach = [hip[i] + d * u[i] for i in range(3)]
+    q1 = _v_between(k, [knee_new[i] - hip[i] for i in range(3)])
+    shin = _v_rotate(q1, [ankle[i] - knee[i] for i in range(3)])   # ankle_after - knee_new
+    q2 = _v_between(shin, [reach[i] - knee_new[i] for i in range(3)])
+    return q1, q2
 
 
 class LiveKernel:
@@ -200,6 +247,21 @@ class LiveKernel:
         self.root_M = M
         self.root_c = np.array([0.0, 0.0, rt._h_c - rt.ratio * rt._h_s + rt.options.floor_z]) + rt._offset
         self.root_src = rt._root_src
+        # foot planting: the joints each leg's thigh and shin turns carry
+        self.legs = None
+        if rt._legs is not None:
+            L = rt._legs
+            aff, which = [], []
+            for i in range(2):
+                thigh = np.flatnonzero(L["sub"][i] & ~L["below_knee"][i])
+                shin = np.flatnonzero(L["sub"][i] & L["below_knee"][i])
+                aff += [thigh, shin]
+                which += [np.full(len(thigh), i), np.full(len(shin), 2 + i)]
+            self.legs = dict(aff=np.concatenate(aff), which=np.concatenate(which),
+                             idx=np.concatenate([L["hip"], L["knee"], L["ankle"]]),
+                             toe=L["toe"] if (L["toe"] >= 0).all() else None,
+                             l1=L["l1"].tolist(), l2=L["l2"].tolist(), rest_h=L["rest_h"].tolist(),
+                             toe_h=L["toe_h"].tolist())
         # local rotations: rest_local⁻¹ · conj(W[parent]) · W as a bilinear form per joint
         rl_inv = matrix_to_quat(np.swapaxes(rt._rest_local_inv, -1, -2))   # rest_local, then conjugated
         rl_inv[:, 1:] *= -1.0
@@ -305,14 +367,46 @@ class LiveKernel:
         root = self.root_M @ pts[self.root_src] + self.root_c
         pos = root + self.anc @ _rotate_const(Wp, self.bone_forms)
         contact = np.zeros((1, 2), bool)
-        if rt._legs is not None:
-            Wm, pos, contact = rt._plant(quat_to_matrix(W)[None], pos[None], root[None],
-                                         np.zeros(1) if t is None else np.asarray(t, float).reshape(1))
-            W = matrix_to_quat(Wm[0])
-            pos = pos[0]
-            Wp = np.concatenate([W, _ID[None]])[self.par_ext]
+        if self.legs is not None:
+            W, Wp, pos, contact = self._plant(W, Wp, pos, root, 0.0 if t is None else float(np.asarray(t).reshape(-1)[0]))
         # 6. local rotations, w >= 0 as matrix_to_quat gives them
         local = ((Wp[:, :, None] * W[:, None, :]).reshape(J, 1, 16) @ self.local_forms)[:, 0]
         local *= np.copysign(1.0, local[:, :1])
         jq = self.jq_good.copy() if all_good else rt._quality(rq[None], pq[None])
         return self.Result(local[None], root[None], pos[None], jq, contact)
+
+    def _plant(self, W, Wp, pos, root, t: float):
+        """Retargeter._plant for one frame: contact and targets (foot_planting.plant_one), two-bone
+        IK per leg in plain floats, the thigh and shin turns applied to the joints they carry."""
+        rt, L, opt = self.rt, self.legs, self.rt.options
+        hka = pos[L["idx"]].tolist()                      # hips, knees, ankles: l, r
+        ankle = hka[4:6]
+        toe_lift = None
+        if L["toe"] is not None:
+            tz = pos[L["toe"], 2].tolist()
+            toe_lift = [opt.floor_z + L["toe_h"][i] - tz[i] for i in (0, 1)]
+        k = max(rt.ratio, 1e-3)
+        target, contact = plant_one(ankle, L["rest_h"], t, rt._state.plant, floor_z=opt.floor_z,
+                                    height_m=opt.contact_height_m * k, speed_mps=opt.contact_speed_mps * k,
+                                    release_s=opt.release_s, toe_lift=toe_lift)
+        contact = np.array([contact])
+        gap = [max(abs(target[i][c] - ankle[i][c]) for c in range(3)) for i in (0, 1)]
+        need = [g >= 1e-12 for g in gap]                 # NaN gaps (no data) need nothing
+        if not (need[0] or need[1]):
+            return W, Wp, pos, contact
+        hq = W[rt._legs["hip"]].tolist()
+        turns = [[1.0, 0.0, 0.0, 0.0]] * 4               # thigh l, thigh r, shin l, shin r
+        for i in (0, 1):   # the two legs
+            if not need[i]:
+                continue
+            w, x, y, z = hq[i]
+            pole = [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)]   # the thigh's forward axis
+            q1, q2 = _leg_ik(hka[i], hka[2 + i], ankle[i], target[i], L["l1"][i], L["l2"][i], pole)
+            turns[i] = q1
+            turns[2 + i] = _mul1(q2, q1)
+        aff = L["aff"]
+        W = W.copy()
+        W[aff] = _mul(np.array(turns)[L["which"]], W[aff])
+        Wp = np.concatenate([W, _ID[None]])[self.par_ext]
+        pos = root + self.anc @ _rotate_const(Wp, self.bone_forms)
+        return W, Wp, pos, contact
