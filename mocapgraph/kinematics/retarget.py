@@ -391,7 +391,7 @@ class Retargeter:
                 rotations: np.ndarray | None = None, rotation_ok: np.ndarray | None = None,
                 times_s: np.ndarray | None = None) -> RetargetResult:
         """Retarget frames: points [F, P, 3] (m, NaN missing), rotations [F, R, 4] (wxyz, NaN missing;
-        None for a positions-only source), ``times_s`` [F] for foot-planting speeds."""
+        None for a positions-only source), ``times_s`` [F] (s; one frame: a float will do) for foot-planting speeds."""
         st = self._state
         pts = np.asarray(points, dtype=np.float64)
         F = pts.shape[0]
@@ -465,7 +465,7 @@ class Retargeter:
         pos = self._positions(world, root)
         contact = np.zeros((F, 2), bool)
         if self._legs is not None:
-            t = np.arange(F, dtype=float) if times_s is None else np.asarray(times_s, float)
+            t = np.arange(F, dtype=float) if times_s is None else np.asarray(times_s, float).reshape(-1)
             world, pos, contact = self._plant(world, pos, root, t)
         # 7. local rotations: rest⁻¹ · W[parent]⁻¹ · W
         parent_w = world[:, self._par]

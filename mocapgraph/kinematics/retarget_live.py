@@ -37,6 +37,7 @@ _E4 = np.eye(4)
 _HAM = np.stack([quat_multiply(_E4[k], _E4[l]) for k in range(4) for l in range(4)])        # [16, 4]
 _CONJ16 = np.repeat([1.0, -1.0, -1.0, -1.0], 4)[:, None]                                   # a -> conj(a)
 _ID = np.array([1.0, 0.0, 0.0, 0.0])
+_PHASE = np.array([0.0, -0.5 * np.pi])     # cos(h - pi/2) = sin(h)
 # rotation matrix of a unit q as a quadratic form: R(q)[r, c] = sum_ab q_a q_b _ROT[4a+b, r, c]
 _ROT = np.zeros((16, 3, 3))
 for (_r, _c), _ts in {
@@ -88,18 +89,18 @@ def _between(a: np.ndarray, b: np.ndarray, a_len: np.ndarray | None = None,
     return dc / np.sqrt(np.einsum("ij,ij->i", dc, dc))[:, None]
 
 
-def _power_left(qs: list, rel: list, f: np.ndarray) -> np.ndarray:
+def _power_left(qs: list, rel: list, f2: np.ndarray, phase: np.ndarray) -> np.ndarray:
     """qs · rel^f for two unit quaternions (plain floats, wxyz) and fractions f [k] (shortest arc
-    first): [k, 4], two numpy calls and a product."""
+    first): [k, 4]. ``f2`` [k, 2] is f twice and ``phase`` [2] is (0, -pi/2), so that one cos gives
+    the cos and sin of every half angle and one product the quaternions."""
     w, x, y, z = rel if rel[0] >= 0 else [-v for v in rel]
     s = math.sqrt(x * x + y * y + z * z)
-    half = math.atan2(s, w) * f
     ax = [x / s, y / s, z / s] if s > 1e-15 else [0.0, 0.0, 0.0]
     a, b, c, d = qs
-    # columns: qs * (cos h, sin h · axis) = cos h · qs + sin h · (qs * (0, axis))
+    # qs * (cos h, sin h · axis) = cos h · qs + sin h · (qs * (0, axis))
     u = [-b * ax[0] - c * ax[1] - d * ax[2], a * ax[0] + c * ax[2] - d * ax[1],
          a * ax[1] - b * ax[2] + d * ax[0], a * ax[2] + b * ax[1] - c * ax[0]]
-    return np.cos(half)[:, None] * np.array(qs) + np.sin(half)[:, None] * np.array(u)
+    return np.cos(f2 * math.atan2(s, w) + phase) @ np.array([qs, u])
 
 
 def _mul1(a: list, b: list) -> list:
@@ -203,6 +204,7 @@ class LiveKernel:
         self.chains = []
         for c in rt._chains:
             d = dict(start=c["start"], end=c["end"], joints=c["joints"], frac=c["frac"], path=c["path"],
+                     f2=np.repeat(np.asarray(c["frac"], float)[:, None], 2, axis=1),
                      iters=1 if c["endpt"] == c["end"] else 4,
                      correct=c["end_src"] >= 0 and c["pivot_src"] >= 0 and bool(np.isfinite(c["ratio"])),
                      end_src=c["end_src"], pivot_src=c["pivot_src"], A=c["ratio"] * c["A"])
@@ -339,7 +341,7 @@ class LiveKernel:
         for c in self.chains:
             qs, qe = D[c["start"]].tolist(), D[c["end"]].tolist()
             rel = _mul1([qs[0], -qs[1], -qs[2], -qs[3]], qe)
-            D[c["joints"]] = _power_left(qs, rel, c["frac"])
+            D[c["joints"]] = _power_left(qs, rel, c["f2"], _PHASE)
             if c["correct"]:
                 target = c["A"] @ (pts[c["end_src"]] - pts[c["pivot_src"]])
                 path, js = c["path"], c["joints"]
@@ -368,7 +370,7 @@ class LiveKernel:
         pos = root + self.anc @ _rotate_const(Wp, self.bone_forms)
         contact = np.zeros((1, 2), bool)
         if self.legs is not None:
-            W, Wp, pos, contact = self._plant(W, Wp, pos, root, 0.0 if t is None else float(np.asarray(t).reshape(-1)[0]))
+            W, Wp, pos, contact = self._plant(W, Wp, pos, root, 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0])))
         # 6. local rotations, w >= 0 as matrix_to_quat gives them
         local = ((Wp[:, :, None] * W[:, None, :]).reshape(J, 1, 16) @ self.local_forms)[:, 0]
         local *= np.copysign(1.0, local[:, :1])
