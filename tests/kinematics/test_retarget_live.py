@@ -68,3 +68,19 @@ def test_live_equals_batch_kinect_positions_only_with_dependencies(shared_data):
     assert not pok.all()
     for k, v in worst.items():
         assert v < 1e-12 if k not in ("joint_quality", "contact") else v == 0, (k, v)
+
+
+def test_the_nodes_point_layout_is_optical_points():
+    """The node's precomputed per-frame layout gives optical_points' pelvis (mean of the hips) and
+    masks from the joint quality, NaN joints included."""
+    from mocapgraph.kinematics.retarget_source import OpticalFrames, optical_points
+    names = ["pelvis_top", "hip_l", "knee_l", "hip_r", "knee_r"]
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(5, 3))
+    q = np.array([2, 2, 1, 0, 2], np.int8)
+    p[3] = np.nan
+    pts, ok = OpticalFrames(names).frame(p, q)
+    want = optical_points(p[None], names)
+    np.testing.assert_array_equal(np.isnan(pts), np.isnan(want))
+    np.testing.assert_allclose(pts[np.isfinite(want)], want[np.isfinite(want)], rtol=0, atol=0)
+    assert ok.tolist() == [[True, True, True, False, True, False]]
