@@ -19,6 +19,7 @@ Usage: python benchmarks/retarget.py [--live-frames 3000] [--graph-s 10] [--no-g
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import signal
 import subprocess
@@ -34,6 +35,7 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED = (REPO / ".." / "shared" / "data").resolve()
 
 
+@functools.lru_cache(maxsize=1)
 def _solved_actor():
     from mocapgraph.kinematics.calibration import calibrate
     from mocapgraph.kinematics.retarget_source import optical_points, optical_source

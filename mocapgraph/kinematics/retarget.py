@@ -307,7 +307,8 @@ class Retargeter:
         self._plan = plan_point_rotations(src) if src.derived_rotations else None
         self.reset()
         self._live = None
-        self._live = LiveKernel(self) if live else None
+        # the one-frame path's folded gathers multiply every (held, so finite) point by its weights
+        self._live = LiveKernel(self) if live and np.isfinite(src.rest_points).all() else None
 
     # ----------------------------------------------------------------------------------------------
     def _nearest(self, driven: np.ndarray) -> np.ndarray:

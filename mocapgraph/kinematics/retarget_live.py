@@ -83,7 +83,7 @@ def _between(a: np.ndarray, b: np.ndarray, a_len: np.ndarray | None = None,
     bb = np.einsum("ij,ij->i", b, b) if b_len2 is None else b_len2
     ab = np.sqrt(bb * (a_len * a_len if a_len is not None else np.einsum("ij,ij->i", a, a)))
     dc[:, 0] += ab
-    if (dc[:, 0] < 1e-9 * ab).any():
+    if not float((dc[:, 0] / ab).min()) >= 1e-9:    # antiparallel (or zero-length: NaN) somewhere
         from .quaternion import matrix_between
         return matrix_to_quat(matrix_between(a, b))
     return dc / np.sqrt(np.einsum("ij,ij->i", dc, dc))[:, None]
@@ -247,6 +247,9 @@ class LiveKernel:
         M[:2] = rt.ratio * rt._root_A[:2]
         M[2, 2] = rt.ratio
         self.root_M = M
+        big = np.zeros((3 * len(rt.source.point_names), 3))
+        big[3 * rt._root_src:3 * rt._root_src + 3] = M.T       # the source root's gather folded in
+        self.root_big = big
         self.root_c = np.array([0.0, 0.0, rt._h_c - rt.ratio * rt._h_s + rt.options.floor_z]) + rt._offset
         self.root_src = rt._root_src
         # foot planting: the joints each leg's thigh and shin turns carry
@@ -366,7 +369,7 @@ class LiveKernel:
             W = matrix_to_quat(Wm[0])
             Wp = np.concatenate([W, _ID[None]])[self.par_ext]
         # 5. root and positions
-        root = self.root_M @ pts[self.root_src] + self.root_c
+        root = pflat @ self.root_big + self.root_c
         pos = root + self.anc @ _rotate_const(Wp, self.bone_forms)
         contact = np.zeros((1, 2), bool)
         if self.legs is not None:
