@@ -38,6 +38,9 @@ _HAM = np.stack([quat_multiply(_E4[k], _E4[l]) for k in range(4) for l in range(
 _CONJ16 = np.repeat([1.0, -1.0, -1.0, -1.0], 4)[:, None]                                   # a -> conj(a)
 _ID = np.array([1.0, 0.0, 0.0, 0.0])
 _PHASE = np.array([0.0, -0.5 * np.pi])     # cos(h - pi/2) = sin(h)
+_ONES4 = np.ones(4)
+_ONES3 = np.ones(3)
+_N2_LO, _N2_HI = (1.0 - 1e-3) ** 2, (1.0 + 1e-3) ** 2   # |q| within 1e-3 of 1, squared
 # rotation matrix of a unit q as a quadratic form: R(q)[r, c] = sum_ab q_a q_b _ROT[4a+b, r, c]
 _ROT = np.zeros((16, 3, 3))
 for (_r, _c), _ts in {
@@ -238,6 +241,7 @@ class LiveKernel:
         self.G = g
         self.delta0 = np.tile(_ID, (J + 1, 1))
         self.jq_good = np.full((1, J), QUALITY_GOOD, np.int8)
+        self._seen = None                  # the state whose seen flags are all set
         from .retarget import RetargetResult   # here, not at import: retarget imports this module
         self.Result = RetargetResult
         # positions: bones R(W[parent]) · offset, summed over ancestors; root from the source root
@@ -302,15 +306,19 @@ class LiveKernel:
                 rok = np.isfinite(rot).all(-1)
                 all_good = False
         else:
-            nr = np.sqrt(np.einsum("ij,ij->i", rot, rot))
-            dev = np.abs(nr - 1.0)
-            if not (float(dev.max()) < 1e-3 and (rok is None or bool(rok.all()))):
-                rok = (dev < 1e-3) if rok is None else (rok & (dev < 1e-3))
+            n2 = np.square(rot) @ _ONES4
+            nr = np.sqrt(n2)
+            # |n - 1| < 1e-3 for every rotation, from the extremes of n² (NaN fails both)
+            if not (_N2_LO < float(n2.min()) and float(n2.max()) < _N2_HI and (rok is None or bool(rok.all()))):
+                dev = np.abs(nr - 1.0) < 1e-3
+                rok = dev if rok is None else (rok & dev)
                 all_good = False
         if all_good:
             st.rot, st.pts = rot.copy(), pts.copy()
-            st.rot_seen[:] = True
-            st.pts_seen[:] = True
+            if self._seen is not st:       # seen flags only grow: set once per state
+                st.rot_seen[:] = True
+                st.pts_seen[:] = True
+                self._seen = st
         else:
             if pok is None:
                 pok = np.ones(len(pts), bool)
@@ -332,7 +340,7 @@ class LiveKernel:
             sub = dq[self.follow_m]
             have = _rotate_const(sub, self.follow_forms)
             want = (pflat @ self.follow_w).reshape(-1, 3)
-            wn2 = np.einsum("ij,ij->i", want, want)
+            wn2 = np.square(want) @ _ONES3
             if not float(wn2.min()) > 1e-18:     # |want| > 1e-9 m, as the batched path
                 ok = np.sqrt(wn2) > 1e-9
                 want = np.where(ok[:, None], want, have)
