@@ -230,14 +230,15 @@ class LiveKernel:
         par = np.where(ch.parents < 0, J, ch.parents)
         self.par_ext = par
         # one product gives every W and every W[parent] (the root's parent: the identity slot)
+        # laid out per joint as [W[parent] | W] (8 columns), the pair the last step multiplies
         g = np.zeros((4 * (J + 1), 8 * J))
         for j in range(J):
-            g[4 * src[j]:4 * src[j] + 4, 4 * j:4 * j + 4] += _right(rw_q[j]).T
+            g[4 * src[j]:4 * src[j] + 4, 8 * j + 4:8 * j + 8] += _right(rw_q[j]).T
             p = par[j]
             if p < J:
-                g[4 * src[p]:4 * src[p] + 4, 4 * (J + j):4 * (J + j) + 4] += _right(rw_q[p]).T
+                g[4 * src[p]:4 * src[p] + 4, 8 * j:8 * j + 4] += _right(rw_q[p]).T
             else:
-                g[4 * J:4 * J + 4, 4 * (J + j):4 * (J + j) + 4] += np.eye(4)
+                g[4 * J:4 * J + 4, 8 * j:8 * j + 4] += np.eye(4)
         self.G = g
         self.delta0 = np.tile(_ID, (J + 1, 1))
         self.jq_good = np.full((1, J), QUALITY_GOOD, np.int8)
@@ -275,6 +276,11 @@ class LiveKernel:
         rl_inv = matrix_to_quat(np.swapaxes(rt._rest_local_inv, -1, -2))   # rest_local, then conjugated
         rl_inv[:, 1:] *= -1.0
         self.local_forms = np.stack([(_HAM * _CONJ16) @ _left(rl_inv[j]).T for j in range(J)])  # [J, 16, 4]
+        # both at once from W[parent] ⊗ [W[parent] | W] [J, 32]: the bone vector (3) and the local rotation (4)
+        both = np.zeros((J, 4, 8, 7))
+        both[:, :, :4, :3] = self.bone_forms.reshape(J, 4, 4, 3)
+        both[:, :, 4:, 3:] = self.local_forms.reshape(J, 4, 4, 4)
+        self.both_forms = both.reshape(J, 32, 7)
 
     def _quat_in(self, q: np.ndarray) -> np.ndarray:
         """Δ [n, 4] of the rotate joints from the held unit source rotations [R, 4]."""
@@ -368,23 +374,26 @@ class LiveKernel:
             want = (a["A"] @ (pts[a["to"]] - pts[a["frm"]])[:, :, None])[..., 0]
             D[a["joint"]] = _mul(_between(carried, want), dp)
         # world orientations (inherited, then the rest orientation) and the parents'
-        WW = (D.reshape(-1) @ self.G).reshape(2 * J, 4)
-        W, Wp = WW[:J], WW[J:]
+        WW = (D.reshape(-1) @ self.G).reshape(J, 8)
+        Wp, W = WW[:, :4], WW[:, 4:]
         if rt._rolls:   # rare (roll joints): the batched path's own code, on matrices
             Wm = quat_to_matrix(W)[None]
             for r, o, f, upper in rt._rolls:
                 Wm = rt._apply_roll(Wm, r, o, f, upper)
             W = matrix_to_quat(Wm[0])
             Wp = np.concatenate([W, _ID[None]])[self.par_ext]
-        # 5. root and positions
+            WW = np.concatenate([Wp, W], axis=1)
+        # 5./6. root, positions and local rotations (w >= 0, as matrix_to_quat gives them)
         root = pflat @ self.root_big + self.root_c
-        pos = root + self.anc @ _rotate_const(Wp, self.bone_forms)
+        bl = ((Wp[:, :, None] * WW[:, None, :]).reshape(J, 1, 32) @ self.both_forms)[:, 0]
+        pos = root + self.anc @ bl[:, :3]
+        local = bl[:, 3:]
         contact = np.zeros((1, 2), bool)
         if self.legs is not None:
-            W, Wp, pos, contact = self._plant(W, Wp, pos, root, 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0])))
-        # 6. local rotations, w >= 0 as matrix_to_quat gives them
-        local = ((Wp[:, :, None] * W[:, None, :]).reshape(J, 1, 16) @ self.local_forms)[:, 0]
-        local *= np.copysign(1.0, local[:, :1])
+            W2, Wp, pos, contact = self._plant(W, Wp, pos, root, 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0])))
+            if W2 is not W:   # the legs moved: their local rotations anew
+                local = ((Wp[:, :, None] * W2[:, None, :]).reshape(J, 1, 16) @ self.local_forms)[:, 0]
+        local = local * np.copysign(1.0, local[:, :1])
         jq = self.jq_good.copy() if all_good else rt._quality(rq[None], pq[None])
         return self.Result(local[None], root[None], pos[None], jq, contact)
 
