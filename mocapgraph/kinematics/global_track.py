@@ -25,9 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scipy.linalg.lapack import dpotrf, dpotrs
+
 from mocapgraph.kinematics.global_fit import GlobalFit, _skew
 from mocapgraph.kinematics.rigid import fit_rigid
-from scipy.linalg.lapack import dpotrf, dpotrs
 
 
 @dataclass
@@ -56,7 +57,6 @@ class GlobalTracker:
                  max_iterations: int = 4) -> None:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
-        self.exact = True
         self._rms_tol = np.asarray(rms_tol, dtype=float)
         idx = fit._idx
         L, K = idx.shape
@@ -93,7 +93,7 @@ class GlobalTracker:
             A[pi, i, limb, 9 + i] = move
         M = np.einsum("rp,piq->riq", S, A.reshape(P, 3, L * 12)).reshape(3 * R_, L * 12)
         self._M, self._MT = M, np.ascontiguousarray(M.T)
-        self._LK, self._rows = LK, R_
+        self._LK = LK
         self._w_fixed = np.concatenate([fit._wj, fit._wh])                       # joint, hinge rows
         self._wm0 = fit._wm.reshape(LK)
         # Point Jacobians in the limb frame, B = [-[p]x, m I] (3x6); world ones are R B.
@@ -107,8 +107,7 @@ class GlobalTracker:
         pa = np.concatenate([LK + np.arange(J), LK + 2 * J + np.arange(H)])
         pb = np.concatenate([LK + J + np.arange(J), LK + 2 * J + H + np.arange(H)])
         self._pair_a, self._pair_b = limb[pa], limb[pb]
-        wpair = np.concatenate([fit._wj, fit._wh])
-        self._BTa_w, self._Bb = -wpair[:, None, None] * self._BT[pa], B[pb]
+        self._BTa_w, self._Bb = -self._w_fixed[:, None, None] * self._BT[pa], B[pb]
         # Row weight per point (each point is in exactly one row): markers' are per frame.
         self._u_fixed = np.concatenate([fit._wj, fit._wj, fit._wh, fit._wh])
         # Every joint's pair (a, b) is a parent-child edge; hinges reuse their joint's edge.
@@ -130,11 +129,20 @@ class GlobalTracker:
         # tr(A [w]x) = (A.flat @ V) . w: the limb-frame rotation gradient from dC/dR.
         self._V = np.stack([_skew(np.eye(3)[k]).T.reshape(9) for k in range(3)], 1)
         self._bits = (1 << np.arange(K))
-        self._valid_table = self._visibility_table(fit)
+        # Up to 8 markers a limb, every subset's answer is tabled; beyond, it is worked out
+        # whenever the set of seen markers changes.
+        self._valid_table = self._visibility_table(fit) if K <= 8 else None
         self._Y = np.zeros(3 * R_)
         self._all_valid = np.ones(L, dtype=bool)
         self._W = np.repeat(np.concatenate([np.zeros(LK), self._w_fixed]), 3)
         self.reset()
+
+    def _fixable(self, seen: np.ndarray) -> bool:
+        """Can every limb be fixed by its seen markers (seen bool[L,K]) alone?"""
+        if self._valid_table is not None:
+            return bool(self._valid_table[np.arange(self.L), seen @ self._bits].all())
+        a = np.where(self._pad[..., None], self._a, np.nan)
+        return bool(fit_rigid(a, a, seen.astype(float)).valid.all())
 
     def _visibility_table(self, fit: GlobalFit) -> np.ndarray:
         """bool[L, 2^K]: can the limb be fixed by this subset of its markers alone (>= 3, not
@@ -219,7 +227,7 @@ class GlobalTracker:
         R, c = self._R, self._c
         key = seen.tobytes()
         if self._chol is None or key != self._code:
-            if not self._valid_table[np.arange(L), seen @ self._bits].all():
+            if not self._fixable(seen):
                 self.reset()
                 return None
             self._code = key
