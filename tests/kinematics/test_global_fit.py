@@ -90,3 +90,29 @@ def test_segment_lengths_on_a_real_walk_hold_better_with_the_global_fit(shared_d
         print(f"  {fit:<8} " + "  ".join(f"{k} {1000 * v:.2f}" for k, v in stds[fit].items()))
     for k in stds["global"]:
         assert stds["global"][k] < stds["segment"][k]
+
+
+def test_live_global_fit_recovers_from_a_lost_frame_and_a_jump_like_the_batch():
+    # A frame with nothing seen, then the whole capture shifted 0.4 m and turned 30 deg (a
+    # re-origined system): live frames restart from the segment-wise fit and track again, and
+    # after the jump they are the unmoved capture's joints, moved.
+    model, x0, _ = _actor("kiip_full_body", seed=4)
+    x0 = x0[:160]
+    reference = FrameSolver(model, rate_hz=120.0, fit="global", max_gap_s=0.0).solve(x0).joints
+    x = x0.copy()
+    x[60] = np.nan
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    turn = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    shift = np.array([0.4, -0.2, 0.0])
+    x[100:] = x[100:] @ turn.T + shift
+    batch = FrameSolver(model, rate_hz=120.0, fit="global", max_gap_s=0.0).solve(x)
+    live = FrameSolver(model, rate_hz=120.0, fit="global", max_gap_s=0.0)
+    out = [live.step(f) for f in x]
+    joints = np.array([r.joints for r in out])
+    quality = np.array([r.joint_quality for r in out])
+    assert (quality == batch.joint_quality).all()
+    assert (quality[60] == Quality.MISSING).all() and (np.delete(quality, 60, 0) == Quality.GOOD).all()
+    assert np.nanmax(np.abs(joints - batch.joints)) < 2e-5
+    assert np.abs(joints[:60] - reference[:60]).max() < 2e-5
+    assert np.abs(joints[61:100] - reference[61:100]).max() < 2e-5
+    assert np.abs(joints[100:] - (reference[100:] @ turn.T + shift)).max() < 2e-5
