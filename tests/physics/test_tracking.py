@@ -144,7 +144,7 @@ def test_forces_through_xfrc_equal_mj_applyFT_at_the_joints(clip):
     f = rng.normal(0, 50, p.shape)
     arm = p - w.data.xipos[w.pt_body]
     wrench = np.concatenate([f, np.cross(arm, f)], axis=1)
-    w.data.xfrc_applied[:] = w._pt_to_body @ wrench
+    w.data.xfrc_applied[:] = w._A[:, :len(p)] @ wrench
     mujoco.mj_forward(w.model, w.data)
     qacc_ours = w.data.qacc.copy()
     w.data.xfrc_applied[:] = 0
