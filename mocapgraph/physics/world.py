@@ -54,6 +54,7 @@ class TrackerParams:
     joint_damping: float = 1.0         # N·m·s/rad in every ball joint
     max_target_speed: float = 6.0      # m/s: faster target velocities (jumps, glitches) are clipped
     gravity_compensation: float = 0.5  # fraction of each body's weight held up at its centre of mass
+    foot_max_force: float = 40.0       # N, Eq 1 bound at the ankles and feet (<= gains.max_force)
 
 
 @dataclass
@@ -159,6 +160,14 @@ class PhysicsWorld:
         g = self.params.gains
         self._kp = (g.kp * self.scale_pt)[:, None]   # Eq 1 gains per point, N/m and N·s/m
         self._kd = (g.kd * self.scale_pt)[:, None]
+        # Eq 1 bound per point: the gains' everywhere, the feet's own (at most that) at the ankles
+        # and feet: a light foot driven with the trunk's bound strikes the floor hard
+        self.force_bound = np.full(n, g.max_force)
+        for k, cb in enumerate(self.bodies):
+            a = self.point_slice[k].start
+            foot = np.r_[cb.feet, cb.character.parents[cb.feet]].astype(np.int64)
+            self.force_bound[a + foot] = min(g.max_force, self.params.foot_max_force)
+        self._bound2 = self.force_bound ** 2
         # Eq 2 gains act per unit inertia about the twist axis (1/s^2, 1/s): a foot twisting with
         # the torso's gains in N·m/rad would be unstable at any usable timestep
         Rp = quat_to_matrix(m.body_iquat[self.b_body])
@@ -503,7 +512,7 @@ class PhysicsWorld:
         W = self._wrench
         A = self._A
         fmax2 = 0.0
-        bound2 = g.max_force ** 2
+        bound2 = self._bound2
         for i in range(n):
             mujoco.mj_step1(m, d)
             p = d.site_xpos[site]
@@ -516,9 +525,9 @@ class PhysicsWorld:
                 f = np.where(np.isfinite(f), f, 0.0)
                 norm2 = (f * f).sum(1)
                 top2 = float(norm2.max())
-            if top2 > bound2:                      # clip_norm, skipped when nothing is over the bound
-                f *= np.minimum(1.0, g.max_force / np.sqrt(np.maximum(norm2, 1e-24)))[:, None]
-                top2 = bound2
+            if (norm2 > bound2).any():             # clip_norm, skipped when nothing is over its bound
+                f *= np.minimum(1.0, self.force_bound / np.sqrt(np.maximum(norm2, 1e-24)))[:, None]
+                top2 = float((f * f).sum(1).max())
             fmax2 = max(fmax2, top2)
             if i == 0:
                 # Eq 2 once per frame, held over its substeps: gains per unit inertia keep
