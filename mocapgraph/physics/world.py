@@ -28,6 +28,7 @@ import numpy as np
 
 from ..kinematics.character import Character
 from ..kinematics.quaternion import matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix
+from .anthropometry import bone_masses
 from .body import CharacterBody, add_character, add_pins, character_body, fmt, to_xml, world_root
 from .controller import Gains, clip_norm, cross, twist_torques
 from .quat_lean import qmul_conj as _qmul_conj
@@ -36,6 +37,7 @@ from .stage import EMPTY_STAGE, PARK_X, Stage, add_stage
 import xml.etree.ElementTree as ET
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
+TRUNK_CLASSES = ("lower_trunk", "middle_trunk", "upper_trunk", "head")   # anthropometry's segment classes
 
 
 @dataclass
@@ -55,6 +57,7 @@ class TrackerParams:
     max_target_speed: float = 6.0      # m/s: faster target velocities (jumps, glitches) are clipped
     gravity_compensation: float = 0.5  # fraction of each body's weight held up at its centre of mass
     foot_max_force: float = 40.0       # N, Eq 1 bound at the ankles and feet (<= gains.max_force)
+    trunk_max_force: float = 40.0      # N, Eq 1 bound at the trunk's joints and the head (<= gains.max_force)
 
 
 @dataclass
@@ -160,12 +163,18 @@ class PhysicsWorld:
         g = self.params.gains
         self._kp = (g.kp * self.scale_pt)[:, None]   # Eq 1 gains per point, N/m and N·s/m
         self._kd = (g.kd * self.scale_pt)[:, None]
-        # Eq 1 bound per point: the gains' everywhere, the feet's own (at most that) at the ankles
-        # and feet: a light foot driven with the trunk's bound strikes the floor hard
+        # Eq 1 bound per point: the gains' (the limbs' strength) everywhere, the feet's own at the
+        # ankles and feet (a light foot driven with 400 N strikes the floor hard) and the trunk's at
+        # the root, trunk joints and head (what holds the body where its target is, as balance
+        # does: bounded low, so a push displaces the body rather than meeting a wall)
         self.force_bound = np.full(n, g.max_force)
         for k, cb in enumerate(self.bodies):
             a = self.point_slice[k].start
-            foot = np.r_[cb.feet, cb.character.parents[cb.feet]].astype(np.int64)
+            ch = cb.character
+            classes = bone_masses(ch, cb.body_mass).classes
+            trunk = [j for j in range(ch.n_joints) if j == ch.root or classes[j] in TRUNK_CLASSES]
+            self.force_bound[a + np.array(trunk, dtype=np.int64)] = min(g.max_force, self.params.trunk_max_force)
+            foot = np.r_[cb.feet, ch.parents[cb.feet]].astype(np.int64)
             self.force_bound[a + foot] = min(g.max_force, self.params.foot_max_force)
         self._bound2 = self.force_bound ** 2
         # Eq 2 gains act per unit inertia about the twist axis (1/s^2, 1/s): a foot twisting with
