@@ -53,6 +53,15 @@ objects:
 """
 
 
+def error_colour(e: float) -> np.ndarray:
+    """The viewer's tracking-error colour (scene.js errorColor), RGB 0..1."""
+    if not np.isfinite(e):
+        return np.array([0.58, 0.63, 0.72])
+    t = min(1.0, max(0.0, (e - 0.01) / 0.09))
+    a, b, c = np.array([0.25, 0.8, 0.78]), np.array([1.0, 0.7, 0.22]), np.array([1.0, 0.33, 0.33])
+    return a + (b - a) * 2 * t if t < 0.5 else b + (c - b) * (2 * t - 1)
+
+
 def test_physics_bodies_and_stage_objects_drawn_coloured_by_tracking_error(launch_graph, open_page, tmp_path):
     port = free_port()
     stage_file = tmp_path / "stage.yaml"
@@ -114,18 +123,24 @@ nodes:
         def under(i: int) -> np.ndarray | None:
             return where[i]
 
-        teal = 0
+        # each capsule shows its own tracking error's colour (the page's errorColor: teal under
+        # 1 cm, amber at 5.5 cm, red from 10 cm), compared as chromaticity (lighting scales it)
+        chroma = lambda c: np.asarray(c, float) / max(float(np.sum(c)), 1e-9)  # noqa: E731
         seen = [under(i) for i in capsules]
-        for c in seen:
-            # a well-tracked capsule is teal (errorColor under 1 cm: 0.25, 0.8, 0.78), lit
-            if c is not None and c[1] > c[0] + 40 and c[2] > c[0] + 40 and np.abs(c - bg).sum() > 60:
-                teal += 1
-        stage_drawn = sum(1 for i in stage if (c := under(i)) is not None and np.abs(c - bg).sum() > 30)
         on_page = sum(c is not None for c in seen)
-        print(f"capsule centres on the page {on_page}, teal there {teal} (errors {1000 * np.nanmax(err[capsules]):.1f} mm "
-              f"at most); stage objects whose centre shows a body {stage_drawn} of {len(stage)}; background {bg.round()}")
+        dist = [float(np.abs(chroma(c) - chroma(error_colour(err[i]))).sum()) for i, c in zip(capsules, seen)
+                if c is not None and np.abs(c - bg).sum() > 60]
+        matched = sum(d < 0.02 for d in dist)
+        # stage objects are untracked: the viewer's neutral grey-blue
+        stage_drawn = sum(1 for i in stage if (c := under(i)) is not None and np.abs(c - bg).sum() > 30
+                          and np.abs(chroma(c) - chroma(error_colour(np.nan))).sum() < 0.02)
+        print(f"capsule centres on the page {on_page}, showing their error's colour {matched} (chromaticity off by "
+              f"{np.round(sorted(dist), 3).tolist()}; errors {np.round(1000 * err[capsules]).astype(int).tolist()} mm); "
+              f"stage objects whose centre shows a body {stage_drawn} of {len(stage)}; background {bg.round()}")
         assert on_page == len(capsules)
-        assert teal >= 0.8 * len(capsules)
+        # a capsule's centre may lie behind a neighbour (the trunk's behind the arms) showing that
+        # one's error instead: most show their own
+        assert matched >= 0.6 * len(capsules)
         assert stage_drawn >= len(stage) - 1           # one may hide behind another from this view
         assert not page.errors(), page.errors()
     finally:
