@@ -155,7 +155,7 @@ def body_inertia(cb: CharacterBody) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 def add_character(worldbody: ET.Element, cb: CharacterBody, n_characters: int,
                   joint_damping: float = 1.0, friction: float = 1.0, gravcomp: float = 0.0) -> None:
-    """Append ``cb``'s bodies (and the mocap bodies of its foot pins) to ``worldbody``.
+    """Append ``cb``'s bodies to ``worldbody`` (its pins' mocap bodies: :func:`add_pins`).
 
     Every character joint gets a site at its point (``site_name``), where Eq 1 acts; ``gravcomp``
     is the fraction of each body's weight MuJoCo holds up at its centre of mass."""
@@ -192,13 +192,15 @@ def add_character(worldbody: ET.Element, cb: CharacterBody, n_characters: int,
     for j in range(ch.n_joints):
         ET.SubElement(elems[int(cb.body_joints[cb.joint_body[j]])], "site", name=cb.site_name(j),
                       pos=fmt(cb.joint_point[j]), size="0.01", group="5")
-    pos, _ = ch.rest_pose()
+
+
+def add_pins(worldbody: ET.Element, equality: ET.Element, cb: CharacterBody) -> None:
+    """Virtual ball joints (inactive) fixing each foot point to its mocap pin (Shum & Ho 6.1), and
+    the pins' mocap bodies (added after every character's bodies keep each character's body ids
+    one contiguous range)."""
+    pos, _ = cb.character.rest_pose()
     for f in cb.feet:
         ET.SubElement(worldbody, "body", name=cb.pin_name(int(f)), mocap="true", pos=fmt(pos[f] + cb.spawn))
-
-
-def add_pins(equality: ET.Element, cb: CharacterBody) -> None:
-    """Virtual ball joints (inactive) fixing each foot point to its mocap pin (Shum & Ho 6.1)."""
     for f in cb.feet:
         f = int(f)
         body = cb.body_name(int(cb.body_joints[cb.joint_body[f]]))

@@ -185,6 +185,9 @@ class PhysicsWorld:
         self._has_override = False   # any positional constraint set (reach)
         self._dodging = False        # dodge targets set this frame
         self._b_axis_col = self.b_axis[:, :, None]
+        # the character bodies' rows of mjData: a slice when contiguous (a view, not a gather)
+        b = self.b_body
+        self._b_rows = slice(int(b[0]), int(b[-1]) + 1) if (np.diff(b) == 1).all() else b
         self._has_rot_col = self.has_rot[:, None]   # a view: follows has_rot
         self._bad_warnings = np.array([mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQVEL,
                                        mujoco.mjtWarning.mjWARN_BADQPOS], dtype=np.int64)
@@ -295,26 +298,31 @@ class PhysicsWorld:
         dt = None if prev_t is None else time_s - prev_t
         ok_p = np.isfinite(p).all(1)
         ok_q = np.isfinite(q).all(1)
+        all_p, all_q = bool(ok_p.all()), bool(ok_q.all())
         if dt is not None and 1e-4 < dt < 0.5:
-            prev = self.p_t[sl]
-            v = (p - prev) / dt
-            v = np.where((ok_p & np.isfinite(prev).all(1))[:, None], v, 0.0)
-            self.v_t[sl] = clip_norm(v, self.params.max_target_speed)
+            v = (p - self.p_t[sl]) / dt
+            if not math.isfinite(v.sum()):        # a joint or its previous target missing: no velocity
+                v[~np.isfinite(v).all(1)] = 0.0
+            self.v_t[sl] = _clip_rows(v, self.params.max_target_speed)
             # angular velocity of each target orientation: 2 vec(q q_prev^-1) / dt, small-angle
             # form (exact to 0.1 % below 6 degrees a frame; faster turns are clipped anyway)
-            prevq = self.q_t[bs]
-            e = _qmul_conj(q, prevq)
-            w = 2.0 * np.where(e[:, :1] < 0, -e[:, 1:], e[:, 1:]) / dt
-            w = np.where((ok_q & self.has_rot[bs])[:, None], w, 0.0)
-            self.w_t[bs] = clip_norm(w, 20.0)
+            e = _qmul_conj(q, self.q_t[bs])
+            w = e[:, 1:] * np.copysign(2.0 / dt, e[:, :1])
+            if not (all_q and self.has_rot[bs].all()):
+                w = np.where((ok_q & self.has_rot[bs])[:, None], w, 0.0)
+            self.w_t[bs] = _clip_rows(w, 20.0)
         else:
             self.v_t[sl] = 0.0
             self.w_t[bs] = 0.0
         # the floor is a constraint too: no target below a capsule's radius (a target foot under
         # the floor would press the body into it with the full bounded force)
-        p = np.where(ok_p[:, None], p, np.nan)
+        if not all_p:
+            p = np.where(ok_p[:, None], p, np.nan)
         self.p_t[sl] = lift_above_floor(p, cb.character.parents, self.pt_min_z[sl])
-        self.q_t[bs] = np.where(ok_q[:, None], q, self.q_t[bs])
+        if all_q:
+            self.q_t[bs] = q
+        else:
+            self.q_t[bs] = np.where(ok_q[:, None], q, self.q_t[bs])
         self.has_rot[bs] = ok_q
         self.time_of_target[k] = time_s
 
@@ -541,7 +549,7 @@ class PhysicsWorld:
             if i == 0:
                 # Eq 2 once per frame, held over its substeps: gains per unit inertia keep
                 # Kd_rot * frame span well inside the stable range, and it halves the work
-                b = self.b_body
+                b = self._b_rows
                 axis = (d.xmat[b].reshape(-1, 3, 3) @ self._b_axis_col)[:, :, 0]
                 tq = twist_torques(g, d.xquat[b], d.cvel[b, :3], axis, self.q_t, self.w_t,
                                    self.scale_body) * self._has_rot_col
@@ -549,7 +557,7 @@ class PhysicsWorld:
                 # what each body gets besides the joint forces, the same every substep (gravity
                 # compensation is MuJoCo's gravcomp)
                 W[npt:] = 0.0
-                W[npt + b, 3:] = tq
+                W[npt + self.b_body, 3:] = tq
             arm = p - d.xipos[pt]
             W[:npt, :3] = f
             W[:npt, 3:] = cross(arm, f)
@@ -604,6 +612,14 @@ class PhysicsWorld:
         return shapes, self.model.geom_size[self.geom_ids].copy()
 
 
+def _clip_rows(v: np.ndarray, limit: float) -> np.ndarray:
+    """``clip_norm`` of finite rows [N, 3], skipping the work when none is over ``limit``."""
+    n2 = (v * v).sum(1)
+    if n2.max(initial=0.0) <= limit * limit:
+        return v
+    return v * np.minimum(1.0, limit / np.sqrt(np.maximum(n2, 1e-24)))[:, None]
+
+
 def lift_above_floor(p: np.ndarray, parents: np.ndarray, min_z: np.ndarray) -> np.ndarray:
     """Targets [J, 3] with every joint at least ``min_z`` [J] high: a joint below it swings up
     about its parent's target (bone length kept, heading kept), or is raised if that cannot reach."""
@@ -629,7 +645,8 @@ def build_xml(bodies: list[CharacterBody], stage: Stage, params: TrackerParams) 
     root, worldbody, equality = world_root(params.timestep, floor_friction=stage.floor_friction)
     for cb in bodies:
         add_character(worldbody, cb, len(bodies), params.joint_damping, gravcomp=params.gravity_compensation)
-        add_pins(equality, cb)
+    for cb in bodies:
+        add_pins(worldbody, equality, cb)
     add_stage(worldbody, stage)
     for o in stage.objects:
         if o.held_by is None or o.held_by[0] >= len(bodies):
