@@ -60,7 +60,7 @@ class PhysicsTrackerNode(Node):
     max_force = Param(400.0, "bound on each joint's Eq 1 force, N", minimum=0.0)
     foot_max_force = Param(40.0, "bound on the Eq 1 force at the ankles and feet, N (a light foot driven "
                            "harder strikes into the floor)", minimum=0.0)
-    trunk_max_force = Param(40.0, "bound on the Eq 1 force at the root, trunk joints and head, N (how hard "
+    trunk_max_force = Param(60.0, "bound on the Eq 1 force at the root, trunk joints and head, N (how hard "
                             "the body is held to its target: a push displaces it)", minimum=0.0)
     max_torque = Param(60.0, "bound on each body's Eq 2 torque, N·m", minimum=0.0)
     gravity_compensation = Param(0.5, "fraction of each body's weight held at its centre of mass", minimum=0.0,

@@ -57,7 +57,7 @@ class TrackerParams:
     max_target_speed: float = 6.0      # m/s: faster target velocities (jumps, glitches) are clipped
     gravity_compensation: float = 0.5  # fraction of each body's weight held up at its centre of mass
     foot_max_force: float = 40.0       # N, Eq 1 bound at the ankles and feet (<= gains.max_force)
-    trunk_max_force: float = 40.0      # N, Eq 1 bound at the trunk's joints and the head (<= gains.max_force)
+    trunk_max_force: float = 60.0      # N, Eq 1 bound at the trunk's joints and the head (<= gains.max_force)
 
 
 @dataclass
