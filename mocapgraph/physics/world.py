@@ -589,9 +589,11 @@ class PhysicsWorld:
         """The state blew up (MuJoCo reset it or it went NaN): put each character on its target."""
         self.resets += 1
         keep = self.data.warning.number.copy()
+        now = float(self.data.time)
         self._badqacc = int(keep[self._bad_warnings].sum())
         mujoco.mj_resetData(self.model, self.data)
         self.data.warning.number[:] = keep
+        self.data.time = now   # the clock goes on (pushes, the dodge and the node's status run on it)
         mujoco.mj_forward(self.model, self.data)
 
     # ----- outputs -----------------------------------------------------------------------------
