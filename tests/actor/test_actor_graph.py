@@ -5,6 +5,8 @@ Sources run faster than real time; calibration and solver go by capture stamps, 
 """
 from __future__ import annotations
 
+import pytest
+
 import json
 
 import numpy as np
@@ -37,6 +39,7 @@ nodes:
 """
 
 
+@pytest.mark.timing
 def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_identically(launch_graph, tmp_path):
     model_file = tmp_path / "actor_model.json"
     log1, log2 = tmp_path / "run1.jsonl", tmp_path / "run2.jsonl"

@@ -2,6 +2,8 @@
 stream's labels and units, every 240 Hz frame for 10 s in order, joint and character streams."""
 from __future__ import annotations
 
+import pytest
+
 import json
 import subprocess
 import sys
@@ -33,6 +35,7 @@ def _result(p: subprocess.Popen, out: Path, timeout: float = 60):
     return d["samples"], d["stamps"], json.loads(str(d["meta"]))
 
 
+@pytest.mark.timing
 def test_markers_at_240_hz_for_10_s_in_order_without_loss(launch_graph, tmp_path):
     prefix = f"t{uuid.uuid4().hex[:6]}"
     g = launch_graph(f"""

@@ -84,6 +84,7 @@ async def _collect(ws, out: list, times: list, ack: bool, stop=lambda: False) ->
                 await ws.send("a")
 
 
+@pytest.mark.timing
 def test_a_browser_that_does_not_ack_gets_no_backlog(launch_graph):
     port = free_port()
     g = launch_graph(_graph(port))
@@ -148,6 +149,7 @@ async def _until(cond) -> None:
         await asyncio.sleep(0.005)
 
 
+@pytest.mark.timing
 def test_commands_are_checked_and_published(launch_graph):
     port = free_port()
     g = launch_graph(_graph(port, rate=60.0))
