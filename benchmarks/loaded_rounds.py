@@ -110,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)  # even when started with SIGINT ignored (in the background)
     busy = start_busy(args.busy)
-    print(f"{args.busy} busy loops on {os.cpu_count()} cores; {args.rounds} rounds of pytest -m timing"
+    print(f"{args.busy} busy loops (pids {' '.join(str(p.pid) for p in busy) or '-'}) on {os.cpu_count()} cores; "
+          f"{args.rounds} rounds of pytest -m timing"
           + (f" {' '.join(extra)}" if extra else "") + f"; logs in {log_dir}", flush=True)
     results = []
     try:

@@ -2,8 +2,6 @@
 stream's labels and units, every 240 Hz frame for 10 s in order, joint and character streams."""
 from __future__ import annotations
 
-import pytest
-
 import json
 import subprocess
 import sys
@@ -12,6 +10,7 @@ import uuid
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from graph_helpers import wait_until
 from eco_support import JOINT_NAMES, STAGE_PERFORMER, pattern_positions

@@ -65,7 +65,6 @@ def test_up_axis_stands_in_for_the_device_files_up_and_refuses_a_second_answer(d
     np.testing.assert_allclose(device_or_default("", "y").points_to_world(p), [[0.1, -0.3, 0.2]])
 
 
-@pytest.mark.timing
 def test_udp_reader_with_up_axis_reads_a_y_up_device_right(run_node, devices) -> None:
     port = free_udp_port()
     n = run_node("udp_reader", {"port": port, "device": devices["plain"], "up_axis": "y",
@@ -82,7 +81,6 @@ def test_udp_reader_with_up_axis_reads_a_y_up_device_right(run_node, devices) ->
     assert "up axis +Y from the reader's up_axis" in n.messages("marker_layout")[0].units_note
 
 
-@pytest.mark.timing
 def test_serial_reader_with_up_axis_reads_a_y_up_device_right(run_node, devices) -> None:
     master, slave, path = open_pty()
     try:
@@ -107,7 +105,6 @@ def test_a_device_file_with_another_up_is_refused_in_one_line(run_node, devices)
     assert f"{devices['zup']}:5: to_world.up" in detail and "up_axis" in detail and "\n" not in detail
 
 
-@pytest.mark.timing
 def test_lsl_reader_with_up_axis_reads_the_simulated_y_up_outlet(run_node, devices) -> None:
     name = f"mg_up_{os.getpid()}_{int(time.time() * 1000) % 10**6}"
     sim = subprocess.Popen([sys.executable, "-m", "mocapgraph", "device", "simulate", "lsl", "--name", name,
