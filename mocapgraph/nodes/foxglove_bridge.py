@@ -70,9 +70,16 @@ class FoxgloveBridge(Node):
     def input_handler(self, port_name: str) -> Callable[[Message], Any]:
         port = self._ports[port_name]
         feed = self.builder.feed
+        latched = bool(port.decl.latched)
 
         def handle(msg: Message) -> None:
             server = self.server
+            # Unwatched frames are not even encoded; definitions (latched) are always kept.
+            if not latched:
+                fox = f"/{port.topic}/{msg.node}" if isinstance(msg, Diagnostics) else f"/{port.topic}"
+                cid = self.channels.get(fox)
+                if cid is not None and not server.subscribed(cid):
+                    return
             for m in feed(port.envelope, msg, port.topic):
                 cid = self.channels.get(m.topic) or self._channel(m)
                 if server.subscribed(cid):
