@@ -13,6 +13,8 @@ real time on one core):
 * MuJoCo alone: mj_step of the one-character world, per step and per frame (2 substeps);
 * a launched graph synthetic_character (120 Hz) -> physics_tracker -> this process: the tracker's
   added latency (its publish stamp minus the input's publish stamp), median and p99.
+Every figure is CPU time with the wall time and load average beside it; the one-character run also
+prints its accuracy (MPJPE from the target, fall, largest force and torque against their bounds).
 Run: .venv/bin/python benchmarks/physics.py [--graph-seconds 10] [--no-graph]
 """
 from __future__ import annotations
@@ -44,8 +46,11 @@ def one_character(clip, db, frames: int) -> dict[str, float]:
     cond = TargetConditioner(ch, db)
     w.set_pose(0, clip.local_rotations[0], clip.root[0])
     hand = ch.index("HandRight")
-    t_cond = t_sim = 0.0
+    t_cond = t_set = t_sim = 0.0
     search = 0.0
+    err = np.empty(frames)
+    low = np.inf
+    wall0 = time.perf_counter()
     for i in range(frames):
         p = clip.positions[i].copy()
         r = clip.local_rotations[i].copy()
@@ -55,10 +60,16 @@ def one_character(clip, db, frames: int) -> dict[str, float]:
         c = cond.condition(p, r, clip.root[i])
         t1 = time.process_time()
         w.set_target(0, c.positions, c.orientations, clip.times[i])
-        w.step(1.0 / RATE)
         t2 = time.process_time()
+        w.step(1.0 / RATE)
+        t3 = time.process_time()
         t_cond += t1 - t0
-        t_sim += t2 - t1
+        t_set += t2 - t1
+        t_sim += t3 - t1
+        sim = w.joint_positions(0)
+        err[i] = np.linalg.norm(sim - clip.positions[i], axis=1).mean()
+        low = min(low, sim[ch.root, 2])
+    wall = time.perf_counter() - wall0
     # the search alone, on the same queries
     from mocapgraph.physics.posture_db import normalise
     q = normalise(db.frame, np.where(np.arange(ch.n_joints)[None, :, None] == hand, np.nan, clip.positions[:frames]))[0]
@@ -67,7 +78,10 @@ def one_character(clip, db, frames: int) -> dict[str, float]:
     for i in range(frames):
         db.nearest(red[i:i + 1])
     search = time.process_time() - t0
-    return dict(cond=1e3 * t_cond / frames, sim=1e3 * t_sim / frames, search=1e3 * search / frames)
+    return dict(cond=1e3 * t_cond / frames, sim=1e3 * t_sim / frames, search=1e3 * search / frames,
+                set=1e3 * t_set / frames, wall=1e3 * wall / frames, mpjpe=1e3 * err.mean(),
+                fall=low < 0.5 * w.bodies[0].standing_height, fmax=w.max_applied_force, bound=w.params.gains.max_force,
+                tmax=w.max_applied_torque, tbound=w.params.gains.max_torque, resets=w.resets)
 
 
 def many(clip, n: int, frames: int) -> float:
@@ -76,12 +90,12 @@ def many(clip, n: int, frames: int) -> float:
     w = PhysicsWorld([ch] * n, spawns=offs)
     for k in range(n):
         w.set_pose(k, clip.local_rotations[0], clip.root[0] + offs[k])
-    t0 = time.process_time()
+    t0, wall0 = time.process_time(), time.perf_counter()
     for i in range(frames):
         for k in range(n):
             w.set_target(k, clip.positions[i] + offs[k], clip.orientations[i], clip.times[i])
         w.step(1.0 / RATE)
-    return 1e3 * (time.process_time() - t0) / frames
+    return 1e3 * (time.process_time() - t0) / frames, 1e3 * (time.perf_counter() - wall0) / frames
 
 
 def numpy_op_us() -> float:
@@ -190,19 +204,24 @@ def main() -> None:
     print(f"one character, 120 Hz, database of {len(db)} postures ({db.search}), a hand filled every frame:")
     print(f"  {total:.3f} ms per frame (Shum & Ho 0.65 ms: x{0.65 / total:.2f}; target 0.3 ms): "
           f"conditioning incl. search {r['cond']:.3f} ms (search alone {r['search']:.3f} ms; S&H 0.10), "
-          f"simulation {r['sim']:.3f} ms (S&H 0.55)")
+          f"simulation {r['sim']:.3f} ms (S&H 0.55; of it set_target {r['set']:.3f} ms, step {r['sim'] - r['set']:.3f} ms); "
+          f"wall {r['wall']:.3f} ms per frame (load {os.getloadavg()[0]:.2f})")
+    print(f"  accuracy of that run: MPJPE from the target {r['mpjpe']:.1f} mm (a hand filled from the database), "
+          f"{'FELL' if r['fall'] else 'no fall'}, largest force {r['fmax']:.1f} N of {r['bound']:.0f}, torque "
+          f"{r['tmax']:.2f} N·m of {r['tbound']:.0f}, resets {r['resets']}")
     # the load-independent figure: CPU time in units of the in-run small-op cost (a run on an idle
     # core and one at load 15 give about the same count; compare runs by this, not by ms)
     print(f"  = {1e3 * total / op:.0f} small-op equivalents per frame (conditioning {1e3 * r['cond'] / op:.0f}, "
           f"simulation {1e3 * r['sim'] / op:.0f}); at the idle-core 0.5 us per op that is {total * 0.5 / op:.3f} ms")
     fit = 0
     for n in (1, 2, 4, 8, 12):
-        ms = many(clip, n, min(opts.frames, 240))
+        ms, wall = many(clip, n, min(opts.frames, 240))
         ok = ms <= FRAME_MS
         fit = n if ok else fit
         print(f"  {n:2d} characters in one world: {ms:6.2f} ms per frame, {ms / n:.3f} ms per character "
               f"({'real time' if ok else 'slower than real time'} at 120 Hz; "
-              f"{1e3 * ms / n / op:.0f} small-op equivalents per character)")
+              f"{1e3 * ms / n / op:.0f} small-op equivalents per character; wall {wall:.2f} ms, load "
+              f"{os.getloadavg()[0]:.2f})")
     print(f"characters in real time at 120 Hz on one core: {fit} of those tried (target >= 8)")
     us = mj_step_us(clip)
     print(f"MuJoCo mj_step, one character: {us:.1f} us per step, {2 * us / 1000:.3f} ms per 120 Hz frame (2 steps)")

@@ -1,7 +1,7 @@
 """Foot planting (Kiip 3.5.6): contact from height and speed, planted targets, two-bone leg IK.
 
 World frame, metres, seconds. A foot is in contact while its ankle is within ``height_m`` of its
-rest height above the floor and moves slower than ``speed_mps`` horizontally. While in contact the
+rest height above the floor (or of the lowest it has been, when it never came down that far) and moves slower than ``speed_mps`` horizontally. While in contact the
 ankle's horizontal position stays where the contact began; at every frame the ankle and toe stay at
 or above their rest heights (the sole on the floor); after a contact ends the planted offset fades
 out over ``release_s``. The hip-knee-ankle chain reaches the target by two-bone IK in the leg's
@@ -9,6 +9,7 @@ current bend plane; the foot keeps its world orientation.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,10 +28,12 @@ class PlantState:
     history_t: list = None       # recent frame times, s (the speed window)
     history_xy: list = None      # recent ankle xy [2, 2] per frame
     last_t: float = float("nan")
+    low: np.ndarray = None       # [2] lowest ankle height above the floor so far, m (NaN: none yet)
 
     @classmethod
     def fresh(cls) -> "PlantState":
-        return cls(np.zeros(2, bool), np.zeros((2, 2)), np.zeros((2, 2)), np.full((2, 2), np.nan), [], [])
+        return cls(np.zeros(2, bool), np.zeros((2, 2)), np.zeros((2, 2)), np.full((2, 2), np.nan), [], [],
+                   low=np.full(2, np.nan))
 
 
 def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np.ndarray,
@@ -72,7 +75,13 @@ def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarra
     ok = np.isfinite(ankle).all(axis=2)                                 # [F, 2]
     xy = np.where(ok[..., None], ankle[..., :2], np.nan)
     speed = _window_speeds(state, np.asarray(times_s, dtype=np.float64), xy, window_s)   # [F, 2]
-    h = ankle[..., 2] - (floor_z + rest_height)
+    # height above the lowest the ankle has been (never below its rest height): a character whose
+    # retargeted feet never come down to their rest height (a source's rest unlike its stance) still
+    # plants them where they stand
+    h_rest = ankle[..., 2] - (floor_z + rest_height)
+    low = np.fmin.accumulate(np.concatenate([state.low[None], h_rest]), axis=0)[1:]
+    state.low = low[-1].copy() if F else state.low
+    h = h_rest - np.maximum(np.nan_to_num(low, nan=0.0), 0.0)
     enter = ok & (h < height_m) & (speed < speed_mps)
     keep = ok & (h < 1.5 * height_m) & (speed < 2.0 * speed_mps)
     # sequential part (a plant starts where the last contact did not): plain floats, two feet
@@ -171,3 +180,90 @@ def _window_speeds(state: PlantState, t: np.ndarray, xy: np.ndarray, window_s: f
     state.history_t = T[keep].tolist()
     state.history_xy = list(X[keep])
     return speed
+
+
+def plant_one(ankle: list, rest_height: list, t: float, state: PlantState, *, floor_z: float, height_m: float,
+              speed_mps: float, release_s: float, toe_lift: list | None = None,
+              window_s: float = 0.05) -> tuple[list, list]:
+    """:func:`plant_targets` for one frame in plain floats (the live path): ankle [[x, y, z]] * 2 (m,
+    NaN: no data), ``rest_height`` and ``toe_lift`` per foot; returns (targets [[x, y, z]] * 2,
+    contact [bool] * 2). Same state, same rules, same numbers to rounding."""
+    nan = float("nan")
+    ok = [a[0] == a[0] and a[1] == a[1] and a[2] == a[2] and abs(a[0]) + abs(a[1]) + abs(a[2]) < math.inf
+          for a in ankle]
+    xy = [[a[0], a[1]] if o else [nan, nan] for a, o in zip(ankle, ok)]
+    speed = _speed_one(state, float(t), xy, window_s)
+    low = state.low.tolist()
+    enter, keep = [False, False], [False, False]
+    for i in (0, 1):   # the two feet
+        if not ok[i]:
+            continue
+        h_rest = ankle[i][2] - (floor_z + rest_height[i])
+        low[i] = h_rest if not low[i] <= h_rest else low[i]      # fmin: a NaN low is none yet
+        h = h_rest - max(low[i], 0.0)
+        enter[i] = h < height_m and speed[i] < speed_mps
+        keep[i] = h < 1.5 * height_m and speed[i] < 2.0 * speed_mps
+    state.low = np.array(low)
+    t_prev = state.last_t
+    planted = [bool(state.planted[0]), bool(state.planted[1])]
+    anchor, offset = state.anchor.tolist(), state.offset.tolist()
+    dt = t - t_prev if t_prev == t_prev else nan
+    decay = max(0.0, 1.0 - dt / release_s) if release_s > 0 and dt == dt else 0.0
+    contact = [False, False]
+    target = [list(a) for a in ankle]
+    for i in (0, 1):
+        if not ok[i]:
+            planted[i] = False
+            continue
+        c = enter[i] or (planted[i] and keep[i])
+        x, y = xy[i]
+        if c:
+            if not planted[i]:
+                anchor[i] = [x + (offset[i][0] if dt == dt else 0.0), y + (offset[i][1] if dt == dt else 0.0)]
+            offset[i] = [anchor[i][0] - x, anchor[i][1] - y]
+            target[i][0], target[i][1] = anchor[i]
+        else:
+            offset[i] = [offset[i][0] * decay, offset[i][1] * decay]
+            target[i][0], target[i][1] = x + offset[i][0], y + offset[i][1]
+        contact[i] = planted[i] = c
+        z = max(ankle[i][2], floor_z + rest_height[i])
+        if toe_lift is not None:
+            lift = toe_lift[i] if toe_lift[i] == toe_lift[i] else 0.0
+            z = max(z, ankle[i][2] + max(lift, 0.0))
+        target[i][2] = z
+    state.planted = np.array(planted)
+    state.anchor = np.array(anchor, dtype=np.float64).reshape(2, 2)
+    state.offset = np.array(offset, dtype=np.float64).reshape(2, 2)
+    state.last_t = float(t)
+    return target, contact
+
+
+def _speed_one(state: PlantState, t: float, xy: list, window_s: float) -> list:
+    """:func:`_window_speeds` for one frame in plain floats: least-squares speed per foot over the
+    short window (a dozen samples at 240 Hz), the history kept as nested lists."""
+    T = [float(x) for x in state.history_t] + [t]
+    X = [x.tolist() if isinstance(x, np.ndarray) else x for x in state.history_xy] + [xy]
+    lo = t - window_s - 1e-12
+    N = len(T)
+    first = next((k for k in range(N) if T[k] >= lo), N)     # times ascend: the window is a tail
+    first = min(first, max(N - 2, 0))
+    T, X = T[first:], X[first:]
+    state.history_t, state.history_xy = T, X
+    out = [0.0, 0.0]
+    if len(T) < 2:
+        return out
+    tc = [x - t for x in T]
+    for i in (0, 1):
+        s = [(tk, p[i][0], p[i][1]) for tk, p in zip(tc, X) if p[i][0] == p[i][0] and p[i][1] == p[i][1]]
+        n = len(s)
+        if n < 2:
+            continue
+        tm = sum(a for a, _, _ in s) / n
+        xm = sum(b for _, b, _ in s) / n
+        ym = sum(c for _, _, c in s) / n
+        den = sum((a - tm) ** 2 for a, _, _ in s)
+        if den > 1e-18:
+            vx = sum((a - tm) * (b - xm) for a, b, _ in s) / den
+            vy = sum((a - tm) * (c - ym) for a, _, c in s) / den
+            out[i] = math.sqrt(vx * vx + vy * vy)
+    return out

@@ -25,6 +25,7 @@ from .character import Character
 from .foot_planting import PlantState, plant_targets, two_bone_ik
 from .quaternion import (matrix_between, matrix_to_quat, norm, quat_conjugate, quat_multiply, quat_power,
                          quat_rotate, quat_to_matrix, swing_twist, twist_angle)
+from .retarget_live import LiveKernel
 from .retarget_mapping import Mapping, MappingError, check_mapping
 from .retarget_source import SourceSkeleton, plan_point_rotations, rotations_from_points
 
@@ -104,7 +105,8 @@ class Retargeter:
     """Compiled mapping of one source onto one character; :meth:`process` runs it on frames."""
 
     def __init__(self, character: Character, mapping: Mapping, source: SourceSkeleton,
-                 options: RetargetOptions | None = None) -> None:
+                 options: RetargetOptions | None = None, *, live: bool = True) -> None:
+        """``live=False`` leaves out the one-frame path (every call takes the batched one)."""
         check_mapping(mapping, character, source)
         self.character, self.mapping, self.source = character, mapping, source
         self.options = options or RetargetOptions()
@@ -263,6 +265,8 @@ class Retargeter:
             self.ratio = float(opt.scale)
         elif m.scale is not None:
             self.ratio = float(m.scale)
+        if s_floor != 0.0:
+            self._standing_heights(cpos, c_floor, s_floor)
         # --- positions: ancestor matrix (P = root + Anc @ bone vectors)
         anc = np.zeros((J, J))
         for j in range(J):
@@ -302,6 +306,9 @@ class Retargeter:
         # --- positions-only sources
         self._plan = plan_point_rotations(src) if src.derived_rotations else None
         self.reset()
+        self._live = None
+        # the one-frame path's folded gathers multiply every (held, so finite) point by its weights
+        self._live = LiveKernel(self) if live and np.isfinite(src.rest_points).all() else None
 
     # ----------------------------------------------------------------------------------------------
     def _nearest(self, driven: np.ndarray) -> np.ndarray:
@@ -330,6 +337,26 @@ class Retargeter:
             return float(np.mean(ratios))
         return float(self._h_c / self._h_s) if self._h_s > 1e-6 else 1.0
 
+    def _standing_heights(self, cpos: np.ndarray, c_floor: float, s_floor: float) -> None:
+        """The source root's height above the floor when standing, for a source whose rest pose hangs
+        from the origin (a BVH): its lowest rest joint is no floor when the rest is no standing pose
+        (CMU: the feet level, the ankles 2.5 cm above the toe joints, where a standing foot has them
+        9 cm above the floor, which left the character's feet 15 cm up and never in contact). The
+        source's ankles are taken to stand at least as high as the character's scaled by the leg
+        ratio (its feet no flatter than the character's); the rest's vertical root-to-ankle extent
+        stays. Unchanged when a leg is not mapped to source points, and for a source onto itself."""
+        m, src = self.mapping, self.source
+        lift = []
+        for names in m.legs.values():
+            e = self._by.get(names[2])
+            if e is None or e.position is None:
+                return
+            c_ankle = cpos[self.character.index(names[2]), 2] - c_floor
+            s_ankle = src.rest_points[src.point(e.position), 2] - s_floor
+            lift.append(max(0.0, c_ankle / max(self.ratio, 1e-9) - s_ankle))
+        if lift:
+            self._h_s += float(np.mean(lift))
+
     def reset(self) -> None:
         """Forget held source values and plants (the next frame starts afresh)."""
         src = self.source
@@ -357,7 +384,7 @@ class Retargeter:
             else:
                 new.append(e)
         m = replace(self.mapping, joints=tuple(new))
-        self.__init__(self.character, m, self.source, self.options)
+        self.__init__(self.character, m, self.source, self.options, live=self._live is not None)
         return m
 
     # ----------------------------------------------------------------------------------------------
@@ -365,10 +392,14 @@ class Retargeter:
                 rotations: np.ndarray | None = None, rotation_ok: np.ndarray | None = None,
                 times_s: np.ndarray | None = None) -> RetargetResult:
         """Retarget frames: points [F, P, 3] (m, NaN missing), rotations [F, R, 4] (wxyz, NaN missing;
-        None for a positions-only source), ``times_s`` [F] for foot-planting speeds."""
+        None for a positions-only source), ``times_s`` [F] (s; one frame: a float will do) for foot-planting speeds."""
         st = self._state
         pts = np.asarray(points, dtype=np.float64)
         F = pts.shape[0]
+        if F == 1 and self._live is not None:   # the live case: same math, constants folded (retarget_live)
+            return self._live.run(pts[0], None if point_ok is None else np.asarray(point_ok, bool)[0],
+                                  None if rotations is None else np.asarray(rotations, dtype=np.float64)[0],
+                                  None if rotation_ok is None else np.asarray(rotation_ok, bool)[0], times_s)
         pok = np.isfinite(pts).all(-1) if point_ok is None else (np.asarray(point_ok, bool) & np.isfinite(pts).all(-1))
         if rotations is None:
             if self._plan is None:
@@ -400,11 +431,6 @@ class Retargeter:
             turn = matrix_between(have, np.where(ok[..., None], want, have))
             d_rot[:, self._follow_m] = turn @ sub
         delta[:, self._rot_joint] = d_rot
-        jq = np.full((F, J), QUALITY_GOOD, np.int8)
-        jq[:, self._rot_joint] = rq[:, self._rot_src]
-        if len(self._follow_m):   # a bone aimed at held points is estimated too
-            fj = self._rot_joint[self._follow_m]
-            jq[:, fj] = np.minimum(jq[:, fj], np.minimum(pq[:, self._follow_a], pq[:, self._follow_b]))
         # 2. spread chains
         for c in self._chains:
             qse = matrix_to_quat(delta[:, c["ends"]])            # start and end in one call
@@ -420,10 +446,6 @@ class Retargeter:
                     vec = np.einsum("fkij,kj->fi", delta[:, path], kids_off)
                     corr = matrix_between(vec, target)
                     delta[:, c["joints"]] = corr[:, None] @ delta[:, c["joints"]]
-            jq[:, c["joints"]] = np.minimum(jq[:, [c["start"]]], jq[:, [c["end"]]])
-            if c["end_src"] >= 0 and c["pivot_src"] >= 0:
-                jq[:, c["joints"]] = np.minimum(jq[:, c["joints"]],
-                                                np.minimum(pq[:, [c["end_src"]]], pq[:, [c["pivot_src"]]]))
         # 3. inherit, 4. aims
         if self._aims:
             delta_all = delta[:, self._src_pre]
@@ -432,29 +454,45 @@ class Retargeter:
                 carried = (dp @ b[:, None])[..., 0]
                 want = (A @ (pts[:, to] - pts[:, frm])[..., None])[..., 0]
                 delta[:, j] = matrix_between(carried, want) @ dp
-                jq[:, j] = np.minimum(pq[:, to], pq[:, frm])
         delta_all = delta[:, np.maximum(self._src_post, 0)]
         if self._undriven.size:
             delta_all[:, self._undriven] = _EYE3
-        jq = jq[:, np.maximum(self._src_post, 0)]
         world = delta_all @ self._rest_world                     # [F, J, 3, 3]
         # 5. roll joints
         for r, o, f, upper in self._rolls:
             world = self._apply_roll(world, r, o, f, upper)
         # 6. root and positions
         root = self._root_position(pts[:, self._root_src])
-        jq[:, self._root] = np.minimum(jq[:, self._root], pq[:, self._root_src])
         pos = self._positions(world, root)
         contact = np.zeros((F, 2), bool)
         if self._legs is not None:
-            t = np.arange(F, dtype=float) if times_s is None else np.asarray(times_s, float)
+            t = np.arange(F, dtype=float) if times_s is None else np.asarray(times_s, float).reshape(-1)
             world, pos, contact = self._plant(world, pos, root, t)
         # 7. local rotations: rest⁻¹ · W[parent]⁻¹ · W
         parent_w = world[:, self._par]
         parent_w[:, self._root] = _EYE3
         local = self._rest_local_inv @ np.swapaxes(parent_w, -1, -2) @ world
-        jq = np.where(self._anc_full[None], jq[:, None, :], 9).min(-1).astype(np.int8)
-        return RetargetResult(matrix_to_quat(local), root, pos, jq, contact)
+        return RetargetResult(matrix_to_quat(local), root, pos, self._quality(rq, pq), contact)
+
+    def _quality(self, rq: np.ndarray, pq: np.ndarray) -> np.ndarray:
+        """Joint quality [F, J] from the source rotations' and points' [F, R], [F, P]: a joint is as good
+        as the worst of what drives it and of every joint above it."""
+        F, J = rq.shape[0], self.character.n_joints
+        jq = np.full((F, J), QUALITY_GOOD, np.int8)
+        jq[:, self._rot_joint] = rq[:, self._rot_src]
+        if len(self._follow_m):   # a bone aimed at held points is estimated too
+            fj = self._rot_joint[self._follow_m]
+            jq[:, fj] = np.minimum(jq[:, fj], np.minimum(pq[:, self._follow_a], pq[:, self._follow_b]))
+        for c in self._chains:
+            jq[:, c["joints"]] = np.minimum(jq[:, [c["start"]]], jq[:, [c["end"]]])
+            if c["end_src"] >= 0 and c["pivot_src"] >= 0:
+                jq[:, c["joints"]] = np.minimum(jq[:, c["joints"]],
+                                                np.minimum(pq[:, [c["end_src"]]], pq[:, [c["pivot_src"]]]))
+        for j, _b, frm, to, _A in self._aims:
+            jq[:, j] = np.minimum(pq[:, to], pq[:, frm])
+        jq = jq[:, np.maximum(self._src_post, 0)]
+        jq[:, self._root] = np.minimum(jq[:, self._root], pq[:, self._root_src])
+        return np.where(self._anc_full[None], jq[:, None, :], 9).min(-1).astype(np.int8)
 
     # ----------------------------------------------------------------------------------------------
     def _path_offsets(self, c) -> np.ndarray:
@@ -511,6 +549,10 @@ class Retargeter:
         hip, knee = pos[:, L["hip"]], pos[:, L["knee"]]
         pole = (world[:, L["hip"]] @ np.array([1.0, 0.0, 0.0]))  # the thigh's forward axis
         s1, s2, _ = two_bone_ik(hip, knee, ankle, target, L["l1"][None], L["l2"][None], pole)
+        # a foot already where it should be keeps its leg (IK would bend a straight one by its reach margin),
+        # so a frame's result does not depend on the other frames of its batch
+        need = (np.abs(target - ankle).max(-1) >= 1e-12)[..., None, None]
+        s1, s2 = np.where(need, s1, _EYE3), np.where(need, s2, _EYE3)
         for i in range(2):
             above_knee = L["sub"][i].copy()
             thigh = above_knee & ~L["below_knee"][i]

@@ -91,6 +91,26 @@ def optical_points(joint_positions: np.ndarray, joint_names) -> np.ndarray:
     return np.concatenate([p, pelvis], axis=-2)
 
 
+class OpticalFrames:
+    """:func:`optical_points` and the point masks for one live frame, the hip indices found once."""
+
+    def __init__(self, joint_names) -> None:
+        self.hips = np.array([i for i, n in enumerate(joint_names) if n.startswith("hip")] or [0], dtype=np.int64)
+        self.J = len(joint_names)
+
+    def frame(self, joint_positions: np.ndarray, joint_quality: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points [1, J+1, 3] (m; the pelvis point last) and their masks [1, J+1] (quality >= 1)."""
+        J = self.J
+        pts = np.empty((1, J + 1, 3))
+        pts[0, :J] = joint_positions
+        np.add.reduce(pts[0, self.hips], axis=0, out=pts[0, J])
+        pts[0, J] /= len(self.hips)
+        ok = np.empty((1, J + 1), bool)
+        np.greater_equal(joint_quality, 1, out=ok[0, :J])
+        ok[0, J] = ok[0, self.hips].all()
+        return pts, ok
+
+
 def _topological(parents: np.ndarray) -> list[int]:
     order, seen = [], set()
     pending = list(range(len(parents)))

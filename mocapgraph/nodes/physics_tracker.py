@@ -58,6 +58,10 @@ class PhysicsTrackerNode(Node):
     kp_rot = Param(400.0, "Eq 2 elasticity gain per unit inertia, 1/s^2", minimum=0.0)
     kd_rot = Param(40.0, "Eq 2 damping gain per unit inertia, 1/s", minimum=0.0)
     max_force = Param(400.0, "bound on each joint's Eq 1 force, N", minimum=0.0)
+    foot_max_force = Param(40.0, "bound on the Eq 1 force at the ankles and feet, N (a light foot driven "
+                           "harder strikes into the floor)", minimum=0.0)
+    trunk_max_force = Param(60.0, "bound on the Eq 1 force at the root, trunk joints and head, N (how hard "
+                            "the body is held to its target: a push displaces it)", minimum=0.0)
     max_torque = Param(60.0, "bound on each body's Eq 2 torque, N·m", minimum=0.0)
     gravity_compensation = Param(0.5, "fraction of each body's weight held at its centre of mass", minimum=0.0,
                                  maximum=1.0)
@@ -94,7 +98,9 @@ class PhysicsTrackerNode(Node):
         gains = Gains(self.kp, self.kd, self.kp_rot, self.kd_rot, self.max_force, self.max_torque)
         self.tracker_params = TrackerParams(timestep=self.timestep, gains=gains, body_mass=self.body_mass,
                                             virtual_joints=self.virtual_joints, dodge=self.dodge,
-                                            gravity_compensation=self.gravity_compensation)
+                                            gravity_compensation=self.gravity_compensation,
+                                            foot_max_force=self.foot_max_force,
+                                            trunk_max_force=self.trunk_max_force)
         try:
             if self.posture_db.startswith("synthetic:"):
                 from ..physics.synthetic_targets import synthetic_postures

@@ -24,6 +24,7 @@ from ..formats.character_file import CharacterFileError
 from ..formats.retarget_setup import build, source_from_model, source_from_skeleton_info
 from ..kinematics.retarget import RetargetOptions
 from ..kinematics.retarget_mapping import MappingError
+from ..kinematics.retarget_source import OpticalFrames
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, NodeCommand, NodeStatus, SkeletonInfo,
                         SkeletonModel, SkeletonPose)
 from ..formats.mapping_file import write_mapping
@@ -87,6 +88,7 @@ class RetargeterNode(Node):
         self._rg_bad_frames = 0
         self._rg_t0: int | None = None
         self._rg_frames = 0
+        self._rg_optical: OpticalFrames | None = None   # per-frame point layout of the latched model
 
     # ----- status -------------------------------------------------------------------------------
     def _status(self, state: str, detail: str, data: dict | None = None, error: bool = False) -> None:
@@ -134,10 +136,10 @@ class RetargeterNode(Node):
         self.rig, self._rg_definition = None, None    # built at the first pose (orientations or not)
 
     # ----- frames -------------------------------------------------------------------------------
-    def _times(self, capture_ns: int) -> np.ndarray:
+    def _times(self, capture_ns: int) -> float:
         if self._rg_t0 is None:
             self._rg_t0 = capture_ns
-        return np.array([(capture_ns - self._rg_t0) * 1e-9])
+        return (capture_ns - self._rg_t0) * 1e-9
 
     def on_skeleton_pose(self, msg: SkeletonPose) -> None:
         info = self.skeleton_info.latest
@@ -168,11 +170,10 @@ class RetargeterNode(Node):
         if msg.joint_positions.shape[0] != J or msg.limb_orientations.shape[0] != L:
             self._wrong(msg.frame_number, msg.joint_positions.shape[0], J)
             return
-        from ..kinematics.retarget_source import optical_points
-        pts = optical_points(msg.joint_positions[None], model.joint_names)
-        pok = np.append(msg.joint_quality >= 1, (msg.joint_quality[[i for i, n in enumerate(model.joint_names)
-                                                                    if n.startswith("hip")]] >= 1).all())
-        res = self.rig.retargeter.process(pts, pok[None], msg.limb_orientations[None], (msg.limb_quality >= 1)[None],
+        if self._rg_optical is None or self._rg_optical.J != J:
+            self._rg_optical = OpticalFrames(model.joint_names)
+        pts, pok = self._rg_optical.frame(msg.joint_positions, msg.joint_quality)
+        res = self.rig.retargeter.process(pts, pok, msg.limb_orientations[None], (msg.limb_quality >= 1)[None],
                                             self._times(self.actor_pose.envelope.capture_ns))
         self._publish(res, msg.frame_number, self.actor_pose.envelope.capture_ns)
 

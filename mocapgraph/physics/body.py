@@ -62,6 +62,9 @@ class CharacterBody:
         names = self.character.joint_names
         return f"{self.prefix}{names[p]}-{names[child]}"
 
+    def site_name(self, joint: int) -> str:
+        return f"{self.prefix}at/{self.character.joint_names[joint]}"
+
     def pin_name(self, joint: int) -> str:
         return f"{self.prefix}pin/{self.character.joint_names[joint]}"
 
@@ -151,8 +154,11 @@ def body_inertia(cb: CharacterBody) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def add_character(worldbody: ET.Element, cb: CharacterBody, n_characters: int,
-                  joint_damping: float = 1.0, friction: float = 1.0) -> None:
-    """Append ``cb``'s bodies (and the mocap bodies of its foot pins) to ``worldbody``."""
+                  joint_damping: float = 1.0, friction: float = 1.0, gravcomp: float = 0.0) -> None:
+    """Append ``cb``'s bodies to ``worldbody`` (its pins' mocap bodies: :func:`add_pins`).
+
+    Every character joint gets a site at its point (``site_name``), where Eq 1 acts; ``gravcomp``
+    is the fraction of each body's weight MuJoCo holds up at its centre of mass."""
     ch = cb.character
     mass, com, inertia = body_inertia(cb)
     slot = {int(j): b for b, j in enumerate(cb.body_joints)}
@@ -165,6 +171,8 @@ def add_character(worldbody: ET.Element, cb: CharacterBody, n_characters: int,
         parent = worldbody if p < 0 else elems[p]
         pos = ch.rest_offsets[j] + (cb.spawn if p < 0 else 0.0)
         el = ET.SubElement(parent, "body", name=cb.body_name(j), pos=fmt(pos), quat=fmt(ch.rest_rotations[j]))
+        if gravcomp:
+            el.set("gravcomp", fmt(gravcomp))
         if p < 0:
             ET.SubElement(el, "freejoint", name=f"{cb.prefix}root")
         else:
@@ -181,13 +189,18 @@ def add_character(worldbody: ET.Element, cb: CharacterBody, n_characters: int,
                       fromto=fmt(np.r_[np.zeros(3), ch.rest_offsets[c]]), size=fmt(cb.bone_radius[g]),
                       contype=str(own), conaffinity=str(WORLD_BIT | others), friction=fmt([friction, 0.005, 0.0001]),
                       rgba="0.3 0.75 0.75 1", mass="0", solref=CONTACT_SOLREF, solimp="0.99 0.999 0.001", solmix="1000")
-    pos, _ = ch.rest_pose()
+    for j in range(ch.n_joints):
+        ET.SubElement(elems[int(cb.body_joints[cb.joint_body[j]])], "site", name=cb.site_name(j),
+                      pos=fmt(cb.joint_point[j]), size="0.01", group="5")
+
+
+def add_pins(worldbody: ET.Element, equality: ET.Element, cb: CharacterBody) -> None:
+    """Virtual ball joints (inactive) fixing each foot point to its mocap pin (Shum & Ho 6.1), and
+    the pins' mocap bodies (added after every character's bodies keep each character's body ids
+    one contiguous range)."""
+    pos, _ = cb.character.rest_pose()
     for f in cb.feet:
         ET.SubElement(worldbody, "body", name=cb.pin_name(int(f)), mocap="true", pos=fmt(pos[f] + cb.spawn))
-
-
-def add_pins(equality: ET.Element, cb: CharacterBody) -> None:
-    """Virtual ball joints (inactive) fixing each foot point to its mocap pin (Shum & Ho 6.1)."""
     for f in cb.feet:
         f = int(f)
         body = cb.body_name(int(cb.body_joints[cb.joint_body[f]]))

@@ -14,7 +14,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
+
+from .quat_lean import qmul_conj
 
 
 @dataclass
@@ -76,13 +80,10 @@ def joint_forces(g: Gains, p: np.ndarray, v: np.ndarray, p_t: np.ndarray, v_t: n
 def twist_angle(q_t: np.ndarray, q: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Twist (rad, in (-pi, pi]) about world ``axis`` [N, 3] of the rotation taking ``q`` to ``q_t``
     (wxyz [N, 4]): the twist part of the swing-twist decomposition of ``q_t q^-1``."""
-    w1, v1 = q_t[:, 0], q_t[:, 1:]
-    w2, v2 = q[:, 0], -q[:, 1:]
-    # e = q_t * conj(q)
-    ew = w1 * w2 - (v1 * v2).sum(1)
-    ev = w1[:, None] * v2 + w2[:, None] * v1 + cross(v1, v2)
-    s = (ev * axis).sum(1)
-    sign = np.where(ew < 0, -1.0, 1.0)  # q and -q are one rotation: take the short way round
+    e = qmul_conj(q_t, q)
+    ew = e[:, 0]
+    s = (e[:, 1:] * axis).sum(1)
+    sign = np.copysign(1.0, ew)  # q and -q are one rotation: take the short way round
     return 2.0 * np.arctan2(s * sign, ew * sign)
 
 
@@ -94,6 +95,7 @@ def twist_torques(g: Gains, q: np.ndarray, w: np.ndarray, axis: np.ndarray, q_t:
     rate = ((w_t - w) * axis).sum(1)
     kp = g.kp_rot if scale is None else g.kp_rot * scale
     kd = g.kd_rot if scale is None else g.kd_rot * scale
-    t = np.clip(kp * theta + kd * rate, -g.max_torque, g.max_torque)
-    t = np.where(np.isfinite(t), t, 0.0)
+    t = np.minimum(np.maximum(kp * theta + kd * rate, -g.max_torque), g.max_torque)
+    if not math.isfinite(t.sum()):
+        t = np.where(np.isfinite(t), t, 0.0)
     return t[:, None] * axis

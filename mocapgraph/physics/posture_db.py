@@ -24,7 +24,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..kinematics.quaternion import quat_multiply
-from .quat_lean import qmul
 
 FORMAT = "mocapgraph.posture_db/1"
 
@@ -80,6 +79,29 @@ class Frame:
         origin[bad] = mid[rows, first][bad]
         ok = np.isfinite(yaw) & np.isfinite(origin).all(1)
         return yaw, origin, ok
+
+
+def _rz_rows(yaw: float) -> np.ndarray:
+    """Row vectors times this turn about +Z by ``yaw`` rad."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def normalise_one(frame: Frame, pos: np.ndarray) -> tuple[np.ndarray | None, float, np.ndarray]:
+    """:func:`normalise` of one posture [J, 3] (the per-frame query): (normalised [J, 3] or None
+    when it has no heading or origin, yaw rad, origin [3] m). The heading pairs are a handful of
+    joints, read as scalars."""
+    for l, r in frame.pairs:  # the first pair whose both joints are there (<= 4 pairs, not joints)
+        a, b = pos[l].tolist(), pos[r].tolist()
+        if all(map(math.isfinite, a + b)):
+            break
+    else:
+        return None, 0.0, np.zeros(3)
+    yaw = math.atan2(-(a[0] - b[0]), a[1] - b[1])   # left along +Y means heading along +X
+    origin = pos[frame.root]
+    if not np.isfinite(origin).all():
+        origin = 0.5 * (np.asarray(a) + np.asarray(b))
+    return (pos - origin) @ _rz_rows(-yaw), yaw, origin
 
 
 def normalise(frame: Frame, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -194,20 +216,20 @@ class PostureDB:
     def match(self, positions: np.ndarray) -> tuple[int, float, np.ndarray, bool]:
         """Nearest posture to one world posture [J, 3] (NaN rows missing):
         (index, heading yaw rad, root origin [3] m, whether the query could be normalised)."""
-        norm, yaw, origin, ok = normalise(self.frame, positions[None])
-        if not ok[0]:
+        norm, yaw, origin = normalise_one(self.frame, positions)
+        if norm is None:
             return -1, 0.0, np.zeros(3), False
-        return int(self.nearest(self.project(norm.reshape(1, -1)))[0]), float(yaw[0]), origin[0], True
+        return int(self.nearest(self.project(norm.reshape(1, -1)))[0]), yaw, origin, True
 
     def posture_world(self, index: int, yaw: float, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Database posture ``index`` put at ``origin`` with heading ``yaw``: positions, local rotations."""
-        c, s = math.cos(yaw), math.sin(yaw)
-        Rz_t = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # rows times this: about +Z by yaw
-        world = self.positions[index] @ Rz_t + origin
+        world = self.positions[index] @ _rz_rows(yaw) + origin
         rot = self.rotations[index].copy()
         r = self.frame.root
-        half = 0.5 * yaw
-        rot[r] = qmul(np.array([[math.cos(half), 0.0, 0.0, math.sin(half)]]), rot[r:r + 1])[0]
+        # (cos h, 0, 0, sin h) * root rotation, h = yaw / 2: the heading put back, in scalars
+        c, s = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+        w, x, y, z = rot[r].tolist()
+        rot[r] = (c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w)
         return world, rot
 
     def complete(self, positions: np.ndarray, rotations: np.ndarray

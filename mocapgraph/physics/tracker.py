@@ -73,9 +73,8 @@ class TargetConditioner:
         pos = np.asarray(positions, float).reshape(ch.n_joints, 3)
         rot = np.asarray(local_rotations, float).reshape(ch.n_joints, 4)
         root = np.asarray(root, float).reshape(3)
-        with np.errstate(invalid="ignore"):
-            n = np.linalg.norm(rot, axis=1)
-        bad_rot = ~np.isfinite(n) | (np.abs(n - 1.0) > 1e-3)
+        n2 = (rot * rot).sum(1)
+        bad_rot = ~((n2 >= 0.999 ** 2) & (n2 <= 1.001 ** 2))   # |q| off 1 by over 1e-3, or not finite
         rot = np.where(bad_rot[:, None], np.nan, rot)
         ok_p = np.isfinite(pos).all(1)
         if not ok_p.any():

@@ -5,7 +5,9 @@ Per input frame: :meth:`PhysicsWorld.set_target` takes each character's target j
 the frame's span in substeps of ``timestep``, each computing Eq 1 forces at every joint and Eq 2
 twist torques on every body from the current state (``mj_step1``), applying them through
 ``xfrc_applied`` as the force at the joint point plus its moment about the body's centre of mass
-(exactly ``mj_applyFT`` at the joint; a test checks), then integrating (``mj_step2``).
+(exactly ``mj_applyFT`` at the joint; a test checks), then integrating (``mj_step2``). Joint
+points are MuJoCo sites (``site_xpos``); gravity compensation is MuJoCo's ``gravcomp``; all
+body wrenches of a substep are one matmul into ``xfrc_applied``.
 
 Virtual joints (section 6.1) are MuJoCo ``connect`` constraints between a foot point and a mocap
 pin: switched on where the foot's target is on the floor and still, placed where the simulated foot
@@ -23,9 +25,11 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from ..kinematics.character import Character
 from ..kinematics.quaternion import matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix
+from .anthropometry import bone_masses
 from .body import CharacterBody, add_character, add_pins, character_body, fmt, to_xml, world_root
 from .controller import Gains, clip_norm, cross, twist_torques
 from .quat_lean import qmul_conj as _qmul_conj
@@ -34,6 +38,7 @@ from .stage import EMPTY_STAGE, PARK_X, Stage, add_stage
 import xml.etree.ElementTree as ET
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
+TRUNK_CLASSES = ("lower_trunk", "middle_trunk", "upper_trunk", "head")   # anthropometry's segment classes
 
 
 @dataclass
@@ -52,6 +57,8 @@ class TrackerParams:
     joint_damping: float = 1.0         # N·m·s/rad in every ball joint
     max_target_speed: float = 6.0      # m/s: faster target velocities (jumps, glitches) are clipped
     gravity_compensation: float = 0.5  # fraction of each body's weight held up at its centre of mass
+    foot_max_force: float = 40.0       # N, Eq 1 bound at the ankles and feet (<= gains.max_force)
+    trunk_max_force: float = 60.0      # N, Eq 1 bound at the trunk's joints and the head (<= gains.max_force)
 
 
 @dataclass
@@ -118,6 +125,8 @@ class PhysicsWorld:
                 self.pin_point.append(a + int(f))
                 self.pin_rest_z.append(rest[f, 2] + cb.spawn[2])
         self.pt_body = np.array(pts_body)
+        self.pt_site = np.array([name(mujoco.mjtObj.mjOBJ_SITE, cb.site_name(j)) for cb in self.bodies
+                                 for j in range(cb.character.n_joints)], dtype=np.int64)
         self.pt_local = np.array(pts_local, dtype=np.float64)
         self.pt_char = np.array(pts_char)
         self.pt_min_z = np.zeros(len(pts_body))
@@ -152,13 +161,46 @@ class PhysicsWorld:
         self.last_forces = np.zeros((n, 3))
         self.last_torques = np.zeros((len(self.b_body), 3))
         self.scale_pt = np.ones(n)
+        g = self.params.gains
+        self._kp = (g.kp * self.scale_pt)[:, None]   # Eq 1 gains per point, N/m and N·s/m
+        self._kd = (g.kd * self.scale_pt)[:, None]
+        # Eq 1 bound per point: the gains' (the limbs' strength) everywhere, the feet's own at the
+        # ankles and feet (a light foot driven with 400 N strikes the floor hard) and the trunk's at
+        # the root, trunk joints and head (what holds the body where its target is, as balance
+        # does: bounded low, so a push displaces the body rather than meeting a wall)
+        self.force_bound = np.full(n, g.max_force)
+        for k, cb in enumerate(self.bodies):
+            a = self.point_slice[k].start
+            ch = cb.character
+            classes = bone_masses(ch, cb.body_mass).classes
+            trunk = [j for j in range(ch.n_joints) if j == ch.root or classes[j] in TRUNK_CLASSES]
+            self.force_bound[a + np.array(trunk, dtype=np.int64)] = min(g.max_force, self.params.trunk_max_force)
+            foot = np.r_[cb.feet, ch.parents[cb.feet]].astype(np.int64)
+            self.force_bound[a + foot] = min(g.max_force, self.params.foot_max_force)
+        self._bound2 = self.force_bound ** 2
         # Eq 2 gains act per unit inertia about the twist axis (1/s^2, 1/s): a foot twisting with
         # the torso's gains in N·m/rad would be unstable at any usable timestep
         Rp = quat_to_matrix(m.body_iquat[self.b_body])
         a_p = (np.swapaxes(Rp, 1, 2) @ self.b_axis[:, :, None])[:, :, 0]
         self.scale_body = (m.body_inertia[self.b_body] * a_p ** 2).sum(1)
-        comp = self.params.gravity_compensation
-        self._comp = m.body_mass[self.b_body] * 9.81 * comp if comp else None
+        self._has_override = False   # any positional constraint set (reach)
+        self._dodging = False        # dodge targets set this frame
+        self._b_axis_col = self.b_axis[:, :, None]
+        # the character bodies' rows of mjData: a slice when contiguous (a view, not a gather)
+        b = self.b_body
+        self._b_rows = slice(int(b[0]), int(b[-1]) + 1) if (np.diff(b) == 1).all() else b
+        self._has_rot_col = self.has_rot[:, None]   # a view: follows has_rot
+        self._bad_warnings = np.array([mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                       mujoco.mjtWarning.mjWARN_BADQPOS], dtype=np.int64)
+        # xfrc_applied rows = A_ext @ [point wrenches; per-body extras]: one matmul per substep
+        nb, npt = m.nbody, len(self.pt_body)
+        self._A = np.zeros((nb, npt + nb))
+        self._A[self.pt_body, np.arange(npt)] = 1.0
+        self._A[np.arange(nb), npt + np.arange(nb)] = 1.0
+        self._wrench = np.zeros((npt + nb, 6))
+        # many characters: A is mostly zeros, and a dense product grows with the square of their
+        # number (12 characters: 0.3 ms a substep); a sparse one stays linear
+        self._A_sparse = csr_matrix(self._A) if self._A.size > 20000 else None
         # published geoms: every character capsule and stage geom (not the floor)
         floor = name(mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self.geom_ids = np.array([g for g in range(m.ngeom) if g != floor])
@@ -189,10 +231,8 @@ class PhysicsWorld:
 
     # ----- geometry of the current state -------------------------------------------------------
     def point_positions(self) -> np.ndarray:
-        """World positions [N, 3] of every character joint (stacked), m."""
-        d = self.data
-        R = d.xmat[self.pt_body].reshape(-1, 3, 3)
-        return d.xpos[self.pt_body] + (R @ self.pt_local[:, :, None])[:, :, 0]
+        """World positions [N, 3] of every character joint (stacked), m: its site's."""
+        return self.data.site_xpos[self.pt_site]
 
     def point_velocities(self, p: np.ndarray) -> np.ndarray:
         """World velocities [N, 3] (m/s) of the points ``p`` riding their bodies (from ``cvel``)."""
@@ -262,26 +302,31 @@ class PhysicsWorld:
         dt = None if prev_t is None else time_s - prev_t
         ok_p = np.isfinite(p).all(1)
         ok_q = np.isfinite(q).all(1)
+        all_p, all_q = bool(ok_p.all()), bool(ok_q.all())
         if dt is not None and 1e-4 < dt < 0.5:
-            prev = self.p_t[sl]
-            v = (p - prev) / dt
-            v = np.where((ok_p & np.isfinite(prev).all(1))[:, None], v, 0.0)
-            self.v_t[sl] = clip_norm(v, self.params.max_target_speed)
+            v = (p - self.p_t[sl]) / dt
+            if not math.isfinite(v.sum()):        # a joint or its previous target missing: no velocity
+                v[~np.isfinite(v).all(1)] = 0.0
+            self.v_t[sl] = _clip_rows(v, self.params.max_target_speed)
             # angular velocity of each target orientation: 2 vec(q q_prev^-1) / dt, small-angle
             # form (exact to 0.1 % below 6 degrees a frame; faster turns are clipped anyway)
-            prevq = self.q_t[bs]
-            e = _qmul_conj(q, prevq)
-            w = 2.0 * np.where(e[:, :1] < 0, -e[:, 1:], e[:, 1:]) / dt
-            w = np.where((ok_q & self.has_rot[bs])[:, None], w, 0.0)
-            self.w_t[bs] = clip_norm(w, 20.0)
+            e = _qmul_conj(q, self.q_t[bs])
+            w = e[:, 1:] * np.copysign(2.0 / dt, e[:, :1])
+            if not (all_q and self.has_rot[bs].all()):
+                w = np.where((ok_q & self.has_rot[bs])[:, None], w, 0.0)
+            self.w_t[bs] = _clip_rows(w, 20.0)
         else:
             self.v_t[sl] = 0.0
             self.w_t[bs] = 0.0
         # the floor is a constraint too: no target below a capsule's radius (a target foot under
         # the floor would press the body into it with the full bounded force)
-        p = np.where(ok_p[:, None], p, np.nan)
+        if not all_p:
+            p = np.where(ok_p[:, None], p, np.nan)
         self.p_t[sl] = lift_above_floor(p, cb.character.parents, self.pt_min_z[sl])
-        self.q_t[bs] = np.where(ok_q[:, None], q, self.q_t[bs])
+        if all_q:
+            self.q_t[bs] = q
+        else:
+            self.q_t[bs] = np.where(ok_q[:, None], q, self.q_t[bs])
         self.has_rot[bs] = ok_q
         self.time_of_target[k] = time_s
 
@@ -290,6 +335,7 @@ class PhysicsWorld:
         instead of its input target, until set to None."""
         j = self.bodies[k].character.index(joint) if isinstance(joint, str) else int(joint)
         self.override[self.point_slice[k].start + j] = np.nan if position is None else position
+        self._has_override = bool(np.isfinite(self.override).any())
 
     def reach(self, k: int, joint: int | str, geom: str) -> np.ndarray:
         """Move joint ``joint``'s target onto the surface of stage geom ``geom`` (the surface point
@@ -313,6 +359,7 @@ class PhysicsWorld:
             d = base - c
             point = c + d / max(np.linalg.norm(d), 1e-9) * size[0]
         self.override[i] = point
+        self._has_override = True
         return point
 
     # ----- interaction -------------------------------------------------------------------------
@@ -379,17 +426,21 @@ class PhysicsWorld:
                 self.pin_on[:] = False
                 self.data.eq_active[self.pin_eq] = 0
             return
+        prm = self.params
         pt = self.p_t[self.pin_point]
         vt = self.v_t[self.pin_point]
-        z_ok = np.isfinite(pt).all(1)
-        low = pt[:, 2] <= self.pin_rest_z + self.params.contact_height
-        high = pt[:, 2] > self.pin_rest_z + self.params.contact_height + 0.01
-        hspeed = np.sqrt((vt[:, :2] ** 2).sum(1))
-        slow = hspeed <= self.params.contact_speed
-        fast = hspeed > 2 * self.params.contact_speed
-        on = z_ok & low & slow & ~self.pin_on
-        drift = np.sqrt((((pt - self.data.mocap_pos[self.pin_mocap])[:, :2]) ** 2).sum(1))
-        off = self.pin_on & (~z_ok | high | fast | (drift > self.params.pin_slack))
+        # NaN compares False: a missing target is neither low (no pin) nor kept (lets go)
+        h = pt[:, 2] - self.pin_rest_z
+        vt2 = (vt[:, :2] ** 2).sum(1)
+        on = (h <= prm.contact_height) & (vt2 <= prm.contact_speed ** 2) & ~self.pin_on
+        if self.pin_on.any():
+            drift2 = ((pt[:, :2] - self.data.mocap_pos[self.pin_mocap, :2]) ** 2).sum(1)
+            keep = (h <= prm.contact_height + 0.01) & (vt2 <= 4 * prm.contact_speed ** 2) & (drift2 <= prm.pin_slack ** 2)
+            off = self.pin_on & ~keep
+        else:
+            off = on & False
+        if not (on.any() or off.any()):
+            return                    # no pin switched: nothing to write
         if on.any():
             cur = self.point_positions()[self.pin_point[on]]
             cur[:, 2] = self.pin_rest_z[on]  # on the floor: never hold a foot sunk into it
@@ -397,10 +448,13 @@ class PhysicsWorld:
         self.pin_on = (self.pin_on | on) & ~off
         self.data.eq_active[self.pin_eq] = self.pin_on.astype(np.uint8)
 
-    def _update_dodge(self) -> None:
-        self.dodge_override[:] = np.nan
+    def _update_dodge(self) -> bool:
+        """Figure 4's forearm targets for this frame; True while any is set."""
+        if self._dodging:
+            self.dodge_override[:] = np.nan
+            self._dodging = False
         if not self.params.dodge or not len(self.ball_body):
-            return
+            return False
         d = self.data
         bp = d.xpos[self.ball_body]
         bv = np.array([d.qvel[a:a + 3] for a in self.ball_dof])
@@ -424,6 +478,8 @@ class PhysicsWorld:
                 self._dodge_dir = -bv[i] / np.linalg.norm(bv[i])
             if d.time < self._dodge_until[k]:
                 self._raise_forearms(k, hp, self._dodge_dir)
+                self._dodging = True
+        return self._dodging
 
     def _raise_forearms(self, k: int, head: np.ndarray, towards: np.ndarray) -> None:
         """Figure 4: forearm targets (elbows, wrists, hands) set around the head, facing the ball."""
@@ -445,72 +501,86 @@ class PhysicsWorld:
     def step(self, duration_s: float) -> None:
         """Advance by ``duration_s`` (rounded to whole substeps, at least one)."""
         m, d = self.model, self.data
-        n = max(1, int(round(duration_s / m.opt.timestep)))
+        ts = m.opt.timestep
+        n = max(1, int(round(duration_s / ts)))
         self._update_pins()
-        self._update_dodge()
+        dodging = self._update_dodge()
         g = self.params.gains
-        fixed = np.isfinite(self.override) | np.isfinite(self.dodge_override)
-        target = np.where(np.isfinite(self.override), self.override, self.p_t)
-        target = np.where(np.isfinite(self.dodge_override), self.dodge_override, target)
+        vel = self.v_t
+        if self._has_override or dodging:
+            fixed = np.isfinite(self.override) | np.isfinite(self.dodge_override)
+            target = np.where(np.isfinite(self.override), self.override, self.p_t)
+            target = np.where(np.isfinite(self.dodge_override), self.dodge_override, target)
+            vel = np.where(fixed, 0.0, vel)   # a positional constraint holds still
+        else:
+            target = self.p_t
         has_t = np.isfinite(target).all(1)
         # per frame, not per substep: a point without a target gets zero gains (so no force) and
         # finite zeros for its target, which is what masking the NaN force after the fact gave
-        mask = has_t.astype(np.float64)
-        kp = (g.kp * self.scale_pt * mask)[:, None]
-        kd = (g.kd * self.scale_pt * mask)[:, None]
-        vel = np.where(fixed | ~has_t[:, None], 0.0, self.v_t)
-        target = np.where(has_t[:, None], target, 0.0)
-        dt_frame = n * m.opt.timestep
-        pt, local, root = self.pt_body, self.pt_local[:, :, None], self.pt_root
-        A = self._pt_to_body
-        wrench = np.empty((len(pt), 6))
-        fmax = 0.0
+        if has_t.all():
+            kp, kd = self._kp, self._kd
+        else:
+            mask = has_t[:, None]
+            kp, kd = self._kp * mask, self._kd * mask
+            target = np.where(mask, target, 0.0)
+            vel = np.where(mask, vel, 0.0)
+        # Eq 1 is f = Ke (p_t - p) + Kd (v_t - v) with targets moving on between frames at their
+        # velocity (the input arrives per frame): f = c0 + (i + 1) slope - Ke p - Kd v at substep i
+        c0 = kp * (target - vel * (n * ts)) + kd * vel
+        slope = kp * vel * ts
+        site, pt, root = self.pt_site, self.pt_body, self.pt_root
+        npt = len(pt)
+        W = self._wrench
+        A = self._A
+        fmax2 = 0.0
+        bound2 = self._bound2
         for i in range(n):
             mujoco.mj_step1(m, d)
-            # targets move on between frames at their velocity (the input arrives per frame)
-            p_t = target + vel * ((i + 1) * m.opt.timestep - dt_frame)
-            p = d.xpos[pt] + (d.xmat[pt].reshape(-1, 3, 3) @ local)[:, :, 0]
+            p = d.site_xpos[site]
             cv = d.cvel[pt]
             v = cv[:, 3:] + cross(cv[:, :3], p - d.subtree_com[root])
-            f = kp * (p_t - p) + kd * (vel - v)   # Eq 1 (joint_forces, with the gains premultiplied)
-            norm = np.sqrt((f * f).sum(1))
-            top = float(norm.max())                # NaN if any is: one reduction checks both
-            if not math.isfinite(top):             # a blown-up state: no force from it
+            f = (c0 + slope * (i + 1)) - kp * p - kd * v   # Eq 1 (joint_forces, gains premultiplied)
+            norm2 = (f * f).sum(1)
+            top2 = float(norm2.max())              # NaN if any is: one reduction checks both
+            if not math.isfinite(top2):            # a blown-up state: no force from it
                 f = np.where(np.isfinite(f), f, 0.0)
-                norm = np.sqrt((f * f).sum(1))
-                top = float(norm.max())
-            if top > g.max_force:                  # clip_norm, skipped when nothing is over the bound
-                f *= np.minimum(1.0, g.max_force / np.maximum(norm, 1e-12))[:, None]
-            fmax = max(fmax, min(top, g.max_force))
+                norm2 = (f * f).sum(1)
+                top2 = float(norm2.max())
+            if (norm2 > bound2).any():             # clip_norm, skipped when nothing is over its bound
+                f *= np.minimum(1.0, self.force_bound / np.sqrt(np.maximum(norm2, 1e-24)))[:, None]
+                top2 = float((f * f).sum(1).max())
+            fmax2 = max(fmax2, top2)
             if i == 0:
                 # Eq 2 once per frame, held over its substeps: gains per unit inertia keep
                 # Kd_rot * frame span well inside the stable range, and it halves the work
-                R = d.xmat[self.b_body].reshape(-1, 3, 3)
-                axis = (R @ self.b_axis[:, :, None])[:, :, 0]
-                tq = twist_torques(g, d.xquat[self.b_body], d.cvel[self.b_body, :3], axis, self.q_t, self.w_t,
-                                   self.scale_body) * self.has_rot[:, None]
+                b = self._b_rows
+                axis = (d.xmat[b].reshape(-1, 3, 3) @ self._b_axis_col)[:, :, 0]
+                tq = twist_torques(g, d.xquat[b], d.cvel[b, :3], axis, self.q_t, self.w_t,
+                                   self.scale_body) * self._has_rot_col
                 self.max_applied_torque = max(self.max_applied_torque, float(np.sqrt((tq * tq).sum(1).max(initial=0.0))))
-                # what each body gets besides the joint forces, the same every substep
-                extra = np.zeros((m.nbody, 6))
-                extra[self.b_body, 3:] = tq
-                if self._comp is not None:
-                    extra[self.b_body, 2] = self._comp
+                # what each body gets besides the joint forces, the same every substep (gravity
+                # compensation is MuJoCo's gravcomp)
+                W[npt:] = 0.0
+                W[npt + self.b_body, 3:] = tq
             arm = p - d.xipos[pt]
-            wrench[:, :3] = f
-            wrench[:, 3:] = cross(arm, f)
+            W[:npt, :3] = f
+            W[:npt, 3:] = cross(arm, f)
             if self._pushes:
                 for push in self._pushes:
                     if d.time < push.until:
-                        wrench[push.point, :3] += push.force
-                        wrench[push.point, 3:] += np.cross(arm[push.point], push.force)
-            np.add(A @ wrench, extra, out=d.xfrc_applied)
+                        W[push.point, :3] += push.force
+                        W[push.point, 3:] += np.cross(arm[push.point], push.force)
+            if self._A_sparse is None:
+                np.matmul(A, W, out=d.xfrc_applied)
+            else:
+                d.xfrc_applied[:] = self._A_sparse @ W
             mujoco.mj_step2(m, d)
-        self.max_applied_force = max(self.max_applied_force, fmax)
+        self.max_applied_force = max(self.max_applied_force, math.sqrt(fmax2))
         self.last_forces, self.last_torques = f, tq
-        self._pushes = [p for p in self._pushes if d.time < p.until]
+        if self._pushes:
+            self._pushes = [p for p in self._pushes if d.time < p.until]
         self.frames_stepped += 1
-        if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()) or d.warning.number[
-                mujoco.mjtWarning.mjWARN_BADQACC] > self._badqacc:
+        if d.warning.number[self._bad_warnings].sum() > self._badqacc or not math.isfinite(d.qvel.sum()):
             self._recover()
 
     _badqacc = 0
@@ -518,9 +588,12 @@ class PhysicsWorld:
     def _recover(self) -> None:
         """The state blew up (MuJoCo reset it or it went NaN): put each character on its target."""
         self.resets += 1
-        self._badqacc = int(self.data.warning.number[mujoco.mjtWarning.mjWARN_BADQACC])
+        keep = self.data.warning.number.copy()
+        now = float(self.data.time)
+        self._badqacc = int(keep[self._bad_warnings].sum())
         mujoco.mj_resetData(self.model, self.data)
-        self.data.warning.number[mujoco.mjtWarning.mjWARN_BADQACC] = self._badqacc
+        self.data.warning.number[:] = keep
+        self.data.time = now   # the clock goes on (pushes, the dodge and the node's status run on it)
         mujoco.mj_forward(self.model, self.data)
 
     # ----- outputs -----------------------------------------------------------------------------
@@ -548,6 +621,14 @@ class PhysicsWorld:
         return shapes, self.model.geom_size[self.geom_ids].copy()
 
 
+def _clip_rows(v: np.ndarray, limit: float) -> np.ndarray:
+    """``clip_norm`` of finite rows [N, 3], skipping the work when none is over ``limit``."""
+    n2 = (v * v).sum(1)
+    if n2.max(initial=0.0) <= limit * limit:
+        return v
+    return v * np.minimum(1.0, limit / np.sqrt(np.maximum(n2, 1e-24)))[:, None]
+
+
 def lift_above_floor(p: np.ndarray, parents: np.ndarray, min_z: np.ndarray) -> np.ndarray:
     """Targets [J, 3] with every joint at least ``min_z`` [J] high: a joint below it swings up
     about its parent's target (bone length kept, heading kept), or is raised if that cannot reach."""
@@ -572,8 +653,9 @@ def build_xml(bodies: list[CharacterBody], stage: Stage, params: TrackerParams) 
     """The MJCF of a world: floor, characters, their foot pins, the stage, held-object welds."""
     root, worldbody, equality = world_root(params.timestep, floor_friction=stage.floor_friction)
     for cb in bodies:
-        add_character(worldbody, cb, len(bodies), params.joint_damping)
-        add_pins(equality, cb)
+        add_character(worldbody, cb, len(bodies), params.joint_damping, gravcomp=params.gravity_compensation)
+    for cb in bodies:
+        add_pins(worldbody, equality, cb)
     add_stage(worldbody, stage)
     for o in stage.objects:
         if o.held_by is None or o.held_by[0] >= len(bodies):

@@ -42,3 +42,23 @@ def mapped_bones(ch, mapping, src: SourceSkeleton, min_len: float = 1e-6):
             if np.linalg.norm(src.rest_points[b] - src.rest_points[a]) > min_len:
                 out.append((j, int(k), a, b))
     return out
+
+
+def live_minus_batch(ch, mapping, src, opts, pts, pok, rot, times=None, n: int = 200) -> float:
+    """Largest difference between the one-frame path, frame by frame, and the batched path over
+    the first ``n`` frames (local rotations, root, joint positions; quality and contact must agree)."""
+    from mocapgraph.kinematics.retarget import Retargeter
+    pts, rot = pts[:n], None if rot is None else rot[:n]
+    pok = None if pok is None else pok[:n]
+    t = np.arange(len(pts)) / 120.0 if times is None else times[:n]
+    batch = Retargeter(ch, mapping, src, opts, live=False).process(pts, pok, rot, None, t)
+    live = Retargeter(ch, mapping, src, opts)
+    assert live._live is not None
+    worst = 0.0
+    for f in range(len(pts)):
+        r = live.process(pts[f:f + 1], None if pok is None else pok[f:f + 1], None if rot is None else rot[f:f + 1],
+                         None, t[f:f + 1])
+        for k in ("local_rotations", "root_positions", "joint_positions"):
+            worst = max(worst, float(np.abs(getattr(r, k)[0] - getattr(batch, k)[f]).max()))
+        assert (r.joint_quality[0] == batch.joint_quality[f]).all() and (r.contact[0] == batch.contact[f]).all()
+    return worst

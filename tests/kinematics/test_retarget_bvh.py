@@ -120,3 +120,33 @@ def test_missing_and_broken_source_joints_are_held_and_flagged(shared_data):
     ok = np.ones(200, bool)
     ok[50:125] = False
     assert np.abs(res.joint_positions[ok][:, [ch.index("Spine2")]] - ref.joint_positions[ok][:, [ch.index("Spine2")]]).max() < 1e-9
+
+
+def test_cmu_walk_onto_mixamo_detects_foot_contact(shared_data):
+    """CMU 131_01 (a walk, 4.5 m in 8.3 s) onto Mixamo with foot planting: each foot is in contact
+    through its stances. Reference, from the source alone: the source ankle within 3 cm of its
+    lowest and slower than 0.3 m/s (about 40 % of the frames per foot). Measured on this clip:
+    contact 43 % / 38 % of the frames, 91 % / 91 % of frames agreeing with the source's stance,
+    skating at most 1.1 mm a frame. (Before, the CMU rest pose's level feet put the character's
+    ankles 15 cm up and no contact was ever detected.)"""
+    motion, trial, src = bvh_source(shared_data / "bvh/cmu/131_01.bvh")
+    mix = load_character("mixamo")
+    rt = Retargeter(mix, derive_mapping(mix, src), src, RetargetOptions(foot_planting=True))
+    res = rt.process(trial.positions, None, trial.orientations, None, np.arange(motion.n_frames) / motion.rate_hz)
+    legs = rt._legs
+    lines = []
+    for i, name in enumerate(("LeftAnkle", "RightAnkle")):
+        a = trial.positions[:, src.point(name)]
+        v = np.r_[0.0, np.linalg.norm(np.diff(a[:, :2], axis=0), axis=1)] * motion.rate_hz
+        stance = (a[:, 2] < a[:, 2].min() + 0.03) & (v < 0.3)
+        c = res.contact[:, i]
+        ankle = res.joint_positions[:, legs["ankle"][i]]
+        held = c[1:] & c[:-1]
+        skate = np.linalg.norm(np.diff(ankle[:, :2], axis=0), axis=1)[held]
+        lines.append(f"  {name}: contact {100 * c.mean():.0f} % of frames (source stance {100 * stance.mean():.0f} %), "
+                     f"agreeing {100 * (c == stance).mean():.0f} %, skating max {1e3 * skate.max():.2f} mm/frame")
+        assert 0.25 < c.mean() < 0.6, (name, c.mean())
+        assert (c == stance).mean() > 0.8, name
+        assert skate.max() < 2e-3
+        assert ankle[:, 2].min() > legs["rest_h"][i] - 5e-3       # above the floor
+    print("\nCMU 131_01 onto Mixamo, foot planting:\n" + "\n".join(lines))

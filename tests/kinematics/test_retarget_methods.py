@@ -14,6 +14,8 @@ from mocapgraph.kinematics.retarget_mapping import JointMap, Mapping, align_rest
 from mocapgraph.kinematics.retarget_source import character_from_actor, optical_points, optical_source
 from mocapgraph.kinematics.synthetic_actor import SyntheticActor
 
+from retarget_support import live_minus_batch
+
 
 @pytest.fixture(scope="module")
 def actor():
@@ -92,6 +94,8 @@ def test_three_joint_spine_follows_a_one_segment_actor_spine(actor):
           f"per-joint local turn mean {np.degrees(local.mean(0)).round(1)} deg")
     assert np.abs(np.linalg.norm(s1 - waist_true, axis=-1)).max() < 1e-6
     assert end_err.max() < 0.005
+    assert rt._live.chains[0]["correct"]                 # the end point correction, on the one-frame path too
+    assert live_minus_batch(ch, m, src, RetargetOptions(follow_bones=False), pts, None, limbs) < 1e-12
     busy = bend.magnitude() > np.radians(10)
     assert busy.any() and (local[busy] > np.radians(1)).all(axis=1).mean() > 0.9   # all three share the bend
 
@@ -107,6 +111,7 @@ def test_roll_joints_take_exact_twist_fractions(actor):
     m = align_rest_poses(Mapping("optical", ch.name, tuple(joints), 1.0, {}), ch, src)
     plain = Retargeter(ch, m, src, RetargetOptions(roll=False, follow_bones=False)).process(pts, None, limbs)
     rolled = Retargeter(ch, m, src, RetargetOptions(roll=True, follow_bones=False)).process(pts, None, limbs)
+    assert live_minus_batch(ch, m, src, RetargetOptions(roll=True, follow_bones=False), pts, None, limbs) < 1e-12
     # positions do not move: roll joints sit on the limb axis
     assert np.abs(rolled.joint_positions - plain.joint_positions).max() < 1e-9
     q = lambda res, n: Rotation.from_quat(res.local_rotations[:, ch.index(n)], scalar_first=True)  # noqa: E731

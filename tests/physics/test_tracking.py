@@ -34,12 +34,15 @@ def run(clip, params: TrackerParams):
     n = len(clip)
     sim = np.empty((n, clip.character.n_joints, 3))
     lowest = np.empty(n)
-    forces, torques = np.empty(n), np.empty(n)
+    forces, torques, foot_forces = np.empty(n), np.empty(n), np.empty(n)
+    feet_pts = np.r_[feet, clip.character.parents[feet]]
     for i in range(n):
         w.set_target(0, clip.positions[i], clip.orientations[i], clip.times[i])
         w.step(1.0 / RATE)
         sim[i] = w.joint_positions(0)
-        forces[i] = np.linalg.norm(w.last_forces, axis=1).max()
+        fn = np.linalg.norm(w.last_forces, axis=1)
+        forces[i] = fn.max()
+        foot_forces[i] = fn[feet_pts].max()
         torques[i] = np.linalg.norm(w.last_torques, axis=1).max()
         g = w.geom_ids[caps]
         zc = w.data.geom_xpos[g, 2]
@@ -49,7 +52,7 @@ def run(clip, params: TrackerParams):
                np.linalg.norm(np.diff(clip.positions[:, feet, :2], axis=0), axis=2) * RATE]
     contact = (clip.positions[:, feet, 2] < w.pin_rest_z[None] + params.contact_height) & (tv < params.contact_speed)
     step = np.r_[np.zeros((1, len(feet))), np.linalg.norm(np.diff(sim[:, feet, :2], axis=0), axis=2)]
-    return dict(world=w, sim=sim, lowest=lowest, forces=forces, torques=torques,
+    return dict(world=w, sim=sim, lowest=lowest, forces=forces, torques=torques, foot_forces=foot_forces,
                 skate=step[contact], step=step, contact=contact, resets=w.resets)
 
 
@@ -96,6 +99,7 @@ def test_no_fall_lengths_kept_forces_bounded(clip, pinned):
           f"(bound {w.params.gains.max_force}), torque {pinned['torques'].max():.2f} N·m (bound {w.params.gains.max_torque})")
     assert drift <= 0.001
     assert pinned["forces"].max() <= w.params.gains.max_force + 1e-9
+    assert pinned["foot_forces"].max() <= w.params.foot_max_force + 1e-9
     assert pinned["torques"].max() <= w.params.gains.max_torque + 1e-9
     assert w.max_applied_force <= w.params.gains.max_force + 1e-9
     assert pinned["resets"] == 0
@@ -111,9 +115,8 @@ def test_feet_with_and_without_virtual_joints(pinned, free_feet):
         print(f"\n{name}: skating in contact mean {s.mean():.2f} mm/frame (p95 {np.percentile(s, 95):.2f}, "
               f"max {s.max():.2f}); floor penetration p95 {np.percentile(pen, 95):.2f} mm, max {pen.max():.2f} mm")
     assert 1000 * pinned["skate"].mean() <= 2.0
-    # the 5 mm holds for 95 % of frames; heel strikes reach about 10 mm (printed above)
-    assert np.percentile(1000 * np.maximum(0.0, -pinned["lowest"]), 95) <= 5.0
-    assert 1000 * np.maximum(0.0, -pinned["lowest"]).max() <= 15.0   # measured 10 mm: over the 5 mm target
+    # the 5 mm, heel and toe strikes included (the feet's own force bound keeps them soft)
+    assert 1000 * np.maximum(0.0, -pinned["lowest"]).max() <= 5.0
 
 
 def test_body_masses_and_mjcf_file(tmp_path):
@@ -144,7 +147,7 @@ def test_forces_through_xfrc_equal_mj_applyFT_at_the_joints(clip):
     f = rng.normal(0, 50, p.shape)
     arm = p - w.data.xipos[w.pt_body]
     wrench = np.concatenate([f, np.cross(arm, f)], axis=1)
-    w.data.xfrc_applied[:] = w._pt_to_body @ wrench
+    w.data.xfrc_applied[:] = w._A[:, :len(p)] @ wrench
     mujoco.mj_forward(w.model, w.data)
     qacc_ours = w.data.qacc.copy()
     w.data.xfrc_applied[:] = 0

@@ -93,6 +93,7 @@ function frame(now) {
   if (built.bounds) lastBounds = built.bounds;
   const aspect = canvas.clientWidth / Math.max(1, canvas.clientHeight);
   const { viewProj, eye } = camera.update(dt, aspect);
+  window.mocapgraphViewer.viewProj = viewProj;   // for tests: where a world point lands on the page
   renderer.draw(viewProj, eye, scene.batches, panelGeom);
   drawLabels(built.labels, viewProj);
   link.ack();

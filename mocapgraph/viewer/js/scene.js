@@ -202,6 +202,8 @@ export class SceneBuilder {
     rec.total = n;
     const shapes = scene && scene.fields.shapes.length === n ? scene.fields.shapes : null;
     const sizes = shapes ? scene.arrays.sizes.data : null;
+    rec.shapes = {};       // drawn bodies per shape, and how many are coloured by a tracking error
+    rec.tracked = 0;
     for (let i = 0; i < n; i++) {
       if (!finite3(pos, i)) continue;
       const p = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
@@ -228,6 +230,8 @@ export class SceneBuilder {
       }
       this._grow(p);
       rec.points++;
+      rec.shapes[shape] = (rec.shapes[shape] || 0) + 1;
+      if (Number.isFinite(err[i])) rec.tracked++;
     }
     out.totals.bodiesDrawn += rec.points;
   }

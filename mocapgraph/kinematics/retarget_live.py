@@ -1,0 +1,434 @@
+"""The retargeter's one-frame path: :meth:`Retargeter.process` for a single frame, constants folded at setup.
+
+Same math and same output as the batched path (to rounding, checked in the tests), but with the
+world-frame rotations as wxyz quaternions and everything that does not change per frame folded
+into constant arrays when the retargeter is built:
+
+* Eq 4.1's constant factors: Δ = A·Q_k·D·R⁻¹·A⁻¹ is a fixed 4x4 matrix per joint acting on Q_k
+  (a quaternion product with a constant is linear); with no source dependencies one matrix product
+  does the gather of every Q_k and all of Eq 4.1;
+* rotating a constant vector v by a unit quaternion q is a fixed quadratic form in q (16 x 3), so
+  every bone of the forward kinematics is one product of the quaternions' outer products with a
+  constant tensor, and the ancestor sum one matrix product more;
+* inheritance and rest orientations (W = Δ[nearest driven] · rest_world) are one constant linear
+  map; the local rotations (rest⁻¹ · W[parent]⁻¹ · W) one bilinear form.
+
+A numpy call costs microseconds whatever its size, so what counts is the number of calls: a frame
+is a few dozen, none per joint. Joint quality is the batched path's own code, skipped when every
+input is good (then every joint is good).
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .quaternion import matrix_to_quat, quat_multiply, quat_to_matrix
+from .foot_planting import plant_one
+from .retarget_source import rotations_from_points
+
+if TYPE_CHECKING:
+    from .retarget import Retargeter
+
+QUALITY_GOOD = 2
+_E4 = np.eye(4)
+# Hamilton product as a bilinear form: (a ⊗ b).reshape(16) @ _HAM = a * b
+_HAM = np.stack([quat_multiply(_E4[k], _E4[l]) for k in range(4) for l in range(4)])        # [16, 4]
+_CONJ16 = np.repeat([1.0, -1.0, -1.0, -1.0], 4)[:, None]                                   # a -> conj(a)
+_ID = np.array([1.0, 0.0, 0.0, 0.0])
+_PHASE = np.array([0.0, -0.5 * np.pi])     # cos(h - pi/2) = sin(h)
+_ONES4 = np.ones(4)
+_ONES3 = np.ones(3)
+_N2_LO, _N2_HI = (1.0 - 1e-3) ** 2, (1.0 + 1e-3) ** 2   # |q| within 1e-3 of 1, squared
+# rotation matrix of a unit q as a quadratic form: R(q)[r, c] = sum_ab q_a q_b _ROT[4a+b, r, c]
+_ROT = np.zeros((16, 3, 3))
+for (_r, _c), _ts in {
+        (0, 0): [(0, 0, 1), (1, 1, 1), (2, 2, -1), (3, 3, -1)], (1, 1): [(0, 0, 1), (1, 1, -1), (2, 2, 1), (3, 3, -1)],
+        (2, 2): [(0, 0, 1), (1, 1, -1), (2, 2, -1), (3, 3, 1)],
+        (0, 1): [(1, 2, 2), (0, 3, -2)], (1, 0): [(1, 2, 2), (0, 3, 2)], (0, 2): [(1, 3, 2), (0, 2, 2)],
+        (2, 0): [(1, 3, 2), (0, 2, -2)], (1, 2): [(2, 3, 2), (0, 1, -2)], (2, 1): [(2, 3, 2), (0, 1, 2)]}.items():
+    for _a, _b, _k in _ts:
+        _ROT[4 * _a + _b, _r, _c] += _k
+# a · b and a x b from the outer product a ⊗ b [9]: [dot, cross]
+_DOTCROSS = np.zeros((9, 4))
+_DOTCROSS[[0, 4, 8], 0] = 1.0
+for _i, (_j, _k) in enumerate(((1, 2), (2, 0), (0, 1))):
+    _DOTCROSS[3 * _j + _k, 1 + _i] += 1.0
+    _DOTCROSS[3 * _k + _j, 1 + _i] -= 1.0
+
+
+def _left(p: np.ndarray) -> np.ndarray:
+    """4x4 matrix of q -> p * q."""
+    return np.einsum("kli,k->il", _HAM.reshape(4, 4, 4), p)
+
+
+def _right(p: np.ndarray) -> np.ndarray:
+    """4x4 matrix of q -> q * p."""
+    return np.einsum("kli,l->ik", _HAM.reshape(4, 4, 4), p)
+
+
+def _mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a * b for [n, 4] arrays: one broadcast and one matrix product."""
+    return (a[:, :, None] * b[:, None, :]).reshape(-1, 16) @ _HAM
+
+
+def _rotate_const(q: np.ndarray, forms: np.ndarray) -> np.ndarray:
+    """R(q[i]) v[i] for unit q [n, 4], with forms [n, 16, 3] = _ROT @ v[i] precomputed."""
+    return ((q[:, :, None] * q[:, None, :]).reshape(-1, 1, 16) @ forms)[:, 0]
+
+
+def _between(a: np.ndarray, b: np.ndarray, a_len: np.ndarray | None = None,
+             b_len2: np.ndarray | None = None) -> np.ndarray:
+    """Shortest-arc unit quaternions [n, 4] turning directions a onto b [n, 3] (a_len: |a|, b_len2:
+    |b|², when known). Antiparallel pairs go through matrix_between's own choice, as the batched path."""
+    dc = (a[:, :, None] * b[:, None, :]).reshape(-1, 9) @ _DOTCROSS                       # [a.b, a x b]
+    bb = np.einsum("ij,ij->i", b, b) if b_len2 is None else b_len2
+    ab = np.sqrt(bb * (a_len * a_len if a_len is not None else np.einsum("ij,ij->i", a, a)))
+    dc[:, 0] += ab
+    if not float((dc[:, 0] / ab).min()) >= 1e-9:    # antiparallel (or zero-length: NaN) somewhere
+        from .quaternion import matrix_between
+        return matrix_to_quat(matrix_between(a, b))
+    return dc / np.sqrt(np.einsum("ij,ij->i", dc, dc))[:, None]
+
+
+def _power_left(qs: list, rel: list, f2: np.ndarray, phase: np.ndarray) -> np.ndarray:
+    """qs · rel^f for two unit quaternions (plain floats, wxyz) and fractions f [k] (shortest arc
+    first): [k, 4]. ``f2`` [k, 2] is f twice and ``phase`` [2] is (0, -pi/2), so that one cos gives
+    the cos and sin of every half angle and one product the quaternions."""
+    w, x, y, z = rel if rel[0] >= 0 else [-v for v in rel]
+    s = math.sqrt(x * x + y * y + z * z)
+    ax = [x / s, y / s, z / s] if s > 1e-15 else [0.0, 0.0, 0.0]
+    a, b, c, d = qs
+    # qs * (cos h, sin h · axis) = cos h · qs + sin h · (qs * (0, axis))
+    u = [-b * ax[0] - c * ax[1] - d * ax[2], a * ax[0] + c * ax[2] - d * ax[1],
+         a * ax[1] - b * ax[2] + d * ax[0], a * ax[2] + b * ax[1] - c * ax[0]]
+    return np.cos(f2 * math.atan2(s, w) + phase) @ np.array([qs, u])
+
+
+def _mul1(a: list, b: list) -> list:
+    """a * b for two quaternions as plain floats (wxyz)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return [aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw]
+
+
+def _v_between(a: list, b: list) -> list:
+    """Shortest-arc unit quaternion (floats) turning direction a onto b (3 floats each); the
+    antiparallel case through the batched helpers' own choice."""
+    dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    ab = math.sqrt((a[0] * a[0] + a[1] * a[1] + a[2] * a[2]) * (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]))
+    w = ab + dot
+    if w < 1e-9 * ab:
+        return _between(np.array([a]), np.array([b]))[0].tolist()
+    q = [w, a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return [x / n for x in q]
+
+
+def _v_rotate(q: list, v: list) -> list:
+    """v rotated by the unit quaternion q (floats)."""
+    w, x, y, z = q
+    tx, ty, tz = 2 * (y * v[2] - z * v[1]), 2 * (z * v[0] - x * v[2]), 2 * (x * v[1] - y * v[0])
+    return [v[0] + w * tx + y * tz - z * ty, v[1] + w * ty + z * tx - x * tz, v[2] + w * tz + x * ty - y * tx]
+
+
+def _leg_ik(hip: list, knee: list, ankle: list, target: list, l1: float, l2: float, pole: list):
+    """foot_planting.two_bone_ik for one leg in plain floats: (thigh turn, shin turn) as unit
+    quaternions, the knee kept in the leg's bend plane (``pole`` where the leg is straight)."""
+    to = [target[i] - hip[i] for i in range(3)]
+    dist = math.sqrt(to[0] ** 2 + to[1] ** 2 + to[2] ** 2)
+    u = [x / max(dist, 1e-12) for x in to]
+    d = min(max(dist, abs(l1 - l2) + 1e-6), l1 + l2 - 1e-6)
+    cos_a = min(max((l1 * l1 + d * d - l2 * l2) / (2 * l1 * d), -1.0), 1.0)
+    sin_a = math.sqrt(1.0 - cos_a * cos_a)
+    k = [knee[i] - hip[i] for i in range(3)]
+    ku = k[0] * u[0] + k[1] * u[1] + k[2] * u[2]
+    perp = [k[i] - ku * u[i] for i in range(3)]
+    if math.sqrt(perp[0] ** 2 + perp[1] ** 2 + perp[2] ** 2) > 1e-6 * l1:
+        v = perp
+    else:
+        pu = pole[0] * u[0] + pole[1] * u[1] + pole[2] * u[2]
+        v = [pole[i] - pu * u[i] for i in range(3)]
+    vn = max(math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2), 1e-12)
+    knee_new = [hip[i] + l1 * (cos_a * u[i] + sin_a * v[i] / vn) for i in range(3)]
+    reach = [hip[i] + d * u[i] for i in range(3)]
+    q1 = _v_between(k, [knee_new[i] - hip[i] for i in range(3)])
+    shin = _v_rotate(q1, [ankle[i] - knee[i] for i in range(3)])   # ankle_after - knee_new
+    q2 = _v_between(shin, [reach[i] - knee_new[i] for i in range(3)])
+    return q1, q2
+
+
+class LiveKernel:
+    """The folded constants of one Retargeter and its one-frame ``run``."""
+
+    def __init__(self, rt: "Retargeter") -> None:
+        ch, J = rt.character, rt.character.n_joints
+        self.rt = rt
+        self.J = J
+        mp = rt.mapping
+        by = rt._by
+        rot = [e for e in mp.joints if e.mode == "rotate" and e.rotation is not None]
+        n = len(rot)
+        a_q = [np.asarray(e.A, float) / np.linalg.norm(e.A) for e in rot]
+        post_q = matrix_to_quat(rt._post) if n else np.zeros((0, 4))
+        K = np.array([_left(a) @ _right(p) for a, p in zip(a_q, post_q)]).reshape(n, 4, 4)
+        self.K = K
+        R = len(rt.source.rotation_names)
+        self.rot_src = rt._rot_src
+        self.rot_joint = rt._rot_joint
+        # source dependencies, level by level: qk[i] *= rot_ext[dep_idx[level, i]] (R: identity slot)
+        deps = {i: d for i, d in rt._dep}
+        depth = max((len(d) for d in deps.values()), default=0)
+        self.dep_idx = np.full((depth, n), R, dtype=np.int64)
+        for i, d in deps.items():
+            self.dep_idx[:len(d), i] = d
+        if depth == 0:   # gather and Eq 4.1 in one product
+            big = np.zeros((4 * R, 4 * n))
+            for i in range(n):
+                big[4 * self.rot_src[i]:4 * self.rot_src[i] + 4, 4 * i:4 * i + 4] += K[i].T
+            self.K_big = big
+        # bone following
+        self.follow_m = rt._follow_m
+        self.follow_forms = _ROT @ rt._follow_bone[:, None, :, None] if len(rt._follow_m) else None
+        if self.follow_forms is not None:
+            self.follow_forms = self.follow_forms[..., 0]                                   # [nf, 16, 3]
+            self.follow_len = np.linalg.norm(rt._follow_bone, axis=1)
+            P = len(rt.source.point_names)
+            nf = len(rt._follow_m)
+            w = np.zeros((3 * P, 3 * nf))   # want = A (p_b - p_a), flat
+            for i in range(nf):
+                A = rt._A[rt._follow_m[i]]
+                w[3 * rt._follow_b[i]:3 * rt._follow_b[i] + 3, 3 * i:3 * i + 3] += A.T
+                w[3 * rt._follow_a[i]:3 * rt._follow_a[i] + 3, 3 * i:3 * i + 3] -= A.T
+            self.follow_w = w
+        # spread chains
+        self.chains = []
+        for c in rt._chains:
+            d = dict(start=c["start"], end=c["end"], joints=c["joints"], frac=c["frac"], path=c["path"],
+                     f2=np.repeat(np.asarray(c["frac"], float)[:, None], 2, axis=1),
+                     iters=1 if c["endpt"] == c["end"] else 4,
+                     correct=c["end_src"] >= 0 and c["pivot_src"] >= 0 and bool(np.isfinite(c["ratio"])),
+                     end_src=c["end_src"], pivot_src=c["pivot_src"], A=c["ratio"] * c["A"])
+            if d["correct"]:
+                d["forms"] = (_ROT @ c["offsets"][:, None, :, None])[..., 0]
+            self.chains.append(d)
+        # aims (vectorised over the aim joints: each hangs from a joint not aimed itself)
+        self.aims = None
+        if rt._aims:
+            par = np.array([ch.parents[a[0]] for a in rt._aims])
+            pre = rt._src_pre[par]
+            pre = np.where(pre < 0, pre + J, pre)   # the batched path's index, Python's negative wrap included
+            self.aims = dict(joint=rt._aim_joint, pre=pre,
+                             forms=(_ROT @ np.array([a[1] for a in rt._aims])[:, None, :, None])[..., 0],
+                             frm=np.array([a[2] for a in rt._aims]), to=np.array([a[3] for a in rt._aims]),
+                             A=np.array([a[4] for a in rt._aims]))
+        # inheritance and rest orientation: W[j] = Δ_ext[s_j] · rest_world_q[j] (identity slot J)
+        src = np.where(rt._src_post < 0, J, rt._src_post)
+        rw_q = matrix_to_quat(rt._rest_world)
+        par = np.where(ch.parents < 0, J, ch.parents)
+        self.par_ext = par
+        # one product gives every W and every W[parent] (the root's parent: the identity slot)
+        # laid out per joint as [W[parent] | W] (8 columns), the pair the last step multiplies
+        g = np.zeros((4 * (J + 1), 8 * J))
+        for j in range(J):
+            g[4 * src[j]:4 * src[j] + 4, 8 * j + 4:8 * j + 8] += _right(rw_q[j]).T
+            p = par[j]
+            if p < J:
+                g[4 * src[p]:4 * src[p] + 4, 8 * j:8 * j + 4] += _right(rw_q[p]).T
+            else:
+                g[4 * J:4 * J + 4, 8 * j:8 * j + 4] += np.eye(4)
+        self.G = g
+        self.delta0 = np.tile(_ID, (J + 1, 1))
+        self.jq_good = np.full((1, J), QUALITY_GOOD, np.int8)
+        self._seen = None                  # the state whose seen flags are all set
+        from .retarget import RetargetResult   # here, not at import: retarget imports this module
+        self.Result = RetargetResult
+        # positions: bones R(W[parent]) · offset, summed over ancestors; root from the source root
+        self.bone_forms = (_ROT @ ch.rest_offsets[:, None, :, None])[..., 0]                # [J, 16, 3]
+        self.anc = rt._anc
+        M = np.zeros((3, 3))
+        M[:2] = rt.ratio * rt._root_A[:2]
+        M[2, 2] = rt.ratio
+        self.root_M = M
+        big = np.zeros((3 * len(rt.source.point_names), 3))
+        big[3 * rt._root_src:3 * rt._root_src + 3] = M.T       # the source root's gather folded in
+        self.root_big = big
+        self.root_c = np.array([0.0, 0.0, rt._h_c - rt.ratio * rt._h_s + rt.options.floor_z]) + rt._offset
+        self.root_src = rt._root_src
+        # foot planting: the joints each leg's thigh and shin turns carry
+        self.legs = None
+        if rt._legs is not None:
+            L = rt._legs
+            aff, which = [], []
+            for i in range(2):
+                thigh = np.flatnonzero(L["sub"][i] & ~L["below_knee"][i])
+                shin = np.flatnonzero(L["sub"][i] & L["below_knee"][i])
+                aff += [thigh, shin]
+                which += [np.full(len(thigh), i), np.full(len(shin), 2 + i)]
+            self.legs = dict(aff=np.concatenate(aff), which=np.concatenate(which),
+                             idx=np.concatenate([L["hip"], L["knee"], L["ankle"]]),
+                             toe=L["toe"] if (L["toe"] >= 0).all() else None,
+                             l1=L["l1"].tolist(), l2=L["l2"].tolist(), rest_h=L["rest_h"].tolist(),
+                             toe_h=L["toe_h"].tolist())
+        # local rotations: rest_local⁻¹ · conj(W[parent]) · W as a bilinear form per joint
+        rl_inv = matrix_to_quat(np.swapaxes(rt._rest_local_inv, -1, -2))   # rest_local, then conjugated
+        rl_inv[:, 1:] *= -1.0
+        self.local_forms = np.stack([(_HAM * _CONJ16) @ _left(rl_inv[j]).T for j in range(J)])  # [J, 16, 4]
+        # both at once from W[parent] ⊗ [W[parent] | W] [J, 32]: the bone vector (3) and the local rotation (4)
+        both = np.zeros((J, 4, 8, 7))
+        both[:, :, :4, :3] = self.bone_forms.reshape(J, 4, 4, 3)
+        both[:, :, 4:, 3:] = self.local_forms.reshape(J, 4, 4, 4)
+        self.both_forms = both.reshape(J, 32, 7)
+
+    def _quat_in(self, q: np.ndarray) -> np.ndarray:
+        """Δ [n, 4] of the rotate joints from the held unit source rotations [R, 4]."""
+        if self.dep_idx.shape[0] == 0:
+            return (q.reshape(-1) @ self.K_big).reshape(-1, 4)
+        q_ext = np.concatenate([q, _ID[None]])
+        qk = q[self.rot_src]
+        for level in self.dep_idx:          # the few dependency levels, vectorised over joints
+            qk = _mul(qk, q_ext[level])
+        return np.einsum("nml,nl->nm", self.K, qk)
+
+    def run(self, pts, pok, rot, rok, t):
+        """One frame: points [P, 3], rotations [R, 4] (None: from the points), masks; returns the
+        batched path's RetargetResult with F = 1."""
+        rt = self.rt
+        st = rt._state
+        # validity: one reduction each in the usual all-good case (NaN and inf make the sum non-finite)
+        all_good = math.isfinite(pts.sum()) and (pok is None or bool(pok.all()))
+        if not all_good:
+            fin = np.isfinite(pts).all(-1)
+            pok = fin if pok is None else (pok & fin)
+        if rot is None:
+            if rt._plan is None:
+                raise ValueError("this source has rotations: pass them")
+            rot = rotations_from_points(rt._plan, (pts if all_good else np.where(pok[:, None], pts, np.nan))[None])[0]
+            nr = np.sqrt(np.einsum("ij,ij->i", rot, rot))
+            rok = None
+            if not math.isfinite(rot.sum()):
+                rok = np.isfinite(rot).all(-1)
+                all_good = False
+        else:
+            n2 = np.square(rot) @ _ONES4
+            nr = np.sqrt(n2)
+            # |n - 1| < 1e-3 for every rotation, from the extremes of n² (NaN fails both)
+            if not (_N2_LO < float(n2.min()) and float(n2.max()) < _N2_HI and (rok is None or bool(rok.all()))):
+                dev = np.abs(nr - 1.0) < 1e-3
+                rok = dev if rok is None else (rok & dev)
+                all_good = False
+        if all_good:
+            st.rot, st.pts = rot.copy(), pts.copy()
+            if self._seen is not st:       # seen flags only grow: set once per state
+                st.rot_seen[:] = True
+                st.pts_seen[:] = True
+                self._seen = st
+        else:
+            if pok is None:
+                pok = np.ones(len(pts), bool)
+            if rok is None:
+                rok = np.ones(len(rot), bool)
+            rot = np.where(rok[:, None], rot, st.rot)
+            pts = np.where(pok[:, None], pts, st.pts)
+            nr = np.sqrt(np.einsum("ij,ij->i", rot, rot))
+            rq = np.where(rok, QUALITY_GOOD, np.where(st.rot_seen, 1, 0)).astype(np.int8)
+            pq = np.where(pok, QUALITY_GOOD, np.where(st.pts_seen, 1, 0)).astype(np.int8)
+            st.rot, st.pts = rot.copy(), pts.copy()
+            st.rot_seen |= rok
+            st.pts_seen |= pok
+        J = self.J
+        pflat = pts.reshape(-1)
+        # 1. rotate joints (Eq 4.1), bones following the source bones
+        dq = self._quat_in(rot / nr[:, None])
+        if self.follow_forms is not None:
+            sub = dq[self.follow_m]
+            have = _rotate_const(sub, self.follow_forms)
+            want = (pflat @ self.follow_w).reshape(-1, 3)
+            wn2 = np.square(want) @ _ONES3
+            if not float(wn2.min()) > 1e-18:     # |want| > 1e-9 m, as the batched path
+                ok = np.sqrt(wn2) > 1e-9
+                want = np.where(ok[:, None], want, have)
+                wn2 = np.einsum("ij,ij->i", want, want)
+            dq[self.follow_m] = _mul(_between(have, want, self.follow_len, wn2), sub)
+        D = self.delta0.copy()
+        D[self.rot_joint] = dq
+        # 2. spread chains (per chain, not per joint: the slerp of two quaternions in plain floats)
+        for c in self.chains:
+            qs, qe = D[c["start"]].tolist(), D[c["end"]].tolist()
+            rel = _mul1([qs[0], -qs[1], -qs[2], -qs[3]], qe)
+            D[c["joints"]] = _power_left(qs, rel, c["f2"], _PHASE)
+            if c["correct"]:
+                target = c["A"] @ (pts[c["end_src"]] - pts[c["pivot_src"]])
+                path, js = c["path"], c["joints"]
+                for _ in range(c["iters"]):
+                    vec = _rotate_const(D[path], c["forms"]).sum(0)
+                    corr = _between(vec[None], target[None])
+                    D[js] = D[js] @ _left(corr[0]).T
+        # 3./4. aims from the parent-carried rest bone
+        if self.aims is not None:
+            a = self.aims
+            dp = D[a["pre"]]
+            carried = _rotate_const(dp, a["forms"])
+            want = (a["A"] @ (pts[a["to"]] - pts[a["frm"]])[:, :, None])[..., 0]
+            D[a["joint"]] = _mul(_between(carried, want), dp)
+        # world orientations (inherited, then the rest orientation) and the parents'
+        WW = (D.reshape(-1) @ self.G).reshape(J, 8)
+        Wp, W = WW[:, :4], WW[:, 4:]
+        if rt._rolls:   # rare (roll joints): the batched path's own code, on matrices
+            Wm = quat_to_matrix(W)[None]
+            for r, o, f, upper in rt._rolls:
+                Wm = rt._apply_roll(Wm, r, o, f, upper)
+            W = matrix_to_quat(Wm[0])
+            Wp = np.concatenate([W, _ID[None]])[self.par_ext]
+            WW = np.concatenate([Wp, W], axis=1)
+        # 5./6. root, positions and local rotations (w >= 0, as matrix_to_quat gives them)
+        root = pflat @ self.root_big + self.root_c
+        bl = ((Wp[:, :, None] * WW[:, None, :]).reshape(J, 1, 32) @ self.both_forms)[:, 0]
+        pos = root + self.anc @ bl[:, :3]
+        local = bl[:, 3:]
+        contact = np.zeros((1, 2), bool)
+        if self.legs is not None:
+            W2, Wp, pos, contact = self._plant(W, Wp, pos, root, 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0])))
+            if W2 is not W:   # the legs moved: their local rotations anew
+                local = ((Wp[:, :, None] * W2[:, None, :]).reshape(J, 1, 16) @ self.local_forms)[:, 0]
+        local = local * np.copysign(1.0, local[:, :1])
+        jq = self.jq_good.copy() if all_good else rt._quality(rq[None], pq[None])
+        return self.Result(local[None], root[None], pos[None], jq, contact)
+
+    def _plant(self, W, Wp, pos, root, t: float):
+        """Retargeter._plant for one frame: contact and targets (foot_planting.plant_one), two-bone
+        IK per leg in plain floats, the thigh and shin turns applied to the joints they carry."""
+        rt, L, opt = self.rt, self.legs, self.rt.options
+        hka = pos[L["idx"]].tolist()                      # hips, knees, ankles: l, r
+        ankle = hka[4:6]
+        toe_lift = None
+        if L["toe"] is not None:
+            tz = pos[L["toe"], 2].tolist()
+            toe_lift = [opt.floor_z + L["toe_h"][i] - tz[i] for i in (0, 1)]
+        k = max(rt.ratio, 1e-3)
+        target, contact = plant_one(ankle, L["rest_h"], t, rt._state.plant, floor_z=opt.floor_z,
+                                    height_m=opt.contact_height_m * k, speed_mps=opt.contact_speed_mps * k,
+                                    release_s=opt.release_s, toe_lift=toe_lift)
+        contact = np.array([contact])
+        gap = [max(abs(target[i][c] - ankle[i][c]) for c in range(3)) for i in (0, 1)]
+        need = [g >= 1e-12 for g in gap]                 # NaN gaps (no data) need nothing
+        if not (need[0] or need[1]):
+            return W, Wp, pos, contact
+        hq = W[rt._legs["hip"]].tolist()
+        turns = [[1.0, 0.0, 0.0, 0.0]] * 4               # thigh l, thigh r, shin l, shin r
+        for i in (0, 1):   # the two legs
+            if not need[i]:
+                continue
+            w, x, y, z = hq[i]
+            pole = [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)]   # the thigh's forward axis
+            q1, q2 = _leg_ik(hka[i], hka[2 + i], ankle[i], target[i], L["l1"][i], L["l2"][i], pole)
+            turns[i] = q1
+            turns[2 + i] = _mul1(q2, q1)
+        aff = L["aff"]
+        W = W.copy()
+        W[aff] = _mul(np.array(turns)[L["which"]], W[aff])
+        Wp = np.concatenate([W, _ID[None]])[self.par_ext]
+        pos = root + self.anc @ _rotate_const(Wp, self.bone_forms)
+        return W, Wp, pos, contact
