@@ -148,7 +148,7 @@ def bridge(seconds: float, n_markers: int = 60) -> None:
                 raise SystemExit("the bridge did not start")
 
             async def run() -> tuple[list[float], list[float], list[float], int]:
-                async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"], max_size=None) as ws:
+                async with websockets.connect(url, subprotocols=["foxglove.websocket.v1"], max_size=None) as ws:
                     channels: dict[str, int] = {}
                     while not {"/markers", "/diagnostics/fox"} <= set(channels):
                         msg = json.loads(await ws.recv())

@@ -64,7 +64,9 @@ class LaunchedGraph:
             time.sleep(0.02)
         raise AssertionError(f"no line with {text!r} within {timeout} s; output:\n{self.output}")
 
-    def wait_ready(self, timeout: float = 20.0) -> None:
+    def wait_ready(self, timeout: float = 60.0) -> None:
+        """Until the launcher says every node is ready (a deadline against hangs: with the cores
+        oversubscribed a graph of scipy/mujoco nodes has taken over 20 s to import)."""
         self.wait_for("nodes ready in", timeout)
 
     def cli(self, *args: str, timeout: float = 90.0) -> subprocess.CompletedProcess:

@@ -1,9 +1,9 @@
 """Foxglove bridge node: the live graph in the Foxglove app, over Foxglove's WebSocket protocol.
 
-The official foxglove-sdk serves the protocol; our gate (:mod:`mocapgraph.net.ws_gate`) stands in
-front of it on ``host:port`` with a per-launch token, the Origin and the Host check, as the viewer
-does, because the SDK's server has no authentication. In Foxglove: Open connection > Foxglove
-WebSocket > the ``ws://127.0.0.1:<port>/?token=...`` URL the node prints. Channels (created as
+One port, ``host:port``, and it needs the per-launch token, an allowed Origin and a Host naming
+it, as the viewer does: :mod:`mocapgraph.net.foxglove_ws` serves the protocol behind the gate's
+checks (the foxglove-sdk's own server cannot be locked); the SDK gives the schemas. In Foxglove:
+Open connection > Foxglove WebSocket > the ``ws://127.0.0.1:<port>/?token=...`` URL the node prints. Channels (created as
 their topics first arrive): ``/markers``, ``/actor_pose``, ``/skeleton_pose``, ``/character_pose``,
 ``/physics_state`` as ``foxglove.SceneUpdate`` for the 3D panel (what is drawn:
 :mod:`mocapgraph.bag.foxglove_scene`), ``/diagnostics/<node>`` as JSON for the Plot panel,
@@ -19,11 +19,11 @@ from ..bag.foxglove_scene import FoxgloveMessage, SceneBuilder, scene_schema
 from ..bus import Input, Node, Param
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
                         NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose)
-from ..net.ws_gate import GateStartError, WebSocketGate
+from ..net.foxglove_ws import FoxgloveServer
+from ..net.ws_gate import GateStartError
 
 QUEUE = 256  # messages per input socket before dropping (counted as gaps)
 FOXGLOVE_APP_ORIGIN = "https://app.foxglove.dev"
-SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
 
 
 def _frames(topic: str, t: type[Message], doc: str) -> Input:
@@ -37,7 +37,7 @@ def _latched(topic: str, t: type[Message], doc: str) -> Input:
 class FoxgloveBridge(Node):
     """Serves markers, actors, skeletons, characters, physics bodies and diagnostics to Foxglove."""
 
-    summary = "the live graph in the Foxglove app (foxglove-sdk WebSocket server, token on 127.0.0.1)"
+    summary = "the live graph in the Foxglove app (Foxglove WebSocket protocol, token on 127.0.0.1)"
 
     markers = _frames("markers", MarkerFrame, "markers: spheres, green seen, red not seen")
     marker_layout = _latched("marker_layout", MarkerLayout, "marker labels")
@@ -63,61 +63,55 @@ class FoxgloveBridge(Node):
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring: Any = None) -> None:
         super().__init__(name, params, wiring)
         self.builder = SceneBuilder()
-        self.channels: dict[str, Any] = {}
-        self.server: Any = None
-        self.gate: WebSocketGate | None = None
+        self.channels: dict[str, int] = {}  # Foxglove topic -> channel id
+        self.server: FoxgloveServer | None = None
         self.sent = 0
 
     def input_handler(self, port_name: str) -> Callable[[Message], Any]:
         port = self._ports[port_name]
         feed = self.builder.feed
+        latched = bool(port.decl.latched)
 
         def handle(msg: Message) -> None:
+            server = self.server
+            # Unwatched frames are not even encoded; definitions (latched) are always kept.
+            if not latched:
+                fox = f"/{port.topic}/{msg.node}" if isinstance(msg, Diagnostics) else f"/{port.topic}"
+                cid = self.channels.get(fox)
+                if cid is not None and not server.subscribed(cid):
+                    return
             for m in feed(port.envelope, msg, port.topic):
-                ch = self.channels.get(m.topic) or self._channel(m)
-                if ch.has_sinks():
-                    ch.log(m.data, log_time=m.log_ns)
+                cid = self.channels.get(m.topic) or self._channel(m)
+                if server.subscribed(cid):
+                    server.log(cid, m.data, m.log_ns)
                     self.sent += 1
 
         return handle
 
-    def _channel(self, m: FoxgloveMessage) -> Any:
-        import foxglove
-
+    def _channel(self, m: FoxgloveMessage) -> int:
         if m.encoding == "protobuf":
-            name, data = scene_schema()
-            schema = foxglove.Schema(name=name, encoding="protobuf", data=data)
+            name, data = scene_schema()  # the SDK's own foxglove.SceneUpdate descriptor
+            cid = self.server.add_channel(m.topic, "protobuf", name, data, "protobuf")
         else:
-            schema = foxglove.Schema(name=m.schema, encoding="jsonschema", data=m.schema_data)
-        ch = self.channels[m.topic] = foxglove.Channel(m.topic, schema=schema, message_encoding=m.encoding,
-                                                       context=self._fox)
-        return ch
+            cid = self.server.add_channel(m.topic, m.encoding, m.schema, m.schema_data, "jsonschema")
+        self.channels[m.topic] = cid
+        return cid
 
     def setup(self) -> None:
-        import foxglove
-
-        # The SDK would announce its inner port at INFO; only the gate's URL is for people.
-        foxglove.set_log_level("WARNING")
-        self._fox = foxglove.Context()
-        # The SDK's server on a free loopback port; only the gate is told to the world.
-        self.server = foxglove.start_server(name=f"mocapgraph {self.name}", host="127.0.0.1", port=0,
-                                            context=self._fox, message_backlog_size=self.backlog)
         token = self.token or secrets.token_urlsafe(18)
-        self.gate = WebSocketGate(f"ws://127.0.0.1:{self.server.port}/", self.host, self.port, token,
-                                  self.allowed_origins, SUBPROTOCOLS, SUBPROTOCOLS[0])
+        self.server = FoxgloveServer(f"mocapgraph {self.name}", self.host, self.port, token, self.allowed_origins,
+                                     self.backlog)
         try:
-            self.gate.start()
+            self.server.start()
         except GateStartError as exc:
             self.log.error("%s", exc)
-            self.server.stop()
             raise SystemExit(2) from None
         super().setup()
-        self.log.info("foxglove bridge at %s (Foxglove: Open connection > Foxglove WebSocket)", self.gate.url)
+        self.log.info("foxglove bridge at %s (Foxglove: Open connection > Foxglove WebSocket)", self.server.url)
 
     def on_stop(self) -> None:
-        if self.gate is not None:
-            self.gate.stop()
-            self.log.info("foxglove bridge: %d messages sent, %d connections, refused %s", self.sent,
-                          self.gate.accepted, self.gate.refused or "none")
         if self.server is not None:
             self.server.stop()
+            s = self.server
+            self.log.info("foxglove bridge: %d messages sent, %d connections, %d dropped for slow clients, "
+                          "refused %s", self.sent, s.accepted, s.dropped, s.refused or "none")

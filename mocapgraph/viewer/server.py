@@ -40,13 +40,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from websockets.asyncio.server import ServerConnection, serve
+from websockets.asyncio.server import ServerConnection
 from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
 from ..messages import Envelope, Message
 from ..messages.commands import VIEWER_COMMANDS
+from ..net.async_server import AsyncServerThread, ServerStartError
 from . import ASSET_DIR
 from .wire import EncodedRecord, build_bundle, encode_record
 
@@ -102,7 +103,7 @@ class _Bucket:
         return False
 
 
-class ViewerStartError(RuntimeError):
+class ViewerStartError(ServerStartError):
     """The server could not start (port in use, bad host)."""
 
 
@@ -189,12 +190,17 @@ class ClientStats:
     bucket: _Bucket = field(default_factory=lambda: _Bucket(COMMAND_RATE_HZ, COMMAND_BURST), repr=False)
 
 
-class ViewerServer:
+class ViewerServer(AsyncServerThread):
     """Serves the page and streams the store to every connected browser."""
+
+    start_error = ViewerStartError
+    thread_name = "viewer-server"
+    what = "viewer"
 
     def __init__(self, store: LatestStore, hello: dict[str, Any], host: str = "127.0.0.1", port: int = 8765,
                  max_rate_hz: float = 60.0, window: int = 2, asset_dir: Path = ASSET_DIR, token: str = "",
                  allowed_origins: list[str] | None = None, allowed_hosts: list[str] | None = None) -> None:
+        super().__init__(host, port)
         self.store = store
         #: every WebSocket and /stats request must carry it (``?token=``); per launch unless given
         self.token = token or secrets.token_urlsafe(18)
@@ -202,8 +208,6 @@ class ViewerServer:
         self.extra_hosts = [h.lower() for h in (allowed_hosts or [])]
         self.refused = 0
         self.hello = hello
-        self.host = host
-        self.port = port
         self.min_interval = 1.0 / max_rate_hz
         self.window = window
         self.assets = {"/" + p.relative_to(asset_dir).as_posix(): p for p in asset_dir.rglob("*")
@@ -212,28 +216,7 @@ class ViewerServer:
         self.clients: dict[int, ClientStats] = {}
         self.connects = 0
         self.started_ns = time.time_ns()
-        self._thread: threading.Thread | None = None
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._stop: asyncio.Future | None = None
         self._event: asyncio.Event | None = None
-
-    # ----- lifecycle (node thread) ------------------------------------------------------------
-    def start(self, timeout_s: float = 5.0) -> None:
-        """Bind and serve in a daemon thread; ViewerStartError when the port cannot be bound."""
-        self._thread = threading.Thread(target=self._thread_main, name="viewer-server", daemon=True)
-        self._thread.start()
-        if not self._ready.wait(timeout_s):
-            raise ViewerStartError(f"viewer server did not start within {timeout_s} s")
-        if self._error is not None:
-            raise ViewerStartError(f"cannot serve the viewer on {self.host}:{self.port}: {self._error}")
-
-    def stop(self, timeout_s: float = 2.0) -> None:
-        if self._loop is not None and self._stop is not None:
-            self._loop.call_soon_threadsafe(lambda: self._stop.done() or self._stop.set_result(None))
-        if self._thread is not None:
-            self._thread.join(timeout_s)
 
     @property
     def url(self) -> str:
@@ -278,38 +261,18 @@ class ViewerServer:
         return ""
 
     # ----- server thread ----------------------------------------------------------------------
-    def _thread_main(self) -> None:
-        try:
-            asyncio.run(self._main())
-        except BaseException as exc:  # noqa: BLE001 - reported to the starting thread
-            self._error = exc
-            self._ready.set()
-
-    async def _main(self) -> None:
-        self._loop = asyncio.get_running_loop()
-        self._stop = self._loop.create_future()
+    def _on_loop(self, loop: asyncio.AbstractEventLoop) -> None:
         self._event = asyncio.Event()
-        self.store._wake = lambda: self._loop.call_soon_threadsafe(self._notify)
-        try:
-            server = await serve(self._handle, self.host, self.port, process_request=self._http,
-                                 compression=None, max_size=1 << 16, ping_interval=10, ping_timeout=30)
-        except OSError as exc:
-            self._error = exc
-            self._ready.set()
-            return
-        self.port = server.sockets[0].getsockname()[1]
-        self._ready.set()
-        try:
-            await self._stop
-        finally:
-            server.close()
-            await server.wait_closed()
+        self.store._wake = lambda: loop.call_soon_threadsafe(self._notify)
+
+    def _serve_options(self) -> dict[str, Any]:
+        return {"compression": None, "max_size": 1 << 16, "ping_interval": 10, "ping_timeout": 30}
 
     def _notify(self) -> None:
         ev, self._event = self._event, asyncio.Event()
         ev.set()
 
-    def _http(self, connection: ServerConnection, request: Request) -> Response | None:
+    def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
         path = request.path.split("?", 1)[0]
         why = self.refusal(request, need_token=path in ("/ws", "/stats"))
         if why:

@@ -6,8 +6,10 @@ Sources run faster than real time; calibration and solver go by capture stamps, 
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
+import pytest
 
 from actor_support import PIPELINE, joints, poses, read_jsonl, states, statuses, wait_until
 from mocapgraph.kinematics.model import load_model
@@ -19,10 +21,11 @@ SOURCE = """\
 """
 
 
-def _pipeline_graph(log, model_file) -> str:
+def _pipeline_graph(log, model_file, rate_scale: float = 3.0) -> str:
     """The shipped actor pipeline on the real synthetic actor node: 1 s base pose, 16 s gym, 5 s of
-    performance at 3x real time (360 frames/s: what two loaded cores carry through reader, calibration,
-    solver and logger; at 6x the solver's input queue overflowed on such a machine)."""
+    performance at ``rate_scale`` x real time (3x: 360 frames/s, what two loaded cores carry through
+    reader, calibration, solver and logger while only the performance is solved; at 6x the solver's
+    input queue overflowed on such a machine)."""
     return f"""\
 include:
   - file: {PIPELINE}
@@ -30,22 +33,26 @@ include:
 nodes:
   - name: reader
     type: synthetic_actor
-    params: {{noise_mm: 1.0, rate_scale: 3.0, duration_s: 22.0, loop: false, seed: 2}}
+    params: {{noise_mm: 1.0, rate_scale: {rate_scale}, duration_s: 22.0, loop: false, seed: 2}}
   - name: logger
     type: topic_logger
     params: {{path: {log}, topics: [actor_pose, ground_truth, calibration_status]}}
 """
 
 
+@pytest.mark.timing
 def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_identically(launch_graph, tmp_path):
     model_file = tmp_path / "actor_model.json"
     log1, log2 = tmp_path / "run1.jsonl", tmp_path / "run2.jsonl"
     g = launch_graph(_pipeline_graph(log1, model_file))
     g.wait_ready()
-    g.wait_for("node reader exited with code 0", timeout=30)
+    g.wait_for("node reader exited with code 0", timeout=60)
+    t_end = time.monotonic()
     # the source may finish ahead of the solver (faster than real time): stop once the
     # last frame's pose has reached the log, so nothing still queued is cut off by the stop
-    wait_until(lambda: 2639 in poses(log1), timeout=30, what="the last frame's pose", graph=g)
+    # (a deadline against hangs: with the cores oversubscribed twice the last pose came 1-3 s late)
+    wait_until(lambda: 2639 in poses(log1), timeout=90, what="the last frame's pose", graph=g)
+    print(f"\nlast pose logged {time.monotonic() - t_end:.1f} s after the source ended")
     assert g.stop() == 0
     seq = states(log1, "calibration")
     assert seq == ["finding_base_pose", "base_pose_found", "capturing_gym", "gym_captured", "processing",
@@ -72,10 +79,15 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
     assert all(set(p1[f]["joint_quality"]) == {2} for f in frames)
 
     # A second session loads the saved model at once and interprets the same frames identically.
-    g2 = launch_graph(_pipeline_graph(log2, model_file))
+    # It solves every frame (2640, not the 720 after calibration), so its source runs at the
+    # camera's own 120 Hz: at 3x, with the two cores oversubscribed twice, the solver fell behind
+    # and its queue dropped frames 2001-2639 (measured); a live capture must not lose any.
+    g2 = launch_graph(_pipeline_graph(log2, model_file, rate_scale=1.0))
     g2.wait_ready()
-    g2.wait_for("node reader exited with code 0", timeout=30)
-    wait_until(lambda: 2639 in poses(log2), timeout=30, what="the last frame's pose", graph=g2)
+    g2.wait_for("node reader exited with code 0", timeout=60)
+    t_end = time.monotonic()
+    wait_until(lambda: 2639 in poses(log2), timeout=90, what="the last frame's pose", graph=g2)
+    print(f"second session: last pose logged {time.monotonic() - t_end:.1f} s after the source ended")
     assert g2.stop() == 0
     assert states(log2, "calibration") == ["calibrated"]
     assert json.loads(statuses(log2, "calibration")[-1]["data_json"])["origin"] == f"loaded {model_file}"

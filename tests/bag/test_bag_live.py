@@ -78,6 +78,7 @@ def timing_errors_ms(replayed_ns, recorded_ns, rate):
     return d - d.min()
 
 
+@pytest.mark.timing
 def test_record_then_replay_round_trip(tmp_path, launch_graph):
     bag = tmp_path / "session.mcap"
     g = launch_graph(f"""
@@ -184,6 +185,7 @@ FLUSH_S = 0.25  # the README's promise: a chunk closes every 0.25 s
 FLUSH_SLACK_S = 0.05 + 0.1
 
 
+@pytest.mark.timing
 def test_recorder_closes_a_chunk_every_flush_period(tmp_path, launch_graph):
     from mcap.reader import make_reader  # the stock library's view of the chunks, not ours
 
@@ -220,6 +222,7 @@ nodes:
     assert spans.max() <= FLUSH_S + 2 * FLUSH_SLACK_S
 
 
+@pytest.mark.timing
 def test_recorder_killed_then_recovered(tmp_path, launch_graph):
     import random
 

@@ -10,6 +10,7 @@ import uuid
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from graph_helpers import wait_until
 from eco_support import JOINT_NAMES, STAGE_PERFORMER, pattern_positions
@@ -33,6 +34,7 @@ def _result(p: subprocess.Popen, out: Path, timeout: float = 60):
     return d["samples"], d["stamps"], json.loads(str(d["meta"]))
 
 
+@pytest.mark.timing
 def test_markers_at_240_hz_for_10_s_in_order_without_loss(launch_graph, tmp_path):
     prefix = f"t{uuid.uuid4().hex[:6]}"
     g = launch_graph(f"""

@@ -63,7 +63,9 @@ nodes:
 """)
         g.wait_ready()
         # 2.5 s: joint 6 (l_wrist) is NaN on odd seconds, so both cases are seen
-        wait_until(lambda: sum(a == "/lab/actor/ann/frame" for a, _ in rx.messages) >= 150, 20, "OSC frames", g)
+        # (both streams: the character's bundle of a frame may come after the actor's)
+        wait_until(lambda: min(sum(a == f"/lab/{k}/ann/frame" for a, _ in rx.messages) for k in ("actor", "character"))
+                   >= 150, 20, "OSC frames of the actor and the character", g)
         g.stop()
     finally:
         rx.close()

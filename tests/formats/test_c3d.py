@@ -116,6 +116,7 @@ def test_golfswing_needs_the_fallback(shared_data):
     assert all(lab.startswith("Channel") for lab in tr.labels)
 
 
+@pytest.mark.timing  # a wall-clock bound (a hang or a quadratic path fails it)
 def test_mocap36_refused_with_one_line(shared_data):
     t0 = time.monotonic()
     with pytest.raises(FormatError) as exc:
@@ -125,6 +126,7 @@ def test_mocap36_refused_with_one_line(shared_data):
     assert "POINT:LABELS parameter is broken" in msg
 
 
+@pytest.mark.timing  # a wall-clock bound (a hang or a quadratic path fails it)
 @pytest.mark.parametrize("keep", [100, 600, 5000, 20000, 0.5, -100])
 def test_truncated_file_fails_fast(shared_data, tmp_path, keep):
     src = (shared_data / "c3d/pycgm/Static_trial.c3d").read_bytes()

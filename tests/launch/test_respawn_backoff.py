@@ -1,9 +1,14 @@
 """Respawn back-off measured on a real launcher: the delay doubles from `respawn_delay` up to the cap."""
 from __future__ import annotations
 
+import pytest
+
 from graph_helpers import wait_until
 
 CAP_S = 10.0  # the README's documented cap of the doubling back-off
+
+
+pytestmark = pytest.mark.timing  # judged on time: run loaded by scripts/loaded_rounds.sh
 
 
 def respawn_delays(g, name: str) -> list[float]:

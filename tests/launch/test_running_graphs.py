@@ -32,6 +32,7 @@ nodes:
 """
 
 
+@pytest.mark.timing
 def test_messages_arrive_intact_typed_and_complete(launch_graph, tmp_path) -> None:
     (tmp_path / "pipeline.yaml").write_text(PIPELINE)
     g = launch_graph(f"""\
@@ -66,6 +67,7 @@ nodes:
     assert len(layout) == 1 and layout[0]["msg"]["labels"] == [f"P{i}" for i in range(6)]
 
 
+@pytest.mark.timing
 def test_latched_value_reaches_late_joiners_and_respawn_keeps_the_graph_going(launch_graph, tmp_path) -> None:
     log = tmp_path / "log.jsonl"
     g = launch_graph(f"""\

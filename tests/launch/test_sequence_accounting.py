@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import zmq
 
 from graph_helpers import node_pids, read_jsonl, wait_until
@@ -23,6 +24,9 @@ SENT = ([(s, False) for s in range(1, 11)] + [(s, False) for s in range(14, 21)]
         + [(s, False) for s in range(1, 6)] + [(7, False)])
 DELIVERED = list(range(1, 11)) + list(range(14, 21)) + list(range(1, 6)) + [7]
 GAPS = 3 + 1  # 11..13 in the first stream, 6 in the second; the restart itself is not loss
+
+
+pytestmark = pytest.mark.timing  # judged on time: run loaded by scripts/loaded_rounds.sh
 
 
 def frame(seq: int) -> MarkerFrame:

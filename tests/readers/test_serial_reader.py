@@ -15,6 +15,9 @@ from mocapgraph.kinematics.synthetic_actor import SyntheticActor
 from mocapgraph.testing.device_simulator import SimulatedDevice
 
 
+pytestmark = pytest.mark.timing  # judged on time: run loaded by scripts/loaded_rounds.sh
+
+
 def pty_pair() -> tuple[int, int, str]:
     master, slave = os.openpty()
     tty.setraw(slave)  # a device line: no echo, no line editing

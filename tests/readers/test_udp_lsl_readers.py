@@ -26,6 +26,7 @@ def status(n) -> dict:
     return json.loads(n.messages("reader_status")[-1].data_json)
 
 
+@pytest.mark.timing
 def test_udp_datagrams_through_a_device_file_and_bad_datagrams_counted(run_node) -> None:
     port = free_udp_port()
     n = run_node("udp_reader", {"port": port, "device": "example_udp_bridge", "layout": "plug_in_gait"})
@@ -59,6 +60,7 @@ def test_udp_datagrams_through_a_device_file_and_bad_datagrams_counted(run_node)
     assert len(n.records("markers")) == 30                               # nothing invented from garbage
 
 
+@pytest.mark.timing
 def test_udp_reader_fed_by_the_device_simulator_in_real_time(run_node) -> None:
     port = free_udp_port()
     n = run_node("udp_reader", {"port": port, "device": "example_udp_bridge", "layout": "plug_in_gait",
@@ -98,6 +100,7 @@ def simulate_lsl(name: str, layout: str, device: str, count: int, rate: float = 
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
 
 
+@pytest.mark.timing
 def test_lsl_wrong_channel_count_is_refused_then_the_right_stream_is_read(run_node, caplog) -> None:
     name = f"mg_test_{int(time.time() * 1000) % 10**8}"
     # A stream of one_arm markers (12 x 3 channels) where the device file expects 39 markers.

@@ -80,6 +80,7 @@ def _warm(tmp_path_factory) -> None:
     assert check(p, timeout=60)[0] == 0
 
 
+@pytest.mark.timing  # a wall-clock bound (a hang or a quadratic path fails it)
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_graph_check_refuses_in_one_line(case: str, tmp_path: Path) -> None:
     make, words = CASES[case]
@@ -109,6 +110,7 @@ def test_long_tmpdir_is_refused_up_front(tmp_path: Path, monkeypatch) -> None:
     assert check(path)[0] == 0
 
 
+@pytest.mark.timing  # a wall-clock bound (a hang or a quadratic path fails it)
 def test_the_check_is_linear_in_nodes(tmp_path: Path) -> None:
     def graph(n: int) -> Path:
         p = tmp_path / f"n{n}.yaml"

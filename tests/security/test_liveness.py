@@ -5,8 +5,13 @@ import os
 import signal
 import time
 
+import pytest
+
 from graph_helpers import node_pids, wait_until
 from mocapgraph.launch.manifest import fetch_manifest
+
+
+pytestmark = pytest.mark.timing  # judged on time: run loaded by scripts/loaded_rounds.sh
 
 
 def test_a_stopped_node_is_reported_stalled_and_resumed(launch_graph) -> None:
