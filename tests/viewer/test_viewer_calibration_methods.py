@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 from graph_helpers import wait_until
-from viewer_support import BusTap, free_port, viewer_url
+from viewer_support import BusTap, free_port, real_calibration_graph, viewer_url
 
 
 def test_method_column_shows_the_method_the_model_file_records(launch_graph, open_page, tmp_path):
@@ -14,20 +14,8 @@ def test_method_column_shows_the_method_the_model_file_records(launch_graph, ope
     model_file = tmp_path / "model.json"
     # One second of gym: some joints move enough for a functional centre, others fall back to
     # the prior, so the column holds more than one method.
-    g = launch_graph(f"""
-nodes:
-  - name: actor
-    type: synthetic_actor
-    params: {{rate_hz: 120.0, loop: true}}
-    remap: {{markers: actor_markers, marker_layout: actor_layout}}
-  - name: calibration
-    type: calibration
-    params: {{auto: false, gym_seconds: 1.0, model_file: "{model_file}"}}
-    remap: {{markers: actor_markers, marker_layout: actor_layout}}
-  - name: viz
-    type: visualizer
-    params: {{port: {port}}}
-""")
+    g = launch_graph(real_calibration_graph(
+        port, f'auto: false, gym_seconds: 1.0, model_file: "{model_file}"'))
     g.wait_ready()
     tap = BusTap(g.master, ["calibration_status"])
     try:

@@ -9,7 +9,7 @@ import numpy as np
 from graph_helpers import wait_until
 from mocapgraph.bag.writer import BagWriter
 from mocapgraph.messages import MarkerFrame, MarkerLayout
-from viewer_support import BusTap, free_port, viewer_stats, viewer_url
+from viewer_support import BusTap, free_port, real_calibration_graph, viewer_stats, viewer_url
 
 
 def small_bag(path, n: int = 240, rate: float = 120.0) -> None:
@@ -29,23 +29,10 @@ def test_buttons_drive_the_real_calibration_node_and_bag_player(launch_graph, op
     port = free_port()
     bag = tmp_path / "ring.mcap"
     small_bag(bag)
-    g = launch_graph(f"""
-nodes:
-  - name: actor
-    type: synthetic_actor
-    params: {{rate_hz: 120.0, loop: true}}
-    remap: {{markers: actor_markers, marker_layout: actor_layout}}
-  - name: calibration
-    type: calibration
-    params: {{auto: false, gym_seconds: 1.0}}
-    remap: {{markers: actor_markers, marker_layout: actor_layout}}
-  - name: player
+    g = launch_graph(real_calibration_graph(port, extra_nodes=f"""  - name: player
     type: bag_player
     params: {{file: "{bag}", paused: true, loop: true}}
-  - name: viz
-    type: visualizer
-    params: {{port: {port}}}
-""")
+"""))
     g.wait_ready()
     tap = BusTap(g.master, ["calibration_status", "player_status"])
     try:

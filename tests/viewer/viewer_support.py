@@ -59,6 +59,26 @@ nodes:
 """
 
 
+def real_calibration_graph(port: int, calibration_params: str = "auto: false, gym_seconds: 1.0",
+                           extra_nodes: str = "") -> str:
+    """The looping synthetic actor, the real calibration node (``calibration_params``, YAML flow
+    mapping body), any ``extra_nodes`` (YAML list items) and the viewer on ``port``."""
+    return f"""
+nodes:
+  - name: actor
+    type: synthetic_actor
+    params: {{rate_hz: 120.0, loop: true}}
+    remap: {{markers: actor_markers, marker_layout: actor_layout}}
+  - name: calibration
+    type: calibration
+    params: {{{calibration_params}}}
+    remap: {{markers: actor_markers, marker_layout: actor_layout}}
+{extra_nodes}  - name: viz
+    type: visualizer
+    params: {{port: {port}}}
+"""
+
+
 def viewer_url(graph, timeout: float = 20.0) -> str:
     """The page URL the viewer printed (with its access token), as a user would copy it."""
     import re
