@@ -13,4 +13,4 @@ test: setup
 	.venv/bin/python -m pytest $(PYTEST_ARGS)
 
 bench: setup
-	for b in benchmarks/*.py; do case $$b in *_nodes.py) ;; *) echo "== $$b"; .venv/bin/python $$b;; esac; done
+	for b in benchmarks/*.py; do case $$b in *_nodes.py|benchmarks/_*) ;; *) echo "== $$b"; .venv/bin/python $$b;; esac; done

@@ -21,9 +21,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -31,6 +28,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from _launched import launched_graph
 from mocapgraph.physics.posture_db import PostureDB
 from mocapgraph.physics.synthetic_targets import synthetic_targets
 from mocapgraph.physics.tracker import TargetConditioner
@@ -133,46 +131,26 @@ nodes:
 
 
 def graph_latency(seconds: float) -> None:
-    from mocapgraph.launch.manifest import NoGraphError, fetch_manifest, subscribe
+    from mocapgraph.launch.manifest import subscribe
     from mocapgraph.messages import decode_envelope
-    with tempfile.TemporaryDirectory() as tmp:
-        graph = Path(tmp) / "graph.yaml"
-        graph.write_text(GRAPH)
-        master = f"ipc://{tmp}/master"
-        proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)],
-                                env=dict(os.environ, MOCAPGRAPH_MASTER=master), stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, start_new_session=True)
-        try:
-            t_end = time.monotonic() + 60
-            while True:
-                try:
-                    manifest = fetch_manifest(master, 0.5)
-                    if "sim_character_pose" in manifest["topics"]:
-                        break
-                except NoGraphError:
-                    pass
-                if time.monotonic() > t_end:
-                    raise SystemExit("graph did not start")
-            sock = subscribe(manifest, ["character_pose", "sim_character_pose"])
-            sent: dict[int, int] = {}
-            done: dict[int, int] = {}
-            rows = []
-            t_warm = time.monotonic() + 2.0
-            t_stop = t_warm + seconds
-            while time.monotonic() < t_stop:
-                if not sock.poll(200):
-                    continue
-                env = decode_envelope(sock.recv_multipart())
-                (sent if env.topic == "character_pose" else done)[env.capture_ns] = env.publish_ns
-                k = env.capture_ns
-                if k in sent and k in done:
-                    a, b = sent.pop(k), done.pop(k)
-                    if time.monotonic() > t_warm:
-                        rows.append((b - a) / 1e6)
-            sock.close(0)
-        finally:
-            os.killpg(proc.pid, signal.SIGINT)
-            proc.wait(10)
+    with tempfile.TemporaryDirectory() as tmp, launched_graph(GRAPH, "sim_character_pose", Path(tmp)) as manifest:
+        sock = subscribe(manifest, ["character_pose", "sim_character_pose"])
+        sent: dict[int, int] = {}
+        done: dict[int, int] = {}
+        rows = []
+        t_warm = time.monotonic() + 2.0
+        t_stop = t_warm + seconds
+        while time.monotonic() < t_stop:
+            if not sock.poll(200):
+                continue
+            env = decode_envelope(sock.recv_multipart())
+            (sent if env.topic == "character_pose" else done)[env.capture_ns] = env.publish_ns
+            k = env.capture_ns
+            if k in sent and k in done:
+                a, b = sent.pop(k), done.pop(k)
+                if time.monotonic() > t_warm:
+                    rows.append((b - a) / 1e6)
+        sock.close(0)
     v = np.asarray(rows)
     if not len(v):
         print("launched graph: no matched frames")

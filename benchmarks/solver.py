@@ -12,15 +12,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from _launched import launched_graph
 from mocapgraph.kinematics.calibration import calibrate
 from mocapgraph.kinematics.global_fit import GlobalFitOptions
 from mocapgraph.kinematics.solver import FrameSolver
@@ -61,7 +59,7 @@ nodes:
 def graph_latency(seconds: float) -> None:
     """Launch reader -> solver at 240 Hz and time every frame from the reader's publish stamp."""
     from mocapgraph.kinematics.model import save_model
-    from mocapgraph.launch.manifest import NoGraphError, fetch_manifest, subscribe
+    from mocapgraph.launch.manifest import subscribe
     from mocapgraph.messages import decode_envelope
 
     # The solver loads a model calibrated here on the same synthetic actor (seed 0) as the reader.
@@ -69,23 +67,8 @@ def graph_latency(seconds: float) -> None:
     model = calibrate(cap.skeleton, cap.markers[::4], rate_hz=60.0)
     with tempfile.TemporaryDirectory() as tmp:
         save_model(model, Path(tmp) / "model.json")
-        graph = Path(tmp) / "graph.yaml"
-        graph.write_text(GRAPH.format(duration=seconds + 5.0, model=Path(tmp) / "model.json"))
-        master = f"ipc://{tmp}/master"
-        proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)],
-                                env=dict(os.environ, MOCAPGRAPH_MASTER=master), stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, start_new_session=True)
-        try:
-            t_end = time.monotonic() + 30
-            while True:
-                try:
-                    manifest = fetch_manifest(master, 0.5)
-                    if "actor_pose" in manifest["topics"]:
-                        break
-                except NoGraphError:
-                    pass
-                if time.monotonic() > t_end:
-                    raise SystemExit("graph did not start")
+        graph = GRAPH.format(duration=seconds + 5.0, model=Path(tmp) / "model.json")
+        with launched_graph(graph, "actor_pose", Path(tmp)) as manifest:
             sock = subscribe(manifest, ["markers", "actor_pose"])
             sent: dict[int, int] = {}                 # capture stamp -> reader publish ns
             solved: dict[int, tuple[int, int]] = {}   # capture stamp -> (solver publish, receive) ns
@@ -110,9 +93,6 @@ def graph_latency(seconds: float) -> None:
                     if time.monotonic() > t_warm:
                         rows.append((pub, done, got))
             sock.close(0)
-        finally:
-            os.killpg(proc.pid, signal.SIGINT)
-            proc.wait(10)
     a = np.asarray(rows, dtype=np.float64)
     solve_ms = (a[:, 1] - a[:, 0]) / 1e6
     recv_ms = (a[:, 2] - a[:, 0]) / 1e6
