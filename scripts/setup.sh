@@ -15,6 +15,8 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   .venv/bin/python -m pip install --quiet -e '.[test]'
   touch "$stamp"
 fi
+# Compile the per-frame kernels once (cached on disk), so no node or test pays for it.
+.venv/bin/python -m mocapgraph.jit
 
 # Debian packages: chromium (browser tests of the viewer), graphviz (graph show --format png).
 missing=""
