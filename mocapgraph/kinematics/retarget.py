@@ -105,8 +105,9 @@ class Retargeter:
     """Compiled mapping of one source onto one character; :meth:`process` runs it on frames."""
 
     def __init__(self, character: Character, mapping: Mapping, source: SourceSkeleton,
-                 options: RetargetOptions | None = None, *, live: bool = True) -> None:
-        """``live=False`` leaves out the one-frame path (every call takes the batched one)."""
+                 options: RetargetOptions | None = None, *, live: bool = True, compiled: bool = True) -> None:
+        """``live=False`` leaves out the one-frame path (every call takes the batched one);
+        ``compiled=False`` keeps the one-frame path in numpy (the compiled kernels' reference)."""
         check_mapping(mapping, character, source)
         self.character, self.mapping, self.source = character, mapping, source
         self.options = options or RetargetOptions()
@@ -308,7 +309,7 @@ class Retargeter:
         self.reset()
         self._live = None
         # the one-frame path's folded gathers multiply every (held, so finite) point by its weights
-        self._live = LiveKernel(self) if live and np.isfinite(src.rest_points).all() else None
+        self._live = LiveKernel(self, compiled) if live and np.isfinite(src.rest_points).all() else None
 
     # ----------------------------------------------------------------------------------------------
     def _nearest(self, driven: np.ndarray) -> np.ndarray:
@@ -384,7 +385,8 @@ class Retargeter:
             else:
                 new.append(e)
         m = replace(self.mapping, joints=tuple(new))
-        self.__init__(self.character, m, self.source, self.options, live=self._live is not None)
+        self.__init__(self.character, m, self.source, self.options, live=self._live is not None,
+                      compiled=self._live is not None and self._live.compiled is not None)
         return m
 
     # ----------------------------------------------------------------------------------------------
@@ -400,6 +402,8 @@ class Retargeter:
             return self._live.run(pts[0], None if point_ok is None else np.asarray(point_ok, bool)[0],
                                   None if rotations is None else np.asarray(rotations, dtype=np.float64)[0],
                                   None if rotation_ok is None else np.asarray(rotation_ok, bool)[0], times_s)
+        if self._live is not None:
+            self._live.release_state()
         pok = np.isfinite(pts).all(-1) if point_ok is None else (np.asarray(point_ok, bool) & np.isfinite(pts).all(-1))
         if rotations is None:
             if self._plan is None:

@@ -163,7 +163,9 @@ def _leg_ik(hip: list, knee: list, ankle: list, target: list, l1: float, l2: flo
 class LiveKernel:
     """The folded constants of one Retargeter and its one-frame ``run``."""
 
-    def __init__(self, rt: "Retargeter") -> None:
+    def __init__(self, rt: "Retargeter", compiled: bool = True) -> None:
+        """``compiled``: run frames through the numba kernels (:class:`CompiledFrame`; not with roll
+        joints, which keep this numpy path), else through the numpy reference."""
         ch, J = rt.character, rt.character.n_joints
         self.rt = rt
         self.J = J
@@ -281,6 +283,12 @@ class LiveKernel:
         both[:, :, :4, :3] = self.bone_forms.reshape(J, 4, 4, 3)
         both[:, :, 4:, 3:] = self.local_forms.reshape(J, 4, 4, 4)
         self.both_forms = both.reshape(J, 32, 7)
+        self.compiled = CompiledFrame(self) if compiled and not rt._rolls else None
+
+    def release_state(self) -> None:
+        """Before a batched call on the same retargeter: the compiled path's plants back in its state."""
+        if self.compiled is not None:
+            self.compiled.release_state()
 
     def _quat_in(self, q: np.ndarray) -> np.ndarray:
         """Δ [n, 4] of the rotate joints from the held unit source rotations [R, 4]."""
@@ -294,7 +302,13 @@ class LiveKernel:
 
     def run(self, pts, pok, rot, rok, t):
         """One frame: points [P, 3], rotations [R, 4] (None: from the points), masks; returns the
-        batched path's RetargetResult with F = 1."""
+        batched path's RetargetResult with F = 1 (compiled when it can be, else :meth:`run_numpy`)."""
+        if self.compiled is not None:
+            return self.compiled.run(pts, pok, rot, rok, t)
+        return self.run_numpy(pts, pok, rot, rok, t)
+
+    def run_numpy(self, pts, pok, rot, rok, t):
+        """:meth:`run` in numpy (the reference of the compiled path)."""
         rt = self.rt
         st = rt._state
         # validity: one reduction each in the usual all-good case (NaN and inf make the sum non-finite)
@@ -432,3 +446,171 @@ class LiveKernel:
         Wp = np.concatenate([W, _ID[None]])[self.par_ext]
         pos = root + self.anc @ _rotate_const(Wp, self.bone_forms)
         return W, Wp, pos, contact
+
+
+def _pack_plant(plant, ps: np.ndarray, cap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A PlantState into the compiled path's arrays (retarget_kernels' layout): fills ``ps`` [13],
+    returns (times [cap'], xy [cap', 4], count [1]) with cap' >= cap and room for one more sample."""
+    ps[0:2] = plant.planted
+    ps[2:6] = np.asarray(plant.anchor, float).reshape(4)
+    ps[6:10] = np.asarray(plant.offset, float).reshape(4)
+    ps[10] = plant.last_t
+    ps[11:13] = plant.low
+    n = len(plant.history_t)
+    cap = max(cap, 2 * (n + 1))
+    ht, hxy = np.zeros(cap), np.zeros((cap, 4))
+    if n:
+        ht[:n] = plant.history_t
+        hxy[:n] = np.asarray(plant.history_xy, float).reshape(n, 4)
+    return ht, hxy, np.array([n], np.int64)
+
+
+def _unpack_plant(plant, ps: np.ndarray, ht: np.ndarray, hxy: np.ndarray, hn: np.ndarray) -> None:
+    """The compiled path's plant arrays back into the PlantState the batched path reads."""
+    n = int(hn[0])
+    plant.planted = ps[0:2] != 0.0
+    plant.anchor = ps[2:6].reshape(2, 2).copy()
+    plant.offset = ps[6:10].reshape(2, 2).copy()
+    plant.last_t = float(ps[10])
+    plant.low = ps[11:13].copy()
+    plant.history_t = ht[:n].tolist()
+    plant.history_xy = list(hxy[:n].reshape(n, 2, 2).copy())
+
+
+class CompiledFrame:
+    """The one-frame path as numba kernels (retarget_kernels): the LiveKernel's constants as plain
+    arrays, scratch preallocated; ``run`` gives LiveKernel.run's result (to rounding, tested)."""
+
+    def __init__(self, lk: LiveKernel) -> None:
+        from . import retarget_kernels as rk
+        self.k = rk
+        rt, ch, J = lk.rt, lk.rt.character, lk.J
+        self.lk, self.rt, self.J = lk, rt, J
+        i64 = lambda a: np.ascontiguousarray(np.asarray(a, dtype=np.int64).reshape(-1))   # noqa: E731
+        f64 = lambda a, *shape: np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(shape))  # noqa: E731
+        n = len(lk.rot_src)
+        self.rot_src, self.rot_joint = i64(lk.rot_src), i64(lk.rot_joint)
+        self.dep_idx = np.ascontiguousarray(lk.dep_idx, dtype=np.int64).reshape(-1, n)
+        self.K = f64(lk.K, n, 4, 4)
+        nf = len(rt._follow_m)
+        self.f_m, self.f_a, self.f_b = i64(rt._follow_m), i64(rt._follow_a), i64(rt._follow_b)
+        self.f_bone = f64(rt._follow_bone, nf, 3)
+        self.f_A = f64(rt._A[rt._follow_m] if nf else np.zeros((0, 3, 3)), nf, 3, 3)
+        cs = lk.chains
+        self.c_start, self.c_end = i64([c["start"] for c in cs]), i64([c["end"] for c in cs])
+        self.c_jptr = i64(np.cumsum([0] + [len(c["joints"]) for c in cs]))
+        self.c_joints = i64(np.concatenate([c["joints"] for c in cs]) if cs else [])
+        self.c_frac = f64(np.concatenate([c["frac"] for c in cs]) if cs else [], -1)
+        self.c_iters = i64([c["iters"] for c in cs])
+        self.c_correct = np.array([c["correct"] for c in cs], dtype=np.bool_)
+        self.c_end_src, self.c_pivot_src = i64([c["end_src"] for c in cs]), i64([c["pivot_src"] for c in cs])
+        self.c_A = f64([c["A"] if c["correct"] else np.zeros((3, 3)) for c in cs] if cs else [], len(cs), 3, 3)
+        paths = [c["path"] if c["correct"] else np.zeros(0, np.int64) for c in cs]
+        self.c_pptr = i64(np.cumsum([0] + [len(p) for p in paths]))
+        self.c_path = i64(np.concatenate(paths) if paths else [])
+        offs = [c["offsets"] if lc["correct"] else np.zeros((0, 3)) for c, lc in zip(rt._chains, cs)]
+        self.c_off = f64(np.concatenate(offs) if offs else [], -1, 3)
+        a = lk.aims
+        na = 0 if a is None else len(a["joint"])
+        self.a_joint, self.a_pre = i64(a["joint"] if na else []), i64(a["pre"] if na else [])
+        self.a_bone = f64([x[1] for x in rt._aims] if na else [], na, 3)
+        self.a_frm, self.a_to = i64(a["frm"] if na else []), i64(a["to"] if na else [])
+        self.a_A = f64(a["A"] if na else [], na, 3, 3)
+        self.src_ext = i64(np.where(rt._src_post < 0, J, rt._src_post))
+        self.rw_q = f64(matrix_to_quat(rt._rest_world), J, 4)
+        self.parents = i64(ch.parents)
+        order, seen = [], set()
+        while len(order) < J:   # parents first (the character has no cycle: checked when loaded)
+            for j in range(J):
+                if j not in seen and (ch.parents[j] < 0 or ch.parents[j] in seen):
+                    order.append(j)
+                    seen.add(j)
+        self.order = i64(order)
+        self.offsets = f64(ch.rest_offsets, J, 3)
+        rl = matrix_to_quat(np.swapaxes(rt._rest_local_inv, -1, -2))   # rest_local, conjugated
+        rl[:, 1:] *= -1.0
+        self.rl_inv = f64(rl, J, 4)
+        self.root_src = int(rt._root_src)
+        self.root_M, self.root_c = f64(lk.root_M, 3, 3), f64(lk.root_c, 3)
+        P, R = len(rt.source.point_names), len(rt.source.rotation_names)
+        self.ones_p, self.ones_r = np.ones(P, np.bool_), np.ones(R, np.bool_)
+        self.check_norm = rt._plan is None
+        # scratch, reused every frame
+        self.pq, self.rq = np.empty(P, np.int8), np.empty(R, np.int8)
+        self.qn = np.empty((R, 4))
+        self.qk, self.dq = np.empty((max(n, 1), 4)), np.empty((max(n, 1), 4))
+        self.ap = np.empty((max(na, 1), 4))
+        self.D, self.W, self.tmp = np.empty((J + 1, 4)), np.empty((J, 4)), np.empty((2, 4))
+        self.jq_good = lk.jq_good
+        self.Result = lk.Result
+        self.legs = None
+        if lk.legs is not None:
+            L, opt = rt._legs, rt.options
+            k = max(rt.ratio, 1e-3)
+            self.legs = (i64(L["hip"]), i64(L["knee"]), i64(L["ankle"]), i64(np.maximum(L["toe"], 0)),
+                         bool((L["toe"] >= 0).all()), f64(L["l1"], 2), f64(L["l2"], 2), f64(L["rest_h"], 2),
+                         f64(np.nan_to_num(L["toe_h"]), 2), i64(lk.legs["aff"]), i64(lk.legs["which"]))
+            self.plant_params = (float(opt.floor_z), float(opt.contact_height_m * k), float(opt.contact_speed_mps * k),
+                                 float(opt.release_s), 0.05)   # plant_one's window_s
+            self.ps = np.zeros(13)
+            self.ht, self.hxy, self.hn = np.zeros(64), np.zeros((64, 4)), np.zeros(1, np.int64)
+            self.ank, self.toe_z, self.target = np.empty((2, 3)), np.empty(2), np.empty((2, 3))
+            self.speed, self.turns = np.empty(2), np.empty((4, 4))
+        self._plant_for = None      # the retargeter state whose plants the arrays above hold
+
+    def release_state(self) -> None:
+        """Hand the plants back to the state's PlantState (the batched path is about to read it)."""
+        st = self._plant_for
+        if st is not None:
+            _unpack_plant(st.plant, self.ps, self.ht, self.hxy, self.hn)
+            self._plant_for = None
+
+    def run(self, pts, pok, rot, rok, t):
+        """One frame, as LiveKernel.run: points [P, 3], rotations [R, 4] or None, masks or None."""
+        k, rt = self.k, self.rt
+        st = rt._state
+        if not pts.flags.c_contiguous:
+            pts = np.ascontiguousarray(pts)
+        if pok is None:
+            pok = self.ones_p
+        if rot is None:
+            if rt._plan is None:
+                raise ValueError("this source has rotations: pass them")
+            fin = np.isfinite(pts).all(-1) & pok
+            rot = rotations_from_points(rt._plan, np.where(fin[:, None], pts, np.nan)[None])[0]
+            rok = self.ones_r
+        elif not rot.flags.c_contiguous:
+            rot = np.ascontiguousarray(rot)
+        if rok is None:
+            rok = self.ones_r
+        good = k.hold_frame(pts, pok, rot, rok, self.check_norm, st.pts, st.rot, st.pts_seen, st.rot_seen,
+                            self.pq, self.rq, self.qn)
+        held = st.pts
+        k.drive_frame(self.qn, held, self.rot_src, self.dep_idx, self.K, self.rot_joint,
+                      self.f_m, self.f_a, self.f_b, self.f_bone, self.f_A,
+                      self.c_start, self.c_end, self.c_jptr, self.c_joints, self.c_frac, self.c_iters, self.c_correct,
+                      self.c_end_src, self.c_pivot_src, self.c_A, self.c_pptr, self.c_path, self.c_off,
+                      self.a_joint, self.a_pre, self.a_bone, self.a_frm, self.a_to, self.a_A,
+                      self.qk, self.dq, self.ap, self.D, self.tmp)
+        J = self.J
+        W = self.W
+        root = np.empty((1, 3))
+        pos = np.empty((1, J, 3))
+        local = np.empty((1, J, 4))
+        r0, p0, l0 = root[0], pos[0], local[0]
+        k.world_from_deltas(self.D, self.src_ext, self.rw_q, W, held, self.root_src, self.root_M, self.root_c, r0)
+        k.pose_from_world(W, self.parents, self.order, self.offsets, self.rl_inv, r0, p0, l0, self.tmp)
+        contact = np.zeros((1, 2), np.bool_)
+        if self.legs is not None:
+            if self._plant_for is not st:       # a fresh state (reset) or one the batched path moved on
+                self.ht, self.hxy, self.hn = _pack_plant(st.plant, self.ps, len(self.ht))
+                self._plant_for = st
+            if self.hn[0] + 1 >= len(self.ht):  # a faster stream than the window held so far
+                self.ht = np.concatenate([self.ht, np.zeros(len(self.ht))])
+                self.hxy = np.concatenate([self.hxy, np.zeros((len(self.hxy), 4))])
+            tf = 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0]))
+            k.plant_frame(p0, W, self.parents, self.order, self.offsets, self.rl_inv, r0, l0, self.tmp,
+                          *self.legs, tf, *self.plant_params, self.ps, self.ht, self.hxy, self.hn, contact[0],
+                          self.ank, self.toe_z, self.target, self.speed, self.turns)
+        jq = self.jq_good.copy() if good else rt._quality(self.rq[None], self.pq[None])
+        return self.Result(local, root, pos, jq, contact)

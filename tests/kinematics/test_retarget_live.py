@@ -1,4 +1,5 @@
-"""The one-frame path (retarget_live) gives the batched path's output on real clips, frame by frame."""
+"""The one-frame path (retarget_live), compiled (numba kernels) and in numpy, gives the batched path's
+output on real clips and on the synthetic actor, frame by frame."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -12,24 +13,40 @@ from mocapgraph.formats.mapping_file import load_mapping
 from mocapgraph.kinematics.character import standard_20
 from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
 from mocapgraph.kinematics.retarget_mapping import derive_mapping
-from mocapgraph.kinematics.retarget_source import kinect_source
+from mocapgraph.kinematics.calibration import calibrate
+from mocapgraph.kinematics.retarget_source import kinect_source, optical_points, optical_source
+from mocapgraph.kinematics.solver import FrameSolver
+from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 
 from retarget_support import bvh_source
 
 FIELDS = ("local_rotations", "root_positions", "joint_positions", "joint_quality", "contact")
 
 
-def _compare(ch, mapping, src, opts, pts, pok, rot, t):
-    batch = Retargeter(ch, mapping, src, opts, live=False).process(pts, pok, rot, None, t)
-    live = Retargeter(ch, mapping, src, opts)
-    assert live._live is not None
-    frames = [live.process(pts[f:f + 1], None if pok is None else pok[f:f + 1],
-                           None if rot is None else rot[f:f + 1], None, t[f:f + 1]) for f in range(len(pts))]
-    worst = {}
-    for k in FIELDS:
-        got = np.concatenate([getattr(r, k) for r in frames]).astype(float)
-        worst[k] = float(np.abs(got - getattr(batch, k).astype(float)).max())
-    return batch, worst
+def _compare(ch, mapping, src, opts, pts, pok, rot, t, rok=None):
+    """(batched result, {path: {field: largest |one-frame - batched|}}) for the compiled and numpy paths."""
+    batch = Retargeter(ch, mapping, src, opts, live=False).process(pts, pok, rot, rok, t)
+    out = {}
+    for compiled in (True, False):
+        live = Retargeter(ch, mapping, src, opts, compiled=compiled)
+        assert live._live is not None and (live._live.compiled is not None) == compiled
+        frames = [live.process(pts[f:f + 1], None if pok is None else pok[f:f + 1],
+                               None if rot is None else rot[f:f + 1], None if rok is None else rok[f:f + 1],
+                               t[f:f + 1]) for f in range(len(pts))]
+        worst = {}
+        for k in FIELDS:
+            got = np.concatenate([getattr(r, k) for r in frames]).astype(float)
+            worst[k] = float(np.abs(got - getattr(batch, k).astype(float)).max())
+        assert np.isfinite(np.concatenate([r.local_rotations for r in frames])).all()   # never NaN rotations
+        out["compiled" if compiled else "numpy"] = worst
+    return batch, out
+
+
+def _check(what, worst):
+    for path, w in worst.items():
+        print(f"\n{what}, {path} one-frame path - batch max: " + ", ".join(f"{k} {v:.1e}" for k, v in w.items()))
+        for k, v in w.items():
+            assert v < 1e-12 if k not in ("joint_quality", "contact") else v == 0, (path, k, v)
 
 
 @pytest.mark.parametrize("planting", [False, True])
@@ -44,12 +61,9 @@ def test_live_equals_batch_cmu_onto_mixamo_with_gaps(shared_data, planting):
     mix = load_character("mixamo")
     opts = RetargetOptions(foot_planting=planting)
     batch, worst = _compare(mix, derive_mapping(mix, src), src, opts, pts, None, rot, np.arange(n) / motion.rate_hz)
-    print(f"\nCMU 131_01 onto Mixamo, planting {planting}: live - batch max " +
-          ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
     assert (batch.joint_quality < 2).any()          # the gaps did reach the comparison
     assert batch.contact.any() == planting          # and the plants, with planting on
-    for k, v in worst.items():
-        assert v < 1e-12 if k != "joint_quality" and k != "contact" else v == 0, (k, v)
+    _check(f"CMU 131_01 onto Mixamo, planting {planting}", worst)
 
 
 def test_live_equals_batch_kinect_positions_only_with_dependencies(shared_data):
@@ -64,10 +78,55 @@ def test_live_equals_batch_kinect_positions_only_with_dependencies(shared_data):
     mapping = replace(mapping, joints=tuple(replace(e, D=deps[e.joint]) if e.joint in deps else e
                                             for e in mapping.joints))
     batch, worst = _compare(ch, mapping, src, RetargetOptions(), trial.positions[:n], pok, None, np.arange(n) / 30.0)
-    print("\nKinect v2 onto standard_20: live - batch max " + ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
     assert not pok.all()
-    for k, v in worst.items():
-        assert v < 1e-12 if k not in ("joint_quality", "contact") else v == 0, (k, v)
+    _check("Kinect v2 onto standard_20", worst)
+
+
+@pytest.fixture(scope="module")
+def solved_actor():
+    """The synthetic actor (1 mm marker noise) calibrated and solved: source, points, limb rotations, times."""
+    cap = SyntheticActor("kiip_full_body", options=CaptureOptions(noise_mm=1.0), seed=4).capture()
+    model = calibrate(cap.skeleton, cap.markers[: cap.phases["gym"][1]], rate_hz=cap.rate, source="synthetic")
+    perf = cap.phase_slice("performance")
+    res = FrameSolver(model, rate_hz=cap.rate).solve(cap.markers[perf])
+    src = optical_source(model.joint_names, model.joint_parent, model.joint_limbs, model.limb_names, model.joint_base)
+    return src, optical_points(res.joints, model.joint_names), res.limb_rotation, res.limb_quality > 0, cap.times[perf]
+
+
+@pytest.mark.parametrize("planting", [False, True])
+def test_live_equals_batch_synthetic_actor_onto_standard_20(solved_actor, planting):
+    """The node's case: solved limb rotations and joints onto standard_20 (spread spine, clavicles),
+    with a limb lost for a while, a joint gone, a non-unit quaternion and the feet planted."""
+    src, pts, rot, rok, t = solved_actor
+    n = 500
+    pts, rot, rok = pts[:n].copy(), rot[:n].copy(), rok[:n].copy()
+    pts[60:90, 7] = np.nan
+    rok[120:150, 3] = False
+    rot[200, 2] *= 1.01
+    ch = standard_20(1.75)
+    batch, worst = _compare(ch, derive_mapping(ch, src), src, RetargetOptions(foot_planting=planting),
+                            pts, None, rot, t[:n], rok)
+    assert (batch.joint_quality < 2).any()
+    assert batch.contact.any() == planting
+    _check(f"synthetic actor onto standard_20, planting {planting}", worst)
+
+
+def test_live_and_batched_calls_share_one_state(solved_actor):
+    """Frames one at a time, then a batch, then one at a time again on the same retargeter give what
+    one batch gives: held values and plants pass between the compiled and the batched path."""
+    src, pts, rot, rok, t = solved_actor
+    ch = standard_20(1.75)
+    m = derive_mapping(ch, src)
+    opts = RetargetOptions(foot_planting=True)
+    whole = Retargeter(ch, m, src, opts, live=False).process(pts[:300], None, rot[:300], rok[:300], t[:300])
+    rt = Retargeter(ch, m, src, opts)
+    parts = [rt.process(pts[f:f + 1], None, rot[f:f + 1], rok[f:f + 1], t[f:f + 1]) for f in range(100)]
+    parts.append(rt.process(pts[100:200], None, rot[100:200], rok[100:200], t[100:200]))
+    parts += [rt.process(pts[f:f + 1], None, rot[f:f + 1], rok[f:f + 1], t[f:f + 1]) for f in range(200, 300)]
+    got = np.concatenate([r.joint_positions for r in parts])
+    assert whole.contact.any()
+    assert np.abs(got - whole.joint_positions).max() < 1e-12
+    assert (np.concatenate([r.contact for r in parts]) == whole.contact).all()
 
 
 def test_the_nodes_point_layout_is_optical_points():

@@ -1,0 +1,444 @@
+"""Compiled one-frame retargeting (numba): the arithmetic of retarget_live's frame, planting and leg IK included.
+
+Same math as :class:`retarget_live.LiveKernel`'s numpy ``run`` (the reference, checked to 1e-12 in
+the tests against the batched path), as plain loops over a frame's few dozen joints: holding
+missing source values, Claro's Eq 4.1 on the source quaternions (dependencies included), bones
+following the source bones, spread chains with their end point matched, aimed clavicles,
+inheritance and rest orientations, root, forward kinematics, local rotations, and Kiip's foot
+planting (contact from height and windowed speed, planted targets, two-bone leg IK). World frame,
+Z up, metres, seconds, quaternions wxyz. Inputs and outputs are float64/int64/bool arrays that
+:class:`retarget_live.CompiledFrame` preallocates; nothing here allocates per frame.
+
+Plant state (carried between frames) is one float array ``ps`` [13]: planted l, r (0/1), anchor xy
+l, r, offset xy l, r, last time (NaN: none yet), lowest ankle height l, r (NaN: none yet); the
+speed window is ``ht`` [cap] times and ``hxy`` [cap, 4] ankle xy (l x, l y, r x, r y), ``hn[0]``
+of them in use (the caller keeps cap > hn[0]).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..jit import kernel
+
+QUALITY_GOOD = 2
+
+
+@kernel
+def _qmul(a0, a1, a2, a3, b0, b1, b2, b3, out, k):
+    """out[k] = a * b (Hamilton, wxyz)."""
+    out[k, 0] = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
+    out[k, 1] = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
+    out[k, 2] = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
+    out[k, 3] = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
+
+
+@kernel
+def _rotate(q, k, v0, v1, v2, out, m):
+    """out[m] = R(q[k]) v for a unit quaternion q[k]."""
+    w, x, y, z = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
+    tx, ty, tz = 2.0 * (y * v2 - z * v1), 2.0 * (z * v0 - x * v2), 2.0 * (x * v1 - y * v0)
+    out[m, 0] = v0 + w * tx + y * tz - z * ty
+    out[m, 1] = v1 + w * ty + z * tx - x * tz
+    out[m, 2] = v2 + w * tz + x * ty - y * tx
+
+
+@kernel
+def _between(a0, a1, a2, b0, b1, b2, out, k):
+    """out[k] = the shortest-arc unit quaternion turning direction a onto b (any lengths);
+    antiparallel: a turn by pi about a x X (a x Y when a is along X), as quat_between, sign as
+    matrix_to_quat gives it (largest component positive, then w >= 0)."""
+    dot = a0 * b0 + a1 * b1 + a2 * b2
+    ab = math.sqrt((a0 * a0 + a1 * a1 + a2 * a2) * (b0 * b0 + b1 * b1 + b2 * b2))
+    w = ab + dot
+    if w >= 1e-9 * ab:
+        x, y, z = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    else:
+        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        u0, u1, u2 = a0 / na, a1 / na, a2 / na
+        w = 0.0
+        if abs(u0) < 0.9:   # u x X
+            x, y, z = 0.0, u2, -u1
+        else:               # u x Y
+            x, y, z = -u2, 0.0, u0
+        big = x
+        if abs(y) > abs(big):
+            big = y
+        if abs(z) > abs(big):
+            big = z
+        if big < 0.0:
+            x, y, z = -x, -y, -z
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    out[k, 0], out[k, 1], out[k, 2], out[k, 3] = w / n, x / n, y / n, z / n
+
+
+@kernel
+def _lmul(p, i, q, j):
+    """q[j] = p[i] * q[j] in place."""
+    a0, a1, a2, a3 = p[i, 0], p[i, 1], p[i, 2], p[i, 3]
+    _qmul(a0, a1, a2, a3, q[j, 0], q[j, 1], q[j, 2], q[j, 3], q, j)
+
+
+@kernel
+def hold_frame(pts_in, pok_in, rot_in, rok_in, check_norm, st_pts, st_rot, pts_seen, rot_seen, pq, rq, qn):
+    """Validity and holding: a point is good when finite and flagged, a rotation when finite, flagged
+    and (``check_norm``) of norm within 1e-3 of 1; bad ones take the held value (state updated in
+    place). Quality [P], [R]: 2 good, 1 held, 0 never seen. ``qn`` [R, 4]: the held rotations, unit.
+    Returns True when every input was good."""
+    good = True
+    for p in range(pts_in.shape[0]):
+        x, y, z = pts_in[p, 0], pts_in[p, 1], pts_in[p, 2]
+        if pok_in[p] and math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
+            st_pts[p, 0], st_pts[p, 1], st_pts[p, 2] = x, y, z
+            pts_seen[p] = True
+            pq[p] = QUALITY_GOOD
+        else:
+            good = False
+            pq[p] = 1 if pts_seen[p] else 0
+    for r in range(rot_in.shape[0]):
+        w, x, y, z = rot_in[r, 0], rot_in[r, 1], rot_in[r, 2], rot_in[r, 3]
+        n = math.sqrt(w * w + x * x + y * y + z * z)
+        ok = rok_in[r] and (abs(n - 1.0) < 1e-3 if check_norm else math.isfinite(n))
+        if ok:
+            st_rot[r, 0], st_rot[r, 1], st_rot[r, 2], st_rot[r, 3] = w, x, y, z
+            rot_seen[r] = True
+            rq[r] = QUALITY_GOOD
+        else:
+            good = False
+            rq[r] = 1 if rot_seen[r] else 0
+            w, x, y, z = st_rot[r, 0], st_rot[r, 1], st_rot[r, 2], st_rot[r, 3]
+            n = math.sqrt(w * w + x * x + y * y + z * z)
+        qn[r, 0], qn[r, 1], qn[r, 2], qn[r, 3] = w / n, x / n, y / n, z / n
+    return good
+
+
+@kernel
+def drive_frame(qn, pts, rot_src, dep_idx, K, rot_joint,
+                f_m, f_a, f_b, f_bone, f_A,
+                c_start, c_end, c_jptr, c_joints, c_frac, c_iters, c_correct, c_end_src, c_pivot_src, c_A,
+                c_pptr, c_path, c_off,
+                a_joint, a_pre, a_bone, a_frm, a_to, a_A,
+                qk, dq, ap, D, tmp):
+    """Per-joint deltas D [J + 1, 4] (row J: identity) from the held unit source rotations ``qn``
+    [R, 4] and points ``pts`` [P, 3]: Eq 4.1 (K = A·_·D·R⁻¹·A⁻¹ as 4x4 matrices, dependency levels
+    ``dep_idx`` with R the identity slot), following bones, spread chains, aims. ``qk``, ``dq``
+    [n, 4], ``ap`` [aims, 4] and ``tmp`` [2, 4] are scratch."""
+    n = rot_src.shape[0]
+    R = qn.shape[0]
+    for i in range(n):
+        s = rot_src[i]
+        qk[i, 0], qk[i, 1], qk[i, 2], qk[i, 3] = qn[s, 0], qn[s, 1], qn[s, 2], qn[s, 3]
+        for lev in range(dep_idx.shape[0]):
+            d = dep_idx[lev, i]
+            if d < R:
+                _qmul(qk[i, 0], qk[i, 1], qk[i, 2], qk[i, 3], qn[d, 0], qn[d, 1], qn[d, 2], qn[d, 3], qk, i)
+        for r in range(4):
+            dq[i, r] = K[i, r, 0] * qk[i, 0] + K[i, r, 1] * qk[i, 1] + K[i, r, 2] * qk[i, 2] + K[i, r, 3] * qk[i, 3]
+    # bones following the source bones: turn the carried bone onto the source's (A applied)
+    for f in range(f_m.shape[0]):
+        m = f_m[f]
+        _rotate(dq, m, f_bone[f, 0], f_bone[f, 1], f_bone[f, 2], tmp, 0)
+        v0 = pts[f_b[f], 0] - pts[f_a[f], 0]
+        v1 = pts[f_b[f], 1] - pts[f_a[f], 1]
+        v2 = pts[f_b[f], 2] - pts[f_a[f], 2]
+        w0 = f_A[f, 0, 0] * v0 + f_A[f, 0, 1] * v1 + f_A[f, 0, 2] * v2
+        w1 = f_A[f, 1, 0] * v0 + f_A[f, 1, 1] * v1 + f_A[f, 1, 2] * v2
+        w2 = f_A[f, 2, 0] * v0 + f_A[f, 2, 1] * v1 + f_A[f, 2, 2] * v2
+        if not w0 * w0 + w1 * w1 + w2 * w2 > 1e-18:    # |want| <= 1e-9 m: nothing to follow
+            w0, w1, w2 = tmp[0, 0], tmp[0, 1], tmp[0, 2]
+        _between(tmp[0, 0], tmp[0, 1], tmp[0, 2], w0, w1, w2, tmp, 1)
+        _lmul(tmp, 1, dq, m)
+    J1 = D.shape[0]
+    for j in range(J1):
+        D[j, 0], D[j, 1], D[j, 2], D[j, 3] = 1.0, 0.0, 0.0, 0.0
+    for i in range(n):
+        j = rot_joint[i]
+        D[j, 0], D[j, 1], D[j, 2], D[j, 3] = dq[i, 0], dq[i, 1], dq[i, 2], dq[i, 3]
+    # spread chains: qs · (qs⁻¹ qe)^f per chain joint, then the chain turned onto the scaled end point
+    for c in range(c_start.shape[0]):
+        s, e = c_start[c], c_end[c]
+        a0, a1, a2, a3 = D[s, 0], D[s, 1], D[s, 2], D[s, 3]
+        _qmul(a0, -a1, -a2, -a3, D[e, 0], D[e, 1], D[e, 2], D[e, 3], tmp, 0)
+        w, x, y, z = tmp[0, 0], tmp[0, 1], tmp[0, 2], tmp[0, 3]
+        if w < 0.0:
+            w, x, y, z = -w, -x, -y, -z
+        sn = math.sqrt(x * x + y * y + z * z)
+        if sn > 1e-15:
+            x0, x1, x2 = x / sn, y / sn, z / sn
+        else:
+            x0, x1, x2 = 0.0, 0.0, 0.0
+        ang = math.atan2(sn, w)
+        # qs * (0, axis)
+        u0 = -a1 * x0 - a2 * x1 - a3 * x2
+        u1 = a0 * x0 + a2 * x2 - a3 * x1
+        u2 = a0 * x1 - a1 * x2 + a3 * x0
+        u3 = a0 * x2 + a1 * x1 - a2 * x0
+        for k in range(c_jptr[c], c_jptr[c + 1]):
+            h = c_frac[k] * ang
+            ch, sh = math.cos(h), math.sin(h)
+            j = c_joints[k]
+            D[j, 0], D[j, 1], D[j, 2], D[j, 3] = ch * a0 + sh * u0, ch * a1 + sh * u1, ch * a2 + sh * u2, ch * a3 + sh * u3
+        if c_correct[c]:
+            v0 = pts[c_end_src[c], 0] - pts[c_pivot_src[c], 0]
+            v1 = pts[c_end_src[c], 1] - pts[c_pivot_src[c], 1]
+            v2 = pts[c_end_src[c], 2] - pts[c_pivot_src[c], 2]
+            t0 = c_A[c, 0, 0] * v0 + c_A[c, 0, 1] * v1 + c_A[c, 0, 2] * v2
+            t1 = c_A[c, 1, 0] * v0 + c_A[c, 1, 1] * v1 + c_A[c, 1, 2] * v2
+            t2 = c_A[c, 2, 0] * v0 + c_A[c, 2, 1] * v1 + c_A[c, 2, 2] * v2
+            for _ in range(c_iters[c]):
+                s0, s1, s2 = 0.0, 0.0, 0.0
+                for k in range(c_pptr[c], c_pptr[c + 1]):
+                    _rotate(D, c_path[k], c_off[k, 0], c_off[k, 1], c_off[k, 2], tmp, 0)
+                    s0 += tmp[0, 0]
+                    s1 += tmp[0, 1]
+                    s2 += tmp[0, 2]
+                _between(s0, s1, s2, t0, t1, t2, tmp, 1)
+                for k in range(c_jptr[c], c_jptr[c + 1]):
+                    _lmul(tmp, 1, D, c_joints[k])
+    # aims: every aim joint from its parent-carried rest bone (parents' deltas read before any is set)
+    na = a_joint.shape[0]
+    for i in range(na):
+        p = a_pre[i]
+        ap[i, 0], ap[i, 1], ap[i, 2], ap[i, 3] = D[p, 0], D[p, 1], D[p, 2], D[p, 3]
+    for i in range(na):
+        _rotate(ap, i, a_bone[i, 0], a_bone[i, 1], a_bone[i, 2], tmp, 0)
+        v0 = pts[a_to[i], 0] - pts[a_frm[i], 0]
+        v1 = pts[a_to[i], 1] - pts[a_frm[i], 1]
+        v2 = pts[a_to[i], 2] - pts[a_frm[i], 2]
+        w0 = a_A[i, 0, 0] * v0 + a_A[i, 0, 1] * v1 + a_A[i, 0, 2] * v2
+        w1 = a_A[i, 1, 0] * v0 + a_A[i, 1, 1] * v1 + a_A[i, 1, 2] * v2
+        w2 = a_A[i, 2, 0] * v0 + a_A[i, 2, 1] * v1 + a_A[i, 2, 2] * v2
+        _between(tmp[0, 0], tmp[0, 1], tmp[0, 2], w0, w1, w2, tmp, 1)
+        j = a_joint[i]
+        _qmul(tmp[1, 0], tmp[1, 1], tmp[1, 2], tmp[1, 3], ap[i, 0], ap[i, 1], ap[i, 2], ap[i, 3], D, j)
+
+
+@kernel
+def world_from_deltas(D, src_ext, rw_q, W, pts, root_src, root_M, root_c, root):
+    """World orientations W [J, 4] = D[nearest driven] · rest world orientation; the root [3] (m) from
+    the source root point: root_M (ratio, heading) times it plus root_c (floor matched, offset)."""
+    for j in range(W.shape[0]):
+        s = src_ext[j]
+        _qmul(D[s, 0], D[s, 1], D[s, 2], D[s, 3], rw_q[j, 0], rw_q[j, 1], rw_q[j, 2], rw_q[j, 3], W, j)
+    p0, p1, p2 = pts[root_src, 0], pts[root_src, 1], pts[root_src, 2]
+    for r in range(3):
+        root[r] = root_M[r, 0] * p0 + root_M[r, 1] * p1 + root_M[r, 2] * p2 + root_c[r]
+
+
+@kernel
+def pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp):
+    """Joint positions [J, 3] (root + parent-rotated rest offsets down the hierarchy, ``order`` parents
+    first) and local rotations [J, 4] rest_local⁻¹ · W[parent]⁻¹ · W with w >= 0."""
+    for k in range(order.shape[0]):
+        j = order[k]
+        p = parents[j]
+        if p < 0:
+            pos[j, 0], pos[j, 1], pos[j, 2] = root[0], root[1], root[2]
+            a0, a1, a2, a3 = 1.0, 0.0, 0.0, 0.0
+        else:
+            _rotate(W, p, offsets[j, 0], offsets[j, 1], offsets[j, 2], tmp, 0)
+            pos[j, 0] = pos[p, 0] + tmp[0, 0]
+            pos[j, 1] = pos[p, 1] + tmp[0, 1]
+            pos[j, 2] = pos[p, 2] + tmp[0, 2]
+            a0, a1, a2, a3 = W[p, 0], -W[p, 1], -W[p, 2], -W[p, 3]
+        _qmul(a0, a1, a2, a3, W[j, 0], W[j, 1], W[j, 2], W[j, 3], tmp, 1)
+        _qmul(rl_inv[j, 0], rl_inv[j, 1], rl_inv[j, 2], rl_inv[j, 3], tmp[1, 0], tmp[1, 1], tmp[1, 2], tmp[1, 3],
+              local, j)
+        if local[j, 0] < 0.0:
+            local[j, 0], local[j, 1], local[j, 2], local[j, 3] = -local[j, 0], -local[j, 1], -local[j, 2], -local[j, 3]
+
+
+@kernel
+def _speeds(ht, hxy, hn, t, x_l, y_l, x_r, y_r, window_s, speed):
+    """foot_planting._speed_one: append (t, xy) to the window, drop samples older than ``window_s``
+    (at least two kept), least-squares horizontal speed per foot (0 with fewer than two finite)."""
+    N = hn[0] + 1
+    ht[N - 1] = t
+    hxy[N - 1, 0], hxy[N - 1, 1], hxy[N - 1, 2], hxy[N - 1, 3] = x_l, y_l, x_r, y_r
+    lo = t - window_s - 1e-12
+    first = N
+    for k in range(N):
+        if ht[k] >= lo:
+            first = k
+            break
+    first = min(first, max(N - 2, 0))
+    if first > 0:
+        for k in range(first, N):
+            ht[k - first] = ht[k]
+            for c in range(4):
+                hxy[k - first, c] = hxy[k, c]
+        N -= first
+    hn[0] = N
+    speed[0], speed[1] = 0.0, 0.0
+    if N < 2:
+        return
+    for i in range(2):
+        cx, cy = 2 * i, 2 * i + 1
+        cnt = 0
+        st, sx, sy = 0.0, 0.0, 0.0
+        for k in range(N):
+            if hxy[k, cx] == hxy[k, cx] and hxy[k, cy] == hxy[k, cy]:
+                cnt += 1
+                st += ht[k] - t
+                sx += hxy[k, cx]
+                sy += hxy[k, cy]
+        if cnt < 2:
+            continue
+        tm, xm, ym = st / cnt, sx / cnt, sy / cnt
+        den, nx, ny = 0.0, 0.0, 0.0
+        for k in range(N):
+            if hxy[k, cx] == hxy[k, cx] and hxy[k, cy] == hxy[k, cy]:
+                a = ht[k] - t - tm
+                den += a * a
+        if den > 1e-18:
+            for k in range(N):
+                if hxy[k, cx] == hxy[k, cx] and hxy[k, cy] == hxy[k, cy]:
+                    a = ht[k] - t - tm
+                    nx += a * (hxy[k, cx] - xm)
+                    ny += a * (hxy[k, cy] - ym)
+            vx, vy = nx / den, ny / den
+            speed[i] = math.sqrt(vx * vx + vy * vy)
+
+
+@kernel
+def plant_feet(ankle, toe_z, has_toe, rest_h, toe_h, t, floor_z, height_m, speed_mps, release_s, window_s,
+               ps, ht, hxy, hn, target, contact, speed):
+    """foot_planting.plant_one on arrays: ankles [2, 3] (m), toe heights [2] (m) -> targets [2, 3]
+    and contact [2]; the plant state ``ps``/``ht``/``hxy``/``hn`` (module docstring) updated in place."""
+    nan = np.nan
+    ok0 = math.isfinite(ankle[0, 0]) and math.isfinite(ankle[0, 1]) and math.isfinite(ankle[0, 2])
+    ok1 = math.isfinite(ankle[1, 0]) and math.isfinite(ankle[1, 1]) and math.isfinite(ankle[1, 2])
+    _speeds(ht, hxy, hn, t, ankle[0, 0] if ok0 else nan, ankle[0, 1] if ok0 else nan,
+            ankle[1, 0] if ok1 else nan, ankle[1, 1] if ok1 else nan, window_s, speed)
+    t_prev = ps[10]
+    dt = t - t_prev if t_prev == t_prev else nan
+    decay = max(0.0, 1.0 - dt / release_s) if release_s > 0 and dt == dt else 0.0
+    for i in range(2):
+        target[i, 0], target[i, 1], target[i, 2] = ankle[i, 0], ankle[i, 1], ankle[i, 2]
+        contact[i] = False
+        if not (ok0 if i == 0 else ok1):
+            ps[i] = 0.0
+            continue
+        h_rest = ankle[i, 2] - (floor_z + rest_h[i])
+        if not ps[11 + i] <= h_rest:      # fmin: a NaN low is none yet
+            ps[11 + i] = h_rest
+        h = h_rest - max(ps[11 + i], 0.0)
+        enter = h < height_m and speed[i] < speed_mps
+        keep = h < 1.5 * height_m and speed[i] < 2.0 * speed_mps
+        planted = ps[i] != 0.0
+        c = enter or (planted and keep)
+        x, y = ankle[i, 0], ankle[i, 1]
+        if c:
+            if not planted:   # begins where the foot is drawn now (a fading offset included): no jump
+                ps[2 + 2 * i] = x + (ps[6 + 2 * i] if dt == dt else 0.0)
+                ps[3 + 2 * i] = y + (ps[7 + 2 * i] if dt == dt else 0.0)
+            ps[6 + 2 * i] = ps[2 + 2 * i] - x
+            ps[7 + 2 * i] = ps[3 + 2 * i] - y
+            target[i, 0], target[i, 1] = ps[2 + 2 * i], ps[3 + 2 * i]
+        else:                 # released: the last offset fades out over release_s
+            ps[6 + 2 * i] *= decay
+            ps[7 + 2 * i] *= decay
+            target[i, 0], target[i, 1] = x + ps[6 + 2 * i], y + ps[7 + 2 * i]
+        contact[i] = c
+        ps[i] = 1.0 if c else 0.0
+        z = max(ankle[i, 2], floor_z + rest_h[i])
+        if has_toe:
+            lift = floor_z + toe_h[i] - toe_z[i]
+            if lift != lift:
+                lift = 0.0
+            z = max(z, ankle[i, 2] + max(lift, 0.0))
+        target[i, 2] = z
+    ps[10] = t
+
+
+@kernel
+def _leg_ik(hip, knee, ankle, target, l1, l2, p0, p1, p2, out, k1, k2):
+    """foot_planting.two_bone_ik for one leg (points [3]): out[k1] the thigh turn, out[k2] the shin
+    turn (about the new knee), the knee kept in the leg's bend plane (pole p where it is straight)."""
+    to0, to1, to2 = target[0] - hip[0], target[1] - hip[1], target[2] - hip[2]
+    dist = math.sqrt(to0 * to0 + to1 * to1 + to2 * to2)
+    dd = max(dist, 1e-12)
+    u0, u1, u2 = to0 / dd, to1 / dd, to2 / dd
+    d = min(max(dist, abs(l1 - l2) + 1e-6), l1 + l2 - 1e-6)
+    cos_a = min(max((l1 * l1 + d * d - l2 * l2) / (2 * l1 * d), -1.0), 1.0)
+    sin_a = math.sqrt(1.0 - cos_a * cos_a)
+    k0, kk1, kk2 = knee[0] - hip[0], knee[1] - hip[1], knee[2] - hip[2]
+    ku = k0 * u0 + kk1 * u1 + kk2 * u2
+    v0, v1, v2 = k0 - ku * u0, kk1 - ku * u1, kk2 - ku * u2
+    if not math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) > 1e-6 * l1:
+        pu = p0 * u0 + p1 * u1 + p2 * u2
+        v0, v1, v2 = p0 - pu * u0, p1 - pu * u1, p2 - pu * u2
+    vn = max(math.sqrt(v0 * v0 + v1 * v1 + v2 * v2), 1e-12)
+    n0 = hip[0] + l1 * (cos_a * u0 + sin_a * v0 / vn)
+    n1 = hip[1] + l1 * (cos_a * u1 + sin_a * v1 / vn)
+    n2 = hip[2] + l1 * (cos_a * u2 + sin_a * v2 / vn)
+    _between(k0, kk1, kk2, n0 - hip[0], n1 - hip[1], n2 - hip[2], out, k1)
+    _rotate(out, k1, ankle[0] - knee[0], ankle[1] - knee[1], ankle[2] - knee[2], out, k2)   # shin after
+    s0, s1, s2 = out[k2, 0], out[k2, 1], out[k2, 2]
+    _between(s0, s1, s2, hip[0] + d * u0 - n0, hip[1] + d * u1 - n1, hip[2] + d * u2 - n2, out, k2)
+
+
+@kernel
+def legs_to_targets(W, pos, target, hip, knee, ankle, l1, l2, aff, which, turns):
+    """Two-bone IK for each leg whose ankle is not at its target (1e-12 m): the thigh turn (and the
+    shin turn after it) applied to the world orientations W [J, 4] of the joints they carry
+    (``aff``, ``which``: 0/1 thigh l/r, 2/3 shin l/r). Returns True when a leg moved."""
+    moved = False
+    for t in range(4):
+        turns[t, 0], turns[t, 1], turns[t, 2], turns[t, 3] = 1.0, 0.0, 0.0, 0.0
+    for i in range(2):
+        a = ankle[i]
+        g = abs(target[i, 0] - pos[a, 0])     # Python's max over the three: a NaN first stays, later ones lose
+        for c in range(1, 3):
+            dv = abs(target[i, c] - pos[a, c])
+            if dv > g:
+                g = dv
+        if not g >= 1e-12:
+            continue
+        moved = True
+        h = hip[i]
+        w, x, y, z = W[h, 0], W[h, 1], W[h, 2], W[h, 3]   # the thigh's forward axis as the pole
+        _leg_ik(pos[h], pos[knee[i]], pos[a], target[i], l1[i], l2[i],
+                1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y), turns, i, 2 + i)
+        # the shin: the thigh's turn, then its own
+        _qmul(turns[2 + i, 0], turns[2 + i, 1], turns[2 + i, 2], turns[2 + i, 3],
+              turns[i, 0], turns[i, 1], turns[i, 2], turns[i, 3], turns, 2 + i)
+    if moved:
+        for k in range(aff.shape[0]):
+            _lmul(turns, which[k], W, aff[k])
+    return moved
+
+
+@kernel
+def plant_frame(pos, W, parents, order, offsets, rl_inv, root, local, tmp,
+                hip, knee, ankle, toe, has_toe, l1, l2, rest_h, toe_h, aff, which,
+                t, floor_z, height_m, speed_mps, release_s, window_s,
+                ps, ht, hxy, hn, contact, ank, toe_z, target, speed, turns):
+    """Foot planting for one frame: contact and targets (:func:`plant_feet`), leg IK
+    (:func:`legs_to_targets`) and, when a leg moved, positions and local rotations anew. ``ank``
+    [2, 3], ``toe_z`` [2], ``target`` [2, 3], ``speed`` [2], ``turns`` [4, 4] are scratch."""
+    for i in range(2):
+        a = ankle[i]
+        ank[i, 0], ank[i, 1], ank[i, 2] = pos[a, 0], pos[a, 1], pos[a, 2]
+        toe_z[i] = pos[toe[i], 2] if has_toe else 0.0
+    plant_feet(ank, toe_z, has_toe, rest_h, toe_h, t, floor_z, height_m, speed_mps, release_s, window_s,
+               ps, ht, hxy, hn, target, contact, speed)
+    if legs_to_targets(W, pos, target, hip, knee, ankle, l1, l2, aff, which, turns):
+        pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp)
+
+
+def warm() -> None:
+    """Compile every kernel once (a one-joint-chain frame with one leg pair) and cache it."""
+    from .character import standard_20
+    from .retarget import RetargetOptions, Retargeter
+    from .retarget_mapping import derive_mapping
+    from .retarget_source import skeleton_source
+    ch = standard_20(1.75)
+    pos, _ = ch.forward_kinematics()
+    src = skeleton_source(list(ch.joint_names), ch.parents, ch.rest_offsets, has_orientations=True)
+    for planting in (False, True):
+        rt = Retargeter(ch, derive_mapping(ch, src), src, RetargetOptions(foot_planting=planting))
+        q = np.tile([1.0, 0.0, 0.0, 0.0], (1, ch.n_joints, 1))
+        for f in range(3):
+            rt.process(pos[None], None, q, None, f / 240.0)
