@@ -253,6 +253,12 @@ def pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp):
 def _speeds(ht, hxy, hn, t, x_l, y_l, x_r, y_r, window_s, speed):
     """foot_planting._speed_one: append (t, xy) to the window, drop samples older than ``window_s``
     (at least two kept), least-squares horizontal speed per foot (0 with fewer than two finite)."""
+    if hn[0] >= ht.shape[0]:   # no room (the caller grows the buffers first): drop the oldest sample
+        for k in range(1, hn[0]):
+            ht[k - 1] = ht[k]
+            for c in range(4):
+                hxy[k - 1, c] = hxy[k, c]
+        hn[0] -= 1
     N = hn[0] + 1
     ht[N - 1] = t
     hxy[N - 1, 0], hxy[N - 1, 1], hxy[N - 1, 2], hxy[N - 1, 3] = x_l, y_l, x_r, y_r
@@ -426,6 +432,123 @@ def plant_frame(pos, W, parents, order, offsets, rl_inv, root, local, tmp,
                ps, ht, hxy, hn, target, contact, speed)
     if legs_to_targets(W, pos, target, hip, knee, ankle, l1, l2, aff, which, turns):
         pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp)
+
+
+# Slots of the packed constants (one int64 array ``ci``, one float64 array ``cf``, one float64
+# scratch ``wk``): passing three arrays instead of ninety costs ~1 us of dispatch instead of ~20.
+# ``ci`` starts with (start, end) pairs: int slots, then float slots (into cf), then scratch slots (into wk).
+# Slot numbers are passed as np.int64(...): a plain int constant would compile the accessor once per value.
+INT_SLOTS = ("rot_src", "dep_idx", "rot_joint", "f_m", "f_a", "f_b", "c_start", "c_end", "c_jptr", "c_joints",
+             "c_iters", "c_correct", "c_end_src", "c_pivot_src", "c_pptr", "c_path", "a_joint", "a_pre", "a_frm",
+             "a_to", "src_ext", "parents", "order", "scalars", "hip", "knee", "ankle", "toe", "aff", "which")
+FLOAT_SLOTS = ("K", "f_bone", "f_A", "c_frac", "c_A", "c_off", "a_bone", "a_A", "rw_q", "offsets", "rl_inv",
+               "root_M", "root_c", "l1", "l2", "rest_h", "toe_h", "plant")
+WORK_SLOTS = ("qn", "qk", "dq", "ap", "D", "W", "tmp", "ank", "toe_z", "target", "speed", "turns")
+_NI, _NF = len(INT_SLOTS), len(FLOAT_SLOTS)
+(I_ROT_SRC, I_DEP, I_ROT_JOINT, I_FM, I_FA, I_FB, I_CS, I_CE, I_CJPTR, I_CJ, I_CIT, I_CCOR, I_CES, I_CPS, I_CPPTR,
+ I_CPATH, I_AJ, I_APRE, I_AFRM, I_ATO, I_SRC_EXT, I_PAR, I_ORDER, I_SCAL, I_HIP, I_KNEE, I_ANKLE, I_TOE, I_AFF,
+ I_WHICH) = range(_NI)
+(F_K, F_FBONE, F_FA, F_CFRAC, F_CA, F_COFF, F_ABONE, F_AA, F_RWQ, F_OFF, F_RLINV, F_RM, F_RC, F_L1, F_L2, F_RH,
+ F_TH, F_PLANT) = range(_NF)
+(W_QN, W_QK, W_DQ, W_AP, W_D, W_W, W_TMP, W_ANK, W_TOEZ, W_TARGET, W_SPEED, W_TURNS) = range(len(WORK_SLOTS))
+
+
+@kernel
+def _iv(ci, k):
+    """Int slot k of the packed constants (a view)."""
+    return ci[ci[2 * k]:ci[2 * k + 1]]
+
+
+@kernel
+def _fv(ci, cf, k):
+    """Float slot k (a view)."""
+    return cf[ci[2 * (_NI + k)]:ci[2 * (_NI + k) + 1]]
+
+
+@kernel
+def _fm(ci, cf, k, cols):
+    """Float slot k as [rows, cols] (a view)."""
+    a = _fv(ci, cf, k)
+    return a.reshape((a.shape[0] // cols, cols))
+
+
+@kernel
+def _wv(ci, wk, k, cols):
+    """Scratch slot k as [rows, cols] (a view)."""
+    a = wk[ci[2 * (_NI + _NF + k)]:ci[2 * (_NI + _NF + k) + 1]]
+    return a.reshape((a.shape[0] // cols, cols))
+
+
+@kernel
+def retarget_frame(pts, pok, rot, rok, t, st_pts, st_rot, pts_seen, rot_seen, pq, rq, ps, ht, hxy, hn,
+                   ci, cf, wk, root, pos, local, contact):
+    """One whole frame (hold, drive, world, root, pose, plant) from the packed constants: writes
+    root [3], pos [J, 3], local [J, 4], contact [2]; returns True when every input was good."""
+    sc = _iv(ci, np.int64(I_SCAL))                      # root_src, legs (0/1), toe (0/1), check_norm (0/1)
+    rot_src = _iv(ci, np.int64(I_ROT_SRC))
+    n = rot_src.shape[0]
+    dep = _iv(ci, np.int64(I_DEP))
+    depth = dep.shape[0] // n if n else 0
+    qn = _wv(ci, wk, np.int64(W_QN), 4)
+    good = hold_frame(pts, pok, rot, rok, sc[3] != 0, st_pts, st_rot, pts_seen, rot_seen, pq, rq, qn)
+    f_m = _iv(ci, np.int64(I_FM))
+    nf = f_m.shape[0]
+    c_start = _iv(ci, np.int64(I_CS))
+    nc = c_start.shape[0]
+    a_joint = _iv(ci, np.int64(I_AJ))
+    na = a_joint.shape[0]
+    tmp = _wv(ci, wk, np.int64(W_TMP), 4)
+    D = _wv(ci, wk, np.int64(W_D), 4)
+    W = _wv(ci, wk, np.int64(W_W), 4)
+    drive_frame(qn, st_pts, rot_src, dep.reshape((depth, n)), _fv(ci, cf, np.int64(F_K)).reshape((n, 4, 4)), _iv(ci, np.int64(I_ROT_JOINT)),
+                f_m, _iv(ci, np.int64(I_FA)), _iv(ci, np.int64(I_FB)), _fv(ci, cf, np.int64(F_FBONE)).reshape((nf, 3)),
+                _fv(ci, cf, np.int64(F_FA)).reshape((nf, 3, 3)),
+                c_start, _iv(ci, np.int64(I_CE)), _iv(ci, np.int64(I_CJPTR)), _iv(ci, np.int64(I_CJ)), _fv(ci, cf, np.int64(F_CFRAC)), _iv(ci, np.int64(I_CIT)),
+                _iv(ci, np.int64(I_CCOR)), _iv(ci, np.int64(I_CES)), _iv(ci, np.int64(I_CPS)), _fv(ci, cf, np.int64(F_CA)).reshape((nc, 3, 3)),
+                _iv(ci, np.int64(I_CPPTR)), _iv(ci, np.int64(I_CPATH)), _fm(ci, cf, np.int64(F_COFF), 3),
+                a_joint, _iv(ci, np.int64(I_APRE)), _fv(ci, cf, np.int64(F_ABONE)).reshape((na, 3)), _iv(ci, np.int64(I_AFRM)), _iv(ci, np.int64(I_ATO)),
+                _fv(ci, cf, np.int64(F_AA)).reshape((na, 3, 3)),
+                _wv(ci, wk, np.int64(W_QK), 4), _wv(ci, wk, np.int64(W_DQ), 4), _wv(ci, wk, np.int64(W_AP), 4), D, tmp)
+    rw_q = _fm(ci, cf, np.int64(F_RWQ), 4)
+    world_from_deltas(D, _iv(ci, np.int64(I_SRC_EXT)), rw_q, W, st_pts, sc[0], _fv(ci, cf, np.int64(F_RM)).reshape((3, 3)),
+                      _fv(ci, cf, np.int64(F_RC)), root)
+    parents, order = _iv(ci, np.int64(I_PAR)), _iv(ci, np.int64(I_ORDER))
+    offsets, rl_inv = _fm(ci, cf, np.int64(F_OFF), 3), _fm(ci, cf, np.int64(F_RLINV), 4)
+    pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp)
+    contact[0], contact[1] = False, False
+    if sc[1] != 0:
+        pp = _fv(ci, cf, np.int64(F_PLANT))         # floor_z, height_m, speed_mps, release_s, window_s
+        plant_frame(pos, W, parents, order, offsets, rl_inv, root, local, tmp,
+                    _iv(ci, np.int64(I_HIP)), _iv(ci, np.int64(I_KNEE)), _iv(ci, np.int64(I_ANKLE)), _iv(ci, np.int64(I_TOE)), sc[2] != 0,
+                    _fv(ci, cf, np.int64(F_L1)), _fv(ci, cf, np.int64(F_L2)), _fv(ci, cf, np.int64(F_RH)), _fv(ci, cf, np.int64(F_TH)), _iv(ci, np.int64(I_AFF)),
+                    _iv(ci, np.int64(I_WHICH)), t, pp[0], pp[1], pp[2], pp[3], pp[4], ps, ht, hxy, hn, contact,
+                    _wv(ci, wk, np.int64(W_ANK), 3), _wv(ci, wk, np.int64(W_TOEZ), 1)[:, 0], _wv(ci, wk, np.int64(W_TARGET), 3),
+                    _wv(ci, wk, np.int64(W_SPEED), 1)[:, 0], _wv(ci, wk, np.int64(W_TURNS), 4))
+    return good
+
+
+def pack(ints: dict, floats: dict, work: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ci, cf, wk) from the named slots (INT_SLOTS, FLOAT_SLOTS: arrays, any shape; WORK_SLOTS:
+    sizes in float64 elements), in the layout :func:`retarget_frame` reads."""
+    heads, data, fdata = [], [], []
+    at = 2 * (len(INT_SLOTS) + len(FLOAT_SLOTS) + len(WORK_SLOTS))
+    for name in INT_SLOTS:
+        a = np.asarray(ints[name], dtype=np.int64).reshape(-1)
+        heads += [at, at + len(a)]
+        data.append(a)
+        at += len(a)
+    fat = 0
+    for name in FLOAT_SLOTS:
+        a = np.asarray(floats[name], dtype=np.float64).reshape(-1)
+        heads += [fat, fat + len(a)]
+        fdata.append(a)
+        fat += len(a)
+    wat = 0
+    for name in WORK_SLOTS:
+        heads += [wat, wat + int(work[name])]
+        wat += int(work[name])
+    ci = np.concatenate([np.array(heads, dtype=np.int64)] + data)
+    return ci, np.concatenate(fdata), np.zeros(max(wat, 1))
 
 
 def warm() -> None:

@@ -557,6 +557,23 @@ class CompiledFrame:
             self.ank, self.toe_z, self.target = np.empty((2, 3)), np.empty(2), np.empty((2, 3))
             self.speed, self.turns = np.empty(2), np.empty((4, 4))
         self._plant_for = None      # the retargeter state whose plants the arrays above hold
+        if self.legs is None:       # the frame kernel's plant arguments, unused
+            self.ps, self.ht, self.hxy, self.hn = np.zeros(13), np.zeros(2), np.zeros((2, 4)), np.zeros(1, np.int64)
+        lg = self.legs or (np.zeros(0, np.int64),) * 4 + (False,) + (np.zeros(0),) * 4 + (np.zeros(0, np.int64),) * 2
+        ints = dict(rot_src=self.rot_src, dep_idx=self.dep_idx, rot_joint=self.rot_joint, f_m=self.f_m, f_a=self.f_a,
+                    f_b=self.f_b, c_start=self.c_start, c_end=self.c_end, c_jptr=self.c_jptr, c_joints=self.c_joints,
+                    c_iters=self.c_iters, c_correct=self.c_correct, c_end_src=self.c_end_src,
+                    c_pivot_src=self.c_pivot_src, c_pptr=self.c_pptr, c_path=self.c_path, a_joint=self.a_joint,
+                    a_pre=self.a_pre, a_frm=self.a_frm, a_to=self.a_to, src_ext=self.src_ext, parents=self.parents,
+                    order=self.order, scalars=[self.root_src, self.legs is not None, bool(lg[4]), self.check_norm],
+                    hip=lg[0], knee=lg[1], ankle=lg[2], toe=lg[3], aff=lg[9], which=lg[10])
+        floats = dict(K=self.K, f_bone=self.f_bone, f_A=self.f_A, c_frac=self.c_frac, c_A=self.c_A, c_off=self.c_off,
+                      a_bone=self.a_bone, a_A=self.a_A, rw_q=self.rw_q, offsets=self.offsets, rl_inv=self.rl_inv,
+                      root_M=self.root_M, root_c=self.root_c, l1=lg[5], l2=lg[6], rest_h=lg[7], toe_h=lg[8],
+                      plant=self.plant_params if self.legs is not None else np.zeros(5))
+        work = dict(qn=4 * R, qk=4 * max(n, 1), dq=4 * max(n, 1), ap=4 * max(na, 1), D=4 * (J + 1), W=4 * J, tmp=8,
+                    ank=6, toe_z=2, target=6, speed=2, turns=16)
+        self.ci, self.cf, self.wk = rk.pack(ints, floats, work)
 
     def release_state(self) -> None:
         """Hand the plants back to the state's PlantState (the batched path is about to read it)."""
@@ -569,10 +586,13 @@ class CompiledFrame:
         """One frame, as LiveKernel.run: points [P, 3], rotations [R, 4] or None, masks or None."""
         k, rt = self.k, self.rt
         st = rt._state
+        # C-contiguous inputs only: a strided view would compile (and cache) a second variant of each kernel
         if not pts.flags.c_contiguous:
             pts = np.ascontiguousarray(pts)
         if pok is None:
             pok = self.ones_p
+        elif not pok.flags.c_contiguous:
+            pok = np.ascontiguousarray(pok)
         if rot is None:
             if rt._plan is None:
                 raise ValueError("this source has rotations: pass them")
@@ -583,24 +603,9 @@ class CompiledFrame:
             rot = np.ascontiguousarray(rot)
         if rok is None:
             rok = self.ones_r
-        good = k.hold_frame(pts, pok, rot, rok, self.check_norm, st.pts, st.rot, st.pts_seen, st.rot_seen,
-                            self.pq, self.rq, self.qn)
-        held = st.pts
-        k.drive_frame(self.qn, held, self.rot_src, self.dep_idx, self.K, self.rot_joint,
-                      self.f_m, self.f_a, self.f_b, self.f_bone, self.f_A,
-                      self.c_start, self.c_end, self.c_jptr, self.c_joints, self.c_frac, self.c_iters, self.c_correct,
-                      self.c_end_src, self.c_pivot_src, self.c_A, self.c_pptr, self.c_path, self.c_off,
-                      self.a_joint, self.a_pre, self.a_bone, self.a_frm, self.a_to, self.a_A,
-                      self.qk, self.dq, self.ap, self.D, self.tmp)
-        J = self.J
-        W = self.W
-        root = np.empty((1, 3))
-        pos = np.empty((1, J, 3))
-        local = np.empty((1, J, 4))
-        r0, p0, l0 = root[0], pos[0], local[0]
-        k.world_from_deltas(self.D, self.src_ext, self.rw_q, W, held, self.root_src, self.root_M, self.root_c, r0)
-        k.pose_from_world(W, self.parents, self.order, self.offsets, self.rl_inv, r0, p0, l0, self.tmp)
-        contact = np.zeros((1, 2), np.bool_)
+        elif not rok.flags.c_contiguous:
+            rok = np.ascontiguousarray(rok)
+        tf = 0.0
         if self.legs is not None:
             if self._plant_for is not st:       # a fresh state (reset) or one the batched path moved on
                 self.ht, self.hxy, self.hn = _pack_plant(st.plant, self.ps, len(self.ht))
@@ -609,8 +614,13 @@ class CompiledFrame:
                 self.ht = np.concatenate([self.ht, np.zeros(len(self.ht))])
                 self.hxy = np.concatenate([self.hxy, np.zeros((len(self.hxy), 4))])
             tf = 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0]))
-            k.plant_frame(p0, W, self.parents, self.order, self.offsets, self.rl_inv, r0, l0, self.tmp,
-                          *self.legs, tf, *self.plant_params, self.ps, self.ht, self.hxy, self.hn, contact[0],
-                          self.ank, self.toe_z, self.target, self.speed, self.turns)
+        J = self.J
+        root = np.empty((1, 3))
+        pos = np.empty((1, J, 3))
+        local = np.empty((1, J, 4))
+        contact = np.empty((1, 2), np.bool_)
+        good = k.retarget_frame(pts, pok, rot, rok, tf, st.pts, st.rot, st.pts_seen, st.rot_seen, self.pq, self.rq,
+                                self.ps, self.ht, self.hxy, self.hn, self.ci, self.cf, self.wk,
+                                root[0], pos[0], local[0], contact[0])
         jq = self.jq_good.copy() if good else rt._quality(self.rq[None], self.pq[None])
         return self.Result(local, root, pos, jq, contact)
