@@ -118,7 +118,7 @@ def bench_node_path(n: int) -> None:
             env = decode_envelope(frames)
             msg = decode_payload(ActorPose, env, frames)
             p, ok = layout.frame(msg.joint_positions, msg.joint_quality)
-            r = rt.process(p, ok, msg.limb_orientations[None], (msg.limb_quality >= 1)[None], (env.capture_ns - t0) * 1e-9)
+            r = rt.process_one(p[0], ok[0], msg.limb_orientations, msg.limb_quality >= 1, (env.capture_ns - t0) * 1e-9)
             out = CharacterPose(character="standard_20", frame_number=msg.frame_number, root_position=r.root_positions[0],
                                 local_rotations=r.local_rotations[0], joint_positions=r.joint_positions[0],
                                 joint_quality=r.joint_quality[0])

@@ -390,6 +390,16 @@ class Retargeter:
         return m
 
     # ----------------------------------------------------------------------------------------------
+    def process_one(self, points: np.ndarray, point_ok: np.ndarray | None, rotations: np.ndarray | None,
+                    rotation_ok: np.ndarray | None, time_s: float) -> RetargetResult:
+        """One live frame (the node's call): points [P, 3], rotations [R, 4] or None, masks [P], [R]
+        or None, time in s; :meth:`process` of that frame (F = 1), without its batch wrapping."""
+        if self._live is not None:
+            return self._live.run(points, point_ok, rotations, rotation_ok, float(time_s))
+        return self.process(points[None], None if point_ok is None else point_ok[None],
+                            None if rotations is None else rotations[None],
+                            None if rotation_ok is None else rotation_ok[None], float(time_s))
+
     def process(self, points: np.ndarray, point_ok: np.ndarray | None = None,
                 rotations: np.ndarray | None = None, rotation_ok: np.ndarray | None = None,
                 times_s: np.ndarray | None = None) -> RetargetResult:

@@ -434,6 +434,26 @@ def plant_frame(pos, W, parents, order, offsets, rl_inv, root, local, tmp,
         pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp)
 
 
+@kernel
+def optical_frame(joint_positions, joint_quality, hips, pts, ok):
+    """retarget_source.OpticalFrames.frame: points [J + 1, 3] (the joints, then the pelvis, the mean
+    of the hips) and masks [J + 1] (quality >= 1; the pelvis when every hip is)."""
+    J = joint_positions.shape[0]
+    for j in range(J):
+        pts[j, 0], pts[j, 1], pts[j, 2] = joint_positions[j, 0], joint_positions[j, 1], joint_positions[j, 2]
+        ok[j] = joint_quality[j] >= 1
+    x, y, z = 0.0, 0.0, 0.0
+    good = True
+    for h in hips:
+        x += joint_positions[h, 0]
+        y += joint_positions[h, 1]
+        z += joint_positions[h, 2]
+        good = good and ok[h]
+    n = hips.shape[0]
+    pts[J, 0], pts[J, 1], pts[J, 2] = x / n, y / n, z / n
+    ok[J] = good
+
+
 # Slots of the packed constants (one int64 array ``ci``, one float64 array ``cf``, one float64
 # scratch ``wk``): passing three arrays instead of ninety costs ~1 us of dispatch instead of ~20.
 # ``ci`` starts with (start, end) pairs: int slots, then float slots (into cf), then scratch slots (into wk).
@@ -565,3 +585,9 @@ def warm() -> None:
         q = np.tile([1.0, 0.0, 0.0, 0.0], (1, ch.n_joints, 1))
         for f in range(3):
             rt.process(pos[None], None, q, None, f / 240.0)
+    # the node's point layout, on arrays as decoded from a message (read-only views)
+    jp, jq = np.zeros((3, 3)), np.full(3, 2, np.int8)
+    jp.flags.writeable = False
+    jq.flags.writeable = False
+    optical_frame(jp, jq, np.array([0, 1], np.int64), np.empty((4, 3)), np.empty(4, np.bool_))
+    optical_frame(jp.copy(), jq.copy(), np.array([0, 1], np.int64), np.empty((4, 3)), np.empty(4, np.bool_))

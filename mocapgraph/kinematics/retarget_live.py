@@ -586,25 +586,26 @@ class CompiledFrame:
         """One frame, as LiveKernel.run: points [P, 3], rotations [R, 4] or None, masks or None."""
         k, rt = self.k, self.rt
         st = rt._state
-        # C-contiguous inputs only: a strided view would compile (and cache) a second variant of each kernel
-        if not pts.flags.c_contiguous:
-            pts = np.ascontiguousarray(pts)
+        # writable C-contiguous inputs only: a strided or read-only view (a decoded message) would
+        # compile (and cache) another variant of the kernel, seconds in a running node
+        if not (pts.flags.c_contiguous and pts.flags.writeable):
+            pts = np.array(pts, order="C")
         if pok is None:
             pok = self.ones_p
-        elif not pok.flags.c_contiguous:
-            pok = np.ascontiguousarray(pok)
+        elif not (pok.flags.c_contiguous and pok.flags.writeable):
+            pok = np.array(pok, order="C")
         if rot is None:
             if rt._plan is None:
                 raise ValueError("this source has rotations: pass them")
             fin = np.isfinite(pts).all(-1) & pok
             rot = rotations_from_points(rt._plan, np.where(fin[:, None], pts, np.nan)[None])[0]
             rok = self.ones_r
-        elif not rot.flags.c_contiguous:
-            rot = np.ascontiguousarray(rot)
+        elif not (rot.flags.c_contiguous and rot.flags.writeable):
+            rot = np.array(rot, order="C")
         if rok is None:
             rok = self.ones_r
-        elif not rok.flags.c_contiguous:
-            rok = np.ascontiguousarray(rok)
+        elif not (rok.flags.c_contiguous and rok.flags.writeable):
+            rok = np.array(rok, order="C")
         tf = 0.0
         if self.legs is not None:
             if self._plant_for is not st:       # a fresh state (reset) or one the batched path moved on

@@ -100,14 +100,17 @@ class OpticalFrames:
 
     def frame(self, joint_positions: np.ndarray, joint_quality: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points [1, J+1, 3] (m; the pelvis point last) and their masks [1, J+1] (quality >= 1)."""
+        from .retarget_kernels import optical_frame   # compiled: six numpy calls cost ~30 us a frame
         J = self.J
+        if joint_positions.shape != (J, 3) or joint_quality.shape != (J,):
+            raise ValueError(f"a frame of {J} joints wants positions [{J}, 3] and quality [{J}]")
         pts = np.empty((1, J + 1, 3))
-        pts[0, :J] = joint_positions
-        np.add.reduce(pts[0, self.hips], axis=0, out=pts[0, J])
-        pts[0, J] /= len(self.hips)
         ok = np.empty((1, J + 1), bool)
-        np.greater_equal(joint_quality, 1, out=ok[0, :J])
-        ok[0, J] = ok[0, self.hips].all()
+        jp = joint_positions if joint_positions.dtype == np.float64 and joint_positions.flags.c_contiguous \
+            else np.ascontiguousarray(joint_positions, np.float64)
+        jq = joint_quality if joint_quality.dtype == np.int8 and joint_quality.flags.c_contiguous \
+            else np.ascontiguousarray(joint_quality, np.int8)
+        optical_frame(jp, jq, self.hips, pts[0], ok[0])
         return pts, ok
 
 

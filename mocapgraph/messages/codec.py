@@ -113,9 +113,19 @@ class _Plan:
         codes = "".join(_CODES[sc.kind] for sc in self.numeric) + "I" * sum(self.ranks)
         self.struct = struct.Struct("<" + codes)
         self.py = [SCALAR_PY[sc.kind] for sc in self.numeric]
+        self.array_names = [a.name for a in info.arrays]
+        # per-stream caches (speed only; the bytes are the same): the text block of str-only text
+        # fields by their values, parsed text blocks by their bytes, and the array dims last
+        # validated with their (name, dtype, shape, nbytes): a stream's frames keep their shapes
+        self.text_str_only = all(getattr(f, "kind", None) == "str" for f in self.text)
+        self.text_out: dict[tuple, bytes] = {}
+        self.text_in: dict[bytes, dict] = {}
+        self.last_dims: tuple | None = None
+        self.last_layout: list = []
 
 
 _CODES = {"int": "q", "float": "d", "bool": "?"}
+_TEXT_CACHE = 256   # distinct text blocks remembered per type (a few names per graph; bounded against garbage)
 _PLAN_CACHE: dict[str, _Plan] = {}
 
 
@@ -146,13 +156,22 @@ def encode(
     tname = info.name.encode()
     sname = sender.encode()
     d = msg.__dict__
-    arrays = [d[a.name] for a, _ in plan.arrays]
+    arrays = [d[a] for a in plan.array_names]
     values = [d[sc.name] for sc in plan.numeric]
     for arr in arrays:
         values.extend(arr.shape)
     block = plan.struct.pack(*values)
     if plan.text:
-        block += json.dumps({f.name: d[f.name] for f in plan.text}, separators=(",", ":")).encode()
+        if plan.text_str_only:   # json.dumps costs ~10 us: once per distinct name
+            key = tuple(d[f.name] for f in plan.text)
+            text = plan.text_out.get(key)
+            if text is None:
+                text = json.dumps({f.name: d[f.name] for f in plan.text}, separators=(",", ":")).encode()
+                if len(plan.text_out) < _TEXT_CACHE:
+                    plan.text_out[key] = text
+            block += text
+        else:
+            block += json.dumps({f.name: d[f.name] for f in plan.text}, separators=(",", ":")).encode()
     header = HEADER.pack(
         MAGIC,
         CODEC_VERSION,
@@ -241,9 +260,14 @@ def decode_payload(cls: type[Message], env: Envelope, frames: Sequence[bytes | m
         d[sc.name] = v if type(v) is py else py(v)
     if plan.text:
         try:
-            text = json.loads(block[st.size:])
-            if not isinstance(text, dict):
-                raise TypeError("not an object")
+            raw = block[st.size:]
+            text = plan.text_in.get(raw)
+            if text is None:
+                text = json.loads(raw)
+                if not isinstance(text, dict):
+                    raise TypeError("not an object")
+                if len(plan.text_in) < _TEXT_CACHE and len(raw) < 1024:
+                    plan.text_in[raw] = text   # read only below: coerce copies lists
             for f in plan.text:
                 d[f.name] = f.coerce(text[f.name]) if f.name in text else (f.default if hasattr(f, "default") else [])
         except (ValueError, TypeError, KeyError) as exc:
@@ -252,12 +276,23 @@ def decode_payload(cls: type[Message], env: Envelope, frames: Sequence[bytes | m
             raise DecodeError(f"{info.name}: {exc}") from None
     elif len(block) != st.size:
         raise DecodeError(f"{info.name} field block has {len(block) - st.size} bytes too many")
+    dims = values[n:]
+    if dims == plan.last_dims:   # the shapes validated last time: only the byte counts to check
+        for (name, dtype, shape, nbytes), buf in zip(plan.last_layout, frames[3:]):
+            if (len(buf) if type(buf) is bytes else memoryview(buf).nbytes) != nbytes:
+                break   # the full check below says what is wrong
+            d[name] = np.ndarray(shape, dtype, buf)
+        else:
+            return msg
     symbols: dict[str, int] = {}
     i = n
+    layout = []
     for (spec, dtype), rank, buf in zip(plan.arrays, plan.ranks, frames[3:]):
         shape = values[i:i + rank]
         i += rank
         d[spec.name] = _decode_array(info.name, spec, dtype, shape, buf, symbols)
+        layout.append((spec.name, dtype, shape, math.prod(shape) * dtype.itemsize))
+    plan.last_dims, plan.last_layout = dims, layout
     return msg
 
 

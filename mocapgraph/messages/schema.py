@@ -12,6 +12,7 @@ plus a quality flag.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, ClassVar
 
 import numpy as np
@@ -72,7 +73,21 @@ class Array:
     doc: str
     name: str = ""
 
+    @cached_property
+    def _fast(self) -> tuple:
+        """(numpy dtype, rank, fixed (axis, size) pairs): what an array that needs no conversion has."""
+        return np.dtype(self.dtype), len(self.shape), tuple((i, s) for i, s in enumerate(self.shape) if isinstance(s, int))
+
     def coerce(self, value: Any) -> np.ndarray:
+        if type(value) is np.ndarray:   # already right (the usual case): the same array ascontiguousarray returns
+            dt, rank, fixed = self._fast
+            if value.dtype is dt and value.ndim == rank and value.flags.c_contiguous:
+                shape = value.shape
+                for i, s in fixed:
+                    if shape[i] != s:
+                        break
+                else:
+                    return value
         arr = np.ascontiguousarray(value, dtype=self.dtype)
         if arr.ndim != len(self.shape):
             raise MessageError(
@@ -174,7 +189,7 @@ class Message:
 
     def __init__(self, **values: Any) -> None:
         info = self._info
-        unknown = set(values) - set(info.fields)
+        unknown = values.keys() - info.fields.keys()
         if unknown:
             raise MessageError(f"{info.name} has no field(s) {sorted(unknown)}")
         d = self.__dict__

@@ -157,9 +157,8 @@ class RetargeterNode(Node):
         if self.rig is None:
             return
         ok = msg.tracking_state >= 1
-        res = self.rig.retargeter.process(msg.joint_positions[None], ok[None],
-                                            msg.joint_orientations[None] if has_q else None, None,
-                                            self._times(self.skeleton_pose.envelope.capture_ns))
+        res = self.rig.retargeter.process_one(msg.joint_positions, ok, msg.joint_orientations if has_q else None, None,
+                                              self._times(self.skeleton_pose.envelope.capture_ns))
         self._publish(res, msg.frame_number, self.skeleton_pose.envelope.capture_ns)
 
     def on_actor_pose(self, msg: ActorPose) -> None:
@@ -173,8 +172,8 @@ class RetargeterNode(Node):
         if self._rg_optical is None or self._rg_optical.J != J:
             self._rg_optical = OpticalFrames(model.joint_names)
         pts, pok = self._rg_optical.frame(msg.joint_positions, msg.joint_quality)
-        res = self.rig.retargeter.process(pts, pok, msg.limb_orientations[None], (msg.limb_quality >= 1)[None],
-                                            self._times(self.actor_pose.envelope.capture_ns))
+        res = self.rig.retargeter.process_one(pts[0], pok[0], msg.limb_orientations, msg.limb_quality >= 1,
+                                              self._times(self.actor_pose.envelope.capture_ns))
         self._publish(res, msg.frame_number, self.actor_pose.envelope.capture_ns)
 
     def _wrong(self, frame: int, got: int, want: int) -> None:
