@@ -571,6 +571,20 @@ def pack(ints: dict, floats: dict, work: dict) -> tuple[np.ndarray, np.ndarray, 
     return ci, np.concatenate(fdata), np.zeros(max(wat, 1))
 
 
+def load() -> None:
+    """Load the cached machine code of the frame kernels for the live path's argument types (a node
+    calls it before it reports ready, so that its first frame does not wait ~0.4 s for it)."""
+    import numba
+    f2, f1, b1 = np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.bool_)
+    i8, i64 = np.zeros(1, np.int8), np.zeros(1, np.int64)
+    retarget_frame.compile(tuple(numba.typeof(x) for x in (f2, b1, f2, b1, 0.0, f2, f2, b1, b1, i8, i8, f1, f1, f2,
+                                                           i64, i64, f1, f1, f1, f2, f2, b1)))
+    ro2, ro8 = f2.copy(), i8.copy()
+    ro2.flags.writeable = ro8.flags.writeable = False
+    for jp, jq in ((ro2, ro8), (f2, i8)):   # decoded (read-only) frames and plain arrays
+        optical_frame.compile(tuple(numba.typeof(x) for x in (jp, jq, i64, f2, b1)))
+
+
 def warm() -> None:
     """Compile every kernel once (a one-joint-chain frame with one leg pair) and cache it."""
     from .character import standard_20

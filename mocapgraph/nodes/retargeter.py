@@ -89,6 +89,8 @@ class RetargeterNode(Node):
         self._rg_t0: int | None = None
         self._rg_frames = 0
         self._rg_optical: OpticalFrames | None = None   # per-frame point layout of the latched model
+        from ..kinematics.retarget_kernels import load
+        load()   # the compiled kernels now, not at the first frame (which would queue ~0.4 s of frames behind it)
 
     # ----- status -------------------------------------------------------------------------------
     def _status(self, state: str, detail: str, data: dict | None = None, error: bool = False) -> None:
