@@ -103,6 +103,91 @@ def graph_latency(seconds: float) -> None:
               f"max {v.max():6.2f} ms")
 
 
+def live_global_stages(model, frames: np.ndarray) -> None:
+    """Where one live global-fit frame's time goes (numpy tracker): each stage of
+    GlobalTracker.track and FrameSolver.step timed separately (CPU time, us per frame)."""
+    from scipy.linalg.lapack import dpotrs
+
+    from mocapgraph.kinematics.global_track import _cayley_neg
+
+    solver = FrameSolver(model, fit="global", global_options=GlobalFitOptions())
+    solver.step(frames[0])          # the first frame comes from the batch path and seeds the tracker
+    tr = solver._tracker
+    L, LK = tr.L, tr._LK
+    spent: dict[str, float] = {}
+    iters: list[int] = []
+    clock = time.thread_time
+
+    def tick(name: str, t0: float) -> float:
+        t1 = clock()
+        spent[name] = spent.get(name, 0.0) + t1 - t0
+        return t1
+
+    n = 0
+    for f in frames[1:]:
+        if tr._R is None:               # declined: let the solver restart the tracker
+            solver.step(f)
+            continue
+        n += 1
+        t = clock()
+        y = f[tr._idx0]
+        seen = np.isfinite(y).all(-1) & tr._pad
+        tr._Y[:3 * LK] = np.where(seen[..., None], y, 0.0).reshape(-1)
+        key = seen.tobytes()
+        if key != tr._code:
+            tr._code = key
+            u = tr._wm0 * seen.reshape(LK)
+            tr._W[:3 * LK] = np.repeat(u, 3)
+            tr._new_markers(seen, u)
+            tr._refresh(tr._R)
+        t = tick("marker gather, NaN masking", t)
+        R, c = tr._R, tr._c
+        X = np.empty((L, 12))
+        last, it = np.inf, 0
+        while True:
+            it += 1
+            X[:, :9] = R.reshape(L, 9)
+            X[:, 9:] = c
+            res = tr._M @ X.reshape(-1) - tr._Y
+            t = tick("residuals", t)
+            gX = (tr._MT @ (tr._W * res)).reshape(L, 12)
+            a = np.swapaxes(gX[:, :9].reshape(L, 3, 3), -1, -2) @ R
+            G = np.concatenate([a.reshape(L, 9) @ tr._V, (gX[:, None, 9:] @ R)[:, 0]], 1)
+            t = tick("Jacobian^T residual (gradient)", t)
+            x = dpotrs(tr._chol, G.reshape(-1), lower=False)[0].reshape(L, 6)
+            t = tick("solve (Cholesky factor reused)", t)
+            c = c - (R @ x[:, 3:, None])[..., 0]
+            sq = np.sqrt((x * x).reshape(L, 2, 3).sum(-1))
+            R = R @ _cayley_neg(x[:, :3], sq[:, 0])
+            step = float((sq * tr._lever).sum(1).max())
+            rate = step / last
+            t = tick("pose update on SO(3), convergence test", t)
+            if step <= tr.tolerance or 0.0 < rate < 1.0 and rate * step <= (1.0 - rate) * tr.tolerance \
+                    or it >= tr.max_iterations:
+                break
+            last = step
+            tr._refresh(R)
+            t = tick("normal equations + Cholesky factor", t)
+        iters.append(it)
+        rms = tr._own_rms(y, seen)
+        tr._R, tr._c = R, c
+        trans = c - (R @ tr._c0[..., None])[..., 0]
+        t = tick("limb fit RMS (quality)", t)
+        solver._global.remember(R, c)
+        res = solver._joints_from_limbs(f[None], R[None], trans[None], tr._all_valid[None], rms[None],
+                                        tr._own[2][None], tr._own[2][None])[0]
+        t = tick("joint centres, qualities, bone lengths", t)
+        solver._temporal(res.joints, res.joint_quality, solver._time(None))
+        solver._frame += 1
+        tick("gap filling", t)
+    total = sum(spent.values())
+    print(f"live global frame, stage by stage (numpy tracker, {n} frames, {np.mean(iters):.2f} "
+          f"iterations a frame, CPU time) [{_load()}]:")
+    for name, s in spent.items():
+        print(f"  {name:<42} {1e6 * s / n:7.1f} us  {100 * s / total:4.0f} %")
+    print(f"  {'total':<42} {1e6 * total / n:7.1f} us  ({n / total:.0f} frames/s)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--graph-seconds", type=float, default=20.0, help="length of the launched-graph run, s")
@@ -141,6 +226,7 @@ def main() -> None:
     print(f"  segment-wise fit:  {seg_cpu:7.0f} frames/s CPU, {seg_wall:7.0f} wall")
     print(f"  global fit:        {glob_cpu:7.0f} frames/s CPU, {glob_wall:7.0f} wall (target 2000; "
           f"ratio to segment-wise {glob_cpu / seg_cpu:.2f} CPU)  [{_load()}]")
+    live_global_stages(model, perf[:n_live])
     seg_b = _rate(lambda: FrameSolver(model).solve(perf), n)
     glob_b = _rate(lambda: FrameSolver(model, fit="global").solve(perf), n)
     print(f"batch solve, global fit:          {glob_b:8.0f} frames/s (segment-wise {seg_b:.0f}, ratio {glob_b / seg_b:.2f})")
