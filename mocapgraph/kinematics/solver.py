@@ -144,7 +144,8 @@ class FrameSolver:
         self._setup_joint_points(model)
         # Live global frames track the last frame's optimum; limbs fitted through joint points
         # need the segment-wise fit's second pass, so those layouts always start from it.
-        self._tracker = (GlobalTracker(self._global, tol, tolerance=self._global.options.tolerance)
+        self._tracker = (GlobalTracker(self._global, tol, tolerance=self._global.options.tolerance,
+                                       compiled=self._global.options.compiled)
                          if self._global is not None and not self._pl.size else None)
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter_spec = (filter, dict(filter_params or {}))
