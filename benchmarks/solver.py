@@ -110,7 +110,7 @@ def live_global_stages(model, frames: np.ndarray) -> None:
 
     from mocapgraph.kinematics.global_track import _cayley_neg
 
-    solver = FrameSolver(model, fit="global", global_options=GlobalFitOptions())
+    solver = FrameSolver(model, fit="global", compiled=False)
     solver.step(frames[0])          # the first frame comes from the batch path and seeds the tracker
     tr = solver._tracker
     L, LK = tr.L, tr._LK

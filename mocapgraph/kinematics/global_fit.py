@@ -34,8 +34,7 @@ from mocapgraph.kinematics.rigid import gather_limb_markers
 class GlobalFitOptions:
     """Weights as standard deviations: marker noise (m; per limb the calibrated fit RMS, at least
     this), joint agreement (m; reliable joints, and unreliable ones), hinge axis agreement (rad);
-    Gauss-Newton iterations; frames per batched solve (bounds memory); compiled: live frames
-    tracked by the compiled kernel (:mod:`global_fit_kernels`), else by the numpy reference."""
+    Gauss-Newton iterations; frames per batched solve (bounds memory)."""
 
     marker_sigma_min: float = 0.0005
     joint_sigma: float = 0.0002
@@ -44,7 +43,6 @@ class GlobalFitOptions:
     iterations: int = 4
     tolerance: float = 1e-5
     chunk_frames: int = 128
-    compiled: bool = True
 
 
 class GlobalFit:

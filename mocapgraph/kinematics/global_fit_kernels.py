@@ -218,40 +218,48 @@ def solve(F: np.ndarray, Z: np.ndarray, order: np.ndarray, parent: np.ndarray, b
 
 
 @kernel
-def _largest_eigenvalue4(N: np.ndarray) -> float:
-    """Largest eigenvalue of the symmetric 4x4 N (overwritten) by cyclic Jacobi rotations."""
-    for sweep in range(30):
-        off = 0.0
-        for i in range(4):
-            for j in range(i + 1, 4):
-                off += N[i, j] * N[i, j]
-        scale = 0.0
-        for i in range(4):
-            scale += N[i, i] * N[i, i]
-        if off <= 1e-32 * scale or off == 0.0:
+def _largest_eigenvalue4(N: np.ndarray, upper: float) -> float:
+    """Largest eigenvalue of Horn's traceless symmetric 4x4 N: Newton's method on its
+    characteristic polynomial l^4 + c2 l^2 + c1 l + c0 from ``upper`` (>= the eigenvalue, so the
+    iterates fall monotonically onto it; Theobald 2005's QCP)."""
+    t2 = 0.0
+    t3 = 0.0
+    for i in range(4):
+        for j in range(4):
+            t2 += N[i, j] * N[i, j]
+            nn = 0.0
+            for k in range(4):
+                nn += N[i, k] * N[k, j]
+            t3 += nn * N[j, i]
+    c2 = -0.5 * t2
+    c1 = -t3 / 3.0
+    # det N by 2x2 minors of the first two rows and the last two
+    s0 = N[0, 0] * N[1, 1] - N[1, 0] * N[0, 1]
+    s1 = N[0, 0] * N[1, 2] - N[1, 0] * N[0, 2]
+    s2 = N[0, 0] * N[1, 3] - N[1, 0] * N[0, 3]
+    s3 = N[0, 1] * N[1, 2] - N[1, 1] * N[0, 2]
+    s4 = N[0, 1] * N[1, 3] - N[1, 1] * N[0, 3]
+    s5 = N[0, 2] * N[1, 3] - N[1, 2] * N[0, 3]
+    k5 = N[2, 2] * N[3, 3] - N[3, 2] * N[2, 3]
+    k4 = N[2, 1] * N[3, 3] - N[3, 1] * N[2, 3]
+    k3 = N[2, 1] * N[3, 2] - N[3, 1] * N[2, 2]
+    k2 = N[2, 0] * N[3, 3] - N[3, 0] * N[2, 3]
+    k1 = N[2, 0] * N[3, 2] - N[3, 0] * N[2, 2]
+    k0 = N[2, 0] * N[3, 1] - N[3, 0] * N[2, 1]
+    c0 = s0 * k5 - s1 * k4 + s2 * k3 + s3 * k2 - s4 * k1 + s5 * k0
+    lam = upper
+    for _ in range(60):
+        l2 = lam * lam
+        p = (l2 + c2) * l2 + c1 * lam + c0
+        dp = (4.0 * l2 + 2.0 * c2) * lam + c1
+        if dp == 0.0:
             break
-        for p in range(3):
-            for q in range(p + 1, 4):
-                apq = N[p, q]
-                if apq == 0.0:
-                    continue
-                theta = (N[q, q] - N[p, p]) / (2.0 * apq)
-                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
-                cs = 1.0 / np.sqrt(t * t + 1.0)
-                sn = t * cs
-                for k in range(4):
-                    akp, akq = N[k, p], N[k, q]
-                    N[k, p] = cs * akp - sn * akq
-                    N[k, q] = sn * akp + cs * akq
-                for k in range(4):
-                    apk, aqk = N[p, k], N[q, k]
-                    N[p, k] = cs * apk - sn * aqk
-                    N[q, k] = sn * apk + cs * aqk
-    best = N[0, 0]
-    for i in range(1, 4):
-        if N[i, i] > best:
-            best = N[i, i]
-    return best
+        nxt = lam - p / dp
+        if abs(nxt - lam) <= 1e-15 * abs(nxt) or not nxt < lam:
+            lam = nxt if nxt < lam else lam
+            break
+        lam = nxt
+    return lam
 
 
 @kernel
@@ -259,6 +267,7 @@ def own_rms(y: np.ndarray, seen: np.ndarray, a: np.ndarray, rms: np.ndarray, nvi
             N: np.ndarray, S: np.ndarray) -> None:
     """Each limb's own rigid-fit RMS (m, rms[L]) of its seen markers y[L,K,3] about their best
     pose, from the largest eigenvalue of Horn's (1987) 4x4 matrix of the centred covariance
+    (Newton on its characteristic polynomial)
     (no pose is solved); nvis[L] the markers seen. N [4,4], S [3,3]: scratch."""
     L, K = seen.shape
     for l in range(L):
@@ -305,7 +314,8 @@ def own_rms(y: np.ndarray, seen: np.ndarray, a: np.ndarray, rms: np.ndarray, nvi
         for i in range(3):
             for j in range(3):
                 N[1 + i, 1 + j] = S[i, j] + S[j, i] - (trs if i == j else 0.0)
-        best = _largest_eigenvalue4(N)
+        # sqrt(saa sbb) >= the eigenvalue (Cauchy-Schwarz), and >= 0.
+        best = _largest_eigenvalue4(N, np.sqrt(saa * sbb))
         v = saa + sbb - 2.0 * best
         rms[l] = np.sqrt((v if v > 0.0 else 0.0) / n)
 

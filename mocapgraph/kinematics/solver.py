@@ -18,6 +18,7 @@ from mocapgraph.kinematics.filters import GapFiller, make_filter
 from mocapgraph.kinematics.model import Quality, ActorModel
 from mocapgraph.kinematics.global_fit import GlobalFit, GlobalFitOptions
 from mocapgraph.kinematics.global_track import GlobalTracker
+from mocapgraph.kinematics.joint_kernels import joints_all_seen
 from mocapgraph.kinematics.regression import RegressionStage
 from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
 
@@ -69,6 +70,9 @@ class FrameSolver:
     fit: "segment" (each limb by itself, Kiip) or "global" (all limbs of a frame together under
     the joint constraints, :mod:`mocapgraph.kinematics.global_fit`; warm-started from the
     previous frame, so it also carries state between calls).
+    compiled: a live frame's limb fit (global) and joint centres run as compiled kernels
+    (:mod:`global_fit_kernels`, :mod:`joint_kernels`); False keeps the numpy reference (the
+    same results to rounding; batches always use numpy).
     """
 
     def __init__(
@@ -82,6 +86,7 @@ class FrameSolver:
         limb_rms_tol: float | None = None,
         fit: str = "segment",
         global_options: GlobalFitOptions | None = None,
+        compiled: bool = True,
     ) -> None:
         if fit not in FITS:
             raise ValueError(f"unknown fit {fit!r} (expected one of {', '.join(FITS)})")
@@ -142,10 +147,20 @@ class FrameSolver:
             if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
         ]
         self._setup_joint_points(model)
+        # The compiled live joint stage: every limb seen and fit well, no regression joints.
+        self._kernel_joints = compiled and not self._regression and self._jq_all_seen is not None
+        if self._kernel_joints:
+            i8 = lambda v: np.ascontiguousarray(v, dtype=np.int64)    # noqa: E731
+            lv = (self._levels if enforce_lengths else []) + [(np.zeros(0, int), np.zeros(0, int), np.zeros(0))]
+            self._k_args = (i8(self._labs), np.ascontiguousarray(self._pt[..., 0]), i8(self._has),
+                            np.ascontiguousarray(self._var_static, dtype=float),
+                            np.ascontiguousarray(self._sig2_lab, dtype=float))
+            self._k_lengths = (i8(np.concatenate([c for c, _, _ in lv])), i8(np.concatenate([p for _, p, _ in lv])),
+                               np.ascontiguousarray(np.concatenate([b for _, _, b in lv]), dtype=float))
         # Live global frames track the last frame's optimum; limbs fitted through joint points
         # need the segment-wise fit's second pass, so those layouts always start from it.
         self._tracker = (GlobalTracker(self._global, tol, tolerance=self._global.options.tolerance,
-                                       compiled=self._global.options.compiled)
+                                       compiled=compiled)
                          if self._global is not None and not self._pl.size else None)
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter_spec = (filter, dict(filter_params or {}))
@@ -225,6 +240,14 @@ class FrameSolver:
         var = (self._sig2_lab + rms * rms) * (self._var_static / np.maximum(nfit[:, lab], 1))
         est = (rot[:, lab] @ self._pt)[..., 0] + trans[:, lab]                  # [T,2J,3]
         if self._jq_all_seen is not None and valid.all() and (rms_l <= self._rms_tol).all():
+            if self._kernel_joints and T == 1:
+                joints = np.empty((1, J, 3))
+                lab_, pt_, has_, vs_, s2_ = self._k_args
+                if joints_all_seen(np.ascontiguousarray(rot[0]), np.ascontiguousarray(trans[0]), lab_, pt_, has_,
+                                   vs_, s2_, np.ascontiguousarray(nfit[0], dtype=np.int64),
+                                   np.ascontiguousarray(rms_l[0], dtype=float), *self._k_lengths, joints[0]):
+                    return SolverResult(joints, self._jq_all_seen[None].copy(), rot,
+                                        np.full((1, valid.shape[1]), _GOOD), n_seen, rms_l)
             # Every limb seen and fit well (the common live frame): no masking, known qualities.
             w2 = (self._has / var).reshape(T, 2, J)
             joints = (w2[..., None] * est.reshape(T, 2, J, 3)).sum(1) / w2.sum(1)[..., None]

@@ -11,7 +11,6 @@ from scipy.linalg.lapack import dpotrs
 
 from mocapgraph.kinematics import global_fit_kernels as gk
 from mocapgraph.kinematics.calibration import CalibrationWarning, calibrate
-from mocapgraph.kinematics.global_fit import GlobalFitOptions
 from mocapgraph.kinematics.model import Quality
 from mocapgraph.kinematics.solver import FrameSolver
 from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
@@ -29,8 +28,7 @@ def _actor(layout: str, seed: int = 2):
 
 def _live(model, frames, compiled: bool):
     """Live global steps: joints, qualities and each tracked frame's (iterations, limb RMS)."""
-    solver = FrameSolver(model, rate_hz=120.0, fit="global", max_gap_s=0.0,
-                         global_options=GlobalFitOptions(compiled=compiled))
+    solver = FrameSolver(model, rate_hz=120.0, fit="global", max_gap_s=0.0, compiled=compiled)
     tracker = solver._tracker
     assert (tracker._kernel is not None) == compiled
     seen, track = [], tracker.track
@@ -80,7 +78,7 @@ def test_compiled_live_fit_gives_the_numpy_reference_frame_by_frame(actor):
 
 def test_block_tree_solve_is_the_dense_cholesky_solve_of_the_same_normal_matrix(actor):
     _, (model, x, _) = actor
-    solver = FrameSolver(model, fit="global", global_options=GlobalFitOptions(compiled=False))
+    solver = FrameSolver(model, fit="global", compiled=False)
     solver.step(x[0])                                # seeds the tracker with the batch optimum
     tr = solver._tracker
     k = FrameSolver(model, fit="global")._tracker._kernel          # the same layout's kernel buffers
