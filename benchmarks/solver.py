@@ -5,7 +5,9 @@ trial (FrameSolver.solve), calibration time for 60 s of gym at 120 Hz, and the p
 through a launched graph (synthetic_actor reader at 240 Hz -> frame_solver node): from the
 reader publishing a MarkerFrame to the solver publishing its ActorPose, and on to a subscriber.
 Targets (issue 5): live >= 2000 frames/s, batch >= 20000 frames/s. Issue 10: the global fit's
-live and batch rates beside the segment-wise ones (ratio in the same run), and both accuracies.
+live rate (compiled kernels beside the numpy reference, target >= 2000 frames/s) and batch rate
+beside the segment-wise ones (in the same run), its iterations and the point motion left when a
+frame stops, each stage's share of a live frame (numpy and compiled), and both accuracies.
 Run: .venv/bin/python benchmarks/solver.py [--graph-seconds 20] [--no-graph]
 """
 from __future__ import annotations
@@ -188,6 +190,76 @@ def live_global_stages(model, frames: np.ndarray) -> None:
     print(f"  {'total':<42} {1e6 * total / n:7.1f} us  ({n / total:.0f} frames/s)")
 
 
+def live_global_convergence(model, frames: np.ndarray) -> None:
+    """Iterations and the point motion left when each live global frame stopped (compiled)."""
+    solver = FrameSolver(model, fit="global")
+    tr, gf = solver._tracker, solver._global
+    track, its, left, marker_rms, joint_gap = tr.track, [], [], [], []
+
+    def spy(markers):
+        out = track(markers)
+        its.append(0 if out is None else out.iterations)
+        if out is not None:
+            left.append(tr._kernel.info.copy())
+            # The optimum reached: markers' distance to their fitted places, joints' two sides apart.
+            y = markers[tr._idx0]
+            seen = np.isfinite(y).all(-1) & tr._pad
+            d = np.linalg.norm(tr._a @ np.swapaxes(out.rot, -1, -2) + out.centroid[:, None] - y, axis=-1)
+            marker_rms.append(np.sqrt(np.mean(d[seen] ** 2)))
+            qa = (out.rot[gf._ja] @ gf._p_a[..., None])[..., 0] + out.centroid[gf._ja]
+            qb = (out.rot[gf._jb] @ gf._p_b[..., None])[..., 0] + out.centroid[gf._jb]
+            joint_gap.append(np.linalg.norm(qa - qb, axis=-1).max())
+        return out
+
+    tr.track = spy
+    for f in frames:
+        solver.step(f)
+    its_a, info = np.array(its), np.array(left)
+    hist = ", ".join(f"{k}: {v}" for k, v in enumerate(np.bincount(its_a)) if k and v)
+    print(f"live global fit, {len(its_a)} frames: {np.count_nonzero(its_a == 0)} from the batch fit "
+          f"(tracker declined or not started), iterations {hist}; last step's point motion median "
+          f"{1e6 * np.median(info[:, 0]):.2f} um (max {1e6 * info[:, 0].max():.2f}), estimated distance "
+          f"to the optimum median {1e6 * np.median(info[:, 1]):.3f} um (max {1e6 * info[:, 1].max():.2f}; "
+          f"tolerance {1e6 * tr.tolerance:.0f} um)")
+    print(f"  at the optimum: marker residual RMS median {1000 * np.median(marker_rms):.3f} mm, joints' two "
+          f"sides apart at most {1000 * np.median(joint_gap):.3f} mm a frame (median; max {1000 * np.max(joint_gap):.3f})")
+
+
+def live_compiled_stages(model, frames: np.ndarray) -> None:
+    """Where a compiled live global frame's time goes (CPU time, us per frame)."""
+    solver = FrameSolver(model, fit="global")
+    clock = time.thread_time
+    spent = {"global fit kernel (track_frame) + result": 0.0, "joint centres (joint kernel) + result": 0.0,
+             "gap filling": 0.0}
+    wrapped = []
+    for obj, attr, name in ((solver._tracker, "track", "global fit kernel (track_frame) + result"),
+                            (solver, "_joints_from_limbs", "joint centres (joint kernel) + result"),
+                            (solver, "_temporal", "gap filling")):
+        fn = getattr(obj, attr)
+
+        def timed(*a, _fn=fn, _name=name):
+            t0 = clock()
+            out = _fn(*a)
+            spent[_name] += clock() - t0
+            return out
+
+        setattr(obj, attr, timed)
+        wrapped.append((obj, attr))
+    solver.step(frames[0])
+    for k in spent:
+        spent[k] = 0.0
+    t0 = clock()
+    for f in frames[1:]:
+        solver.step(f)
+    total = clock() - t0
+    n = len(frames) - 1
+    spent["rest of FrameSolver.step (Python)"] = total - sum(spent.values())
+    print(f"live global frame, stage by stage (compiled, {n} frames, CPU time) [{_load()}]:")
+    for name, s_ in spent.items():
+        print(f"  {name:<42} {1e6 * s_ / n:7.1f} us  {100 * s_ / total:4.0f} %")
+    print(f"  {'total':<42} {1e6 * total / n:7.1f} us  ({n / total:.0f} frames/s)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--graph-seconds", type=float, default=20.0, help="length of the launched-graph run, s")
@@ -220,12 +292,17 @@ def main() -> None:
     print(f"batch solve, {n} frames, gaps on: {_rate(lambda: FrameSolver(model).solve(perf), n):8.0f} frames/s (target 20000)")
     print(f"batch solve, {n} frames, gaps off:{_rate(lambda: FrameSolver(model, max_gap_s=0).solve(perf), n):8.0f} frames/s")
     # The global fit beside the segment-wise one, measured in the same run (ratio = cost of the fit).
-    print(f"live step, CPU time and wall time ({_load()}):")
-    seg_cpu, seg_wall = _rates(lambda: live(), n_live)
-    glob_cpu, glob_wall = _rates(lambda: live(fit="global"), n_live)
-    print(f"  segment-wise fit:  {seg_cpu:7.0f} frames/s CPU, {seg_wall:7.0f} wall")
-    print(f"  global fit:        {glob_cpu:7.0f} frames/s CPU, {glob_wall:7.0f} wall (target 2000; "
-          f"ratio to segment-wise {glob_cpu / seg_cpu:.2f} CPU)  [{_load()}]")
+    print(f"live step, CPU time and wall time, best of 3 x {n_live} frames [{_load()}]:")
+    rates = {}
+    for name, kw in (("segment-wise, numpy", dict(compiled=False)), ("segment-wise, compiled", {}),
+                     ("global, numpy reference", dict(fit="global", compiled=False)),
+                     ("global, compiled kernels", dict(fit="global"))):
+        rates[name] = cpu, wall = _rates(lambda: live(**kw), n_live)
+        print(f"  {name:<26} {cpu:7.0f} frames/s CPU, {wall:7.0f} wall  [{_load()}]")
+    g, gn, sg = rates["global, compiled kernels"][0], rates["global, numpy reference"][0], rates["segment-wise, compiled"][0]
+    print(f"  global compiled: {g / gn:.2f}x its numpy reference, {g / sg:.2f}x the segment-wise fit (target 2000 frames/s)")
+    live_global_convergence(model, perf)
+    live_compiled_stages(model, perf[:n_live])
     live_global_stages(model, perf[:n_live])
     seg_b = _rate(lambda: FrameSolver(model).solve(perf), n)
     glob_b = _rate(lambda: FrameSolver(model, fit="global").solve(perf), n)
@@ -236,7 +313,9 @@ def main() -> None:
                               ("global", FrameSolver(model, fit="global"), "batch, converged"),
                               ("global", FrameSolver(model, fit="global", global_options=one_step),
                                "batch, one step from the segment-wise fit (the first version)"),
-                              ("global", FrameSolver(model, fit="global"), "live, tracked from the last frame")):
+                              ("global", FrameSolver(model, fit="global"), "live, tracked from the last frame, compiled"),
+                              ("global", FrameSolver(model, fit="global", compiled=False),
+                               "live, tracked from the last frame, numpy reference")):
         if how.startswith("live"):
             joints = np.array([solver.step(f).joints for f in perf])
         else:

@@ -16,16 +16,20 @@ from mocapgraph.jit import kernel
 @kernel
 def joints_all_seen(rot: np.ndarray, trans: np.ndarray, lab: np.ndarray, pt: np.ndarray, has: np.ndarray,
                     var_static: np.ndarray, sig2_lab: np.ndarray, nfit: np.ndarray, rms: np.ndarray,
-                    child: np.ndarray, parent: np.ndarray, length: np.ndarray, joints: np.ndarray) -> bool:
+                    rms_tol: np.ndarray, child: np.ndarray, parent: np.ndarray, length: np.ndarray, joints: np.ndarray) -> bool:
     """joints[J,3] from limb poses rot[L,3,3], trans[L,3] (``x = R x_ref + t``).
 
     Estimate e (2J of them: column j from joint j's proximal limb, J + j from its distal one) is
     limb lab[e]'s point pt[e] (base pose, m), counted where has[e]; its variance is
     (sig2_lab[e] + rms[lab]^2) var_static[e] / max(nfit[lab], 1). Then, in order, each child
-    joint is moved along its bone to ``length`` (m) from its parent. False if a joint came out
-    non-finite (the caller then takes the general path).
+    joint is moved along its bone to ``length`` (m) from its parent. False, with nothing
+    done, if a limb fit is worse than rms_tol[L] (m), or if a joint came out non-finite: the
+    caller then takes the general path.
     """
     J = joints.shape[0]
+    for l in range(rms.size):
+        if not rms[l] <= rms_tol[l]:
+            return False
     for j in range(J):
         sw = s0 = s1 = s2 = 0.0
         for side in range(2):
@@ -62,4 +66,4 @@ def warm() -> None:
     joints = np.zeros((2, 3))
     joints_all_seen(rot, trans, np.array([0, 0, 1, 1]), np.array([[0.0, 0, 0], [0, 0, 0.3], [0, 0, 0], [0, 0, 0.3]]),
                     np.array([0, 1, 1, 1]), np.ones(4), np.full(4, 1e-6), np.array([3, 3]), np.full(2, 1e-3),
-                    np.array([1]), np.array([0]), np.array([0.3]), joints)
+                    np.full(2, 5e-3), np.array([1]), np.array([0]), np.array([0.3]), joints)

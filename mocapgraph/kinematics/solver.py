@@ -155,6 +155,8 @@ class FrameSolver:
             self._k_args = (i8(self._labs), np.ascontiguousarray(self._pt[..., 0]), i8(self._has),
                             np.ascontiguousarray(self._var_static, dtype=float),
                             np.ascontiguousarray(self._sig2_lab, dtype=float))
+            self._k_tol = np.ascontiguousarray(self._rms_tol, dtype=float)
+            self._lq_good = np.full((1, len(model.limb_names)), _GOOD)
             self._k_lengths = (i8(np.concatenate([c for c, _, _ in lv])), i8(np.concatenate([p for _, p, _ in lv])),
                                np.ascontiguousarray(np.concatenate([b for _, _, b in lv]), dtype=float))
         # Live global frames track the last frame's optimum; limbs fitted through joint points
@@ -234,20 +236,22 @@ class FrameSolver:
     def _joints_from_limbs(self, markers, rot, trans, valid, rms_l, nfit, n_seen) -> SolverResult:
         """Joints, qualities and the length correction from limb poses of [T] frames."""
         J, T = self._J, valid.shape[0]
+        if self._kernel_joints and T == 1 and valid.all():
+            # The common live frame (every limb seen and fit well) as one compiled call
+            # (joint_kernels; the code below is its reference).
+            joints = np.empty((1, J, 3))
+            lab_, pt_, has_, vs_, s2_ = self._k_args
+            if joints_all_seen(np.ascontiguousarray(rot[0]), np.ascontiguousarray(trans[0]), lab_, pt_, has_,
+                               vs_, s2_, np.ascontiguousarray(nfit[0], dtype=np.int64),
+                               np.ascontiguousarray(rms_l[0], dtype=float), self._k_tol, *self._k_lengths, joints[0]):
+                return SolverResult(joints, self._jq_all_seen[None].copy(), rot, self._lq_good.copy(), n_seen, rms_l)
+        all_seen = self._jq_all_seen is not None and bool(valid.all()) and bool((rms_l <= self._rms_tol).all())
         lab = self._labs
         rms = rms_l[:, lab]
         # Inverse-variance weights of the two estimates; a poor limb fit weighs 1000x less.
         var = (self._sig2_lab + rms * rms) * (self._var_static / np.maximum(nfit[:, lab], 1))
         est = (rot[:, lab] @ self._pt)[..., 0] + trans[:, lab]                  # [T,2J,3]
-        if self._jq_all_seen is not None and valid.all() and (rms_l <= self._rms_tol).all():
-            if self._kernel_joints and T == 1:
-                joints = np.empty((1, J, 3))
-                lab_, pt_, has_, vs_, s2_ = self._k_args
-                if joints_all_seen(np.ascontiguousarray(rot[0]), np.ascontiguousarray(trans[0]), lab_, pt_, has_,
-                                   vs_, s2_, np.ascontiguousarray(nfit[0], dtype=np.int64),
-                                   np.ascontiguousarray(rms_l[0], dtype=float), *self._k_lengths, joints[0]):
-                    return SolverResult(joints, self._jq_all_seen[None].copy(), rot,
-                                        np.full((1, valid.shape[1]), _GOOD), n_seen, rms_l)
+        if all_seen:
             # Every limb seen and fit well (the common live frame): no masking, known qualities.
             w2 = (self._has / var).reshape(T, 2, J)
             joints = (w2[..., None] * est.reshape(T, 2, J, 3)).sum(1) / w2.sum(1)[..., None]
