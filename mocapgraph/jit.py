@@ -28,6 +28,7 @@ F = TypeVar("F", bound=Callable)
 KERNEL_MODULES: tuple[str, ...] = (
     "mocapgraph.kinematics.global_fit_kernels",
     "mocapgraph.kinematics.joint_kernels",
+    "mocapgraph.kinematics.rigid_kernels",
 )
 
 

@@ -20,7 +20,8 @@ from mocapgraph.kinematics.global_fit import GlobalFit, GlobalFitOptions
 from mocapgraph.kinematics.global_track import GlobalTracker
 from mocapgraph.kinematics.joint_kernels import joints_all_seen
 from mocapgraph.kinematics.regression import RegressionStage
-from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
+from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
+from mocapgraph.kinematics.rigid_kernels import fit_frame
 
 FITS = ("segment", "global")
 _GOOD, _EST, _MISS = np.int8(Quality.GOOD), np.int8(Quality.ESTIMATED), np.int8(Quality.MISSING)
@@ -70,9 +71,9 @@ class FrameSolver:
     fit: "segment" (each limb by itself, Kiip) or "global" (all limbs of a frame together under
     the joint constraints, :mod:`mocapgraph.kinematics.global_fit`; warm-started from the
     previous frame, so it also carries state between calls).
-    compiled: a live frame's limb fit (global) and joint centres run as compiled kernels
-    (:mod:`global_fit_kernels`, :mod:`joint_kernels`); False keeps the numpy reference (the
-    same results to rounding; batches always use numpy).
+    compiled: a live frame's limb fits (:mod:`rigid_kernels`; global: :mod:`global_fit_kernels`)
+    and joint centres (:mod:`joint_kernels`) run as compiled kernels; False keeps the numpy
+    reference (the same results to rounding; batches always use numpy).
     """
 
     def __init__(
@@ -147,6 +148,12 @@ class FrameSolver:
             if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
         ]
         self._setup_joint_points(model)
+        # The compiled live limb fit (one frame's Kabsch fits) and its scratch.
+        self._kernel_fit = compiled
+        if compiled:
+            self._rk = (np.ascontiguousarray(self._ref, dtype=float), np.ascontiguousarray(np.where(idx >= 0, idx, 0), dtype=np.int64),
+                        np.ascontiguousarray(self._w0, dtype=float))
+            self._rk_scratch = (np.zeros((3, 3)), np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((3, 3)))
         # The compiled live joint stage: every limb seen and fit well, no regression joints.
         self._kernel_joints = compiled and not self._regression and self._jq_all_seen is not None
         if self._kernel_joints:
@@ -210,9 +217,17 @@ class FrameSolver:
 
     def _fit_limbs(self, markers: np.ndarray):
         """Limb poses of [T] frames by the segment-wise fit, then (global) the full global fit."""
-        fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
-        rot, trans, valid, rms_l, nfit = fit.rotation, fit.translation, fit.valid, fit.rms, fit.n_visible
-        n_seen = fit.n_visible
+        if self._kernel_fit and markers.shape[0] == 1:
+            L = self._idx.shape[0]
+            rot, trans, rms_l = np.empty((1, L, 3, 3)), np.empty((1, L, 3)), np.empty((1, L))
+            nfit, ok = np.empty((1, L), dtype=np.int64), np.empty((1, L), dtype=np.int64)
+            fit_frame(np.ascontiguousarray(markers[0], dtype=float), *self._rk, MIN_MARKERS, rot[0], trans[0],
+                      rms_l[0], nfit[0], ok[0], *self._rk_scratch)
+            valid = ok > 0
+        else:
+            fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
+            rot, trans, valid, rms_l, nfit = fit.rotation, fit.translation, fit.valid, fit.rms, fit.n_visible
+        n_seen = nfit
         if self._pl.size:
             # Limbs with joint points: refit with the joint centres seen from the other limbs.
             est, ok = self._limb_estimates(rot, trans, valid)
