@@ -18,6 +18,10 @@ rate) or the last step is within ``tolerance`` (m of point motion). The tracker 
 (returns None; the caller solves it from the segment-wise fit and reseeds it) when it has no good
 last frame, a limb cannot be fixed by its own markers, a limb's fit is poor, or the steps do not
 converge.
+
+Each frame runs as one compiled call of :func:`global_fit_kernels.track_frame` (the same steps,
+the normal matrix factored by 6x6 blocks along the limb tree); this numpy code is its reference
+(``compiled=False``) and the tests hold the two to the same joint centres.
 """
 from __future__ import annotations
 
@@ -140,6 +144,7 @@ class GlobalTracker:
         self._all_valid = np.ones(L, dtype=bool)
         self._W = np.repeat(np.concatenate([np.zeros(LK), self._w_fixed]), 3)
         self._kernel = None
+        self._idx_max = int(idx.max(initial=0))   # a shorter frame takes the numpy path (its IndexError)
         if compiled and self._valid_table is not None:
             order = np.concatenate([lv[0] for lv in fit._levels] + [[fit._root]])
             self._kernel = TrackBuffers(idx, fit._a, fit._wm, ja, jb, fit._p_a, fit._p_b, fit._wj, hj,
@@ -232,7 +237,7 @@ class GlobalTracker:
         """markers float[M,3] (NaN = unseen) -> the frame's global optimum, or None (declined)."""
         if self._R is None:
             return None
-        if self._kernel is not None:
+        if self._kernel is not None and markers.shape[0] > self._idx_max:
             return self._track_compiled(markers)
         y = markers[self._idx0]                                                   # [L,K,3]
         seen = np.isfinite(y).all(-1) & self._pad

@@ -154,6 +154,7 @@ class FrameSolver:
             self._rk = (np.ascontiguousarray(self._ref, dtype=float), np.ascontiguousarray(np.where(idx >= 0, idx, 0), dtype=np.int64),
                         np.ascontiguousarray(self._w0, dtype=float))
             self._rk_scratch = (np.zeros((3, 3)), np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((3, 3)))
+            self._rk_max = int(idx.max(initial=0))
         # The compiled live joint stage: every limb seen and fit well, no regression joints.
         self._kernel_joints = compiled and not self._regression and self._jq_all_seen is not None
         if self._kernel_joints:
@@ -217,7 +218,9 @@ class FrameSolver:
 
     def _fit_limbs(self, markers: np.ndarray):
         """Limb poses of [T] frames by the segment-wise fit, then (global) the full global fit."""
-        if self._kernel_fit and markers.shape[0] == 1:
+        # A frame with too few markers for the layout takes the numpy path (its IndexError), never
+        # an unchecked read in the kernel.
+        if self._kernel_fit and markers.shape[0] == 1 and markers.shape[1] > self._rk_max:
             L = self._idx.shape[0]
             rot, trans, rms_l = np.empty((1, L, 3, 3)), np.empty((1, L, 3)), np.empty((1, L))
             nfit, ok = np.empty((1, L), dtype=np.int64), np.empty((1, L), dtype=np.int64)

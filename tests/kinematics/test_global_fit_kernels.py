@@ -126,3 +126,14 @@ def test_horn_eigenvalue_rms_is_the_rigid_fit_rms():
     ref = fit_rigid(a, np.where(seen[..., None] > 0, y, np.nan))
     assert (nvis == seen.sum(1)).all()
     assert np.abs(rms - ref.rms).max() < 1e-12
+
+
+@pytest.mark.parametrize("fit", ["segment", "global"])
+def test_a_frame_short_of_markers_fails_as_the_numpy_path_does(actor, fit):
+    # The kernels index markers unchecked: a frame too short for the layout must not reach them.
+    _, (model, x, _) = actor
+    for compiled in (False, True):
+        solver = FrameSolver(model, fit=fit, compiled=compiled)
+        solver.step(x[0])
+        with pytest.raises(IndexError):
+            solver.step(x[1][:3])
