@@ -25,7 +25,9 @@ import numba
 F = TypeVar("F", bound=Callable)
 
 # Modules whose `warm()` calls each of their kernels once with small inputs (compiles and caches).
-KERNEL_MODULES: tuple[str, ...] = ()
+KERNEL_MODULES: tuple[str, ...] = (
+    "mocapgraph.kinematics.bone_follow_kernels",
+)
 
 
 def kernel(func: F) -> F:

@@ -147,3 +147,61 @@ def test_standard_20s_girdles_have_the_kinects_shape(shared_data):
         if joint.startswith("Hip"):
             assert c[0] > 0.02 * 1.75 and abs(c[2]) < 0.01 * 1.75 and k[0] > 0.02
     print("\nGirdle offsets in the Kinect's pelvis/chest frames (fwd, left, up), Ges03 mean:\n" + "\n".join(lines))
+
+
+def test_bones_the_girdle_cannot_follow_flag_their_joint_estimated(shared_data):
+    """A joint whose bone turned from the Kinect's by more than the tolerance (10 deg by default) on a
+    frame is estimated (1) there, never good: checked against the angles measured here from the
+    output positions, frame by frame, on every recording; nothing else changes; a wider tolerance
+    flags fewer frames, None none; the one-frame path (compiled check) flags the same frames."""
+    from retarget_support import live_minus_batch
+    lines, flagged_total = [], 0
+    for name in RECORDINGS:
+        path = shared_data / "kinect2" / f"{name}.csv"
+        trial, src, ch, mapping, res = _run(path)
+        plain = Retargeter(ch, mapping, src, RetargetOptions(follow_tolerance_deg=None), live=False).process(
+            trial.positions, trial.tracking_state == 2)
+        wide = Retargeter(ch, mapping, src, RetargetOptions(follow_tolerance_deg=20.0), live=False).process(
+            trial.positions, trial.tracking_state == 2)
+        expected = plain.joint_quality.copy()
+        over = np.zeros(expected.shape, bool)
+        for j, k, a, b in mapped_bones(ch, mapping, src):
+            ang = angle_deg(res.joint_positions[:, k] - res.joint_positions[:, j], trial.positions[:, b] - trial.positions[:, a])
+            over[:, j] |= np.nan_to_num(ang) > 10.0       # the Kinect T-pose is standard_20's: no rest-shape angle
+        expected[over] = np.minimum(expected[over], 1)
+        tracked = (trial.tracking_state == 2).all(1)      # every source point seen this frame: no held point
+        assert (res.joint_quality[tracked] == expected[tracked]).all(), name
+        assert (res.joint_quality <= plain.joint_quality).all() and (wide.joint_quality >= res.joint_quality).all()
+        lowered = res.joint_quality < plain.joint_quality
+        assert set(np.flatnonzero(lowered.any(0))) <= {ch.index("HipCenter"), ch.index("ShoulderCenter")}
+        flagged_total += int(lowered.any(1).sum())
+        lines.append(f"  {name:<22} {len(trial.positions):4d} frames ({int(tracked.sum())} all tracked): ShoulderCenter estimated on "
+                     f"{int(lowered[:, ch.index('ShoulderCenter')].sum()):3d}, HipCenter on "
+                     f"{int(lowered[:, ch.index('HipCenter')].sum()):3d} (20 deg tolerance: "
+                     f"{int((wide.joint_quality < plain.joint_quality).any(1).sum())} frames)")
+    print("\nGirdle bones beyond 10 deg of the Kinect's, joint flagged estimated:\n" + "\n".join(lines))
+    assert flagged_total > 0          # the recordings have shrugs a rigid chest cannot follow
+    trial = read_kinect_csv(shared_data / "kinect2" / "Ges01_wavehand.csv", ground="feet")
+    src = kinect_source(trial.names, trial.parents)
+    worst = live_minus_batch(standard_20(1.75), load_mapping("kinect_v2_standard_20"), src, RetargetOptions(),
+                             trial.positions, trial.tracking_state == 2, None, n=len(trial.positions))
+    assert worst < 1e-9
+
+
+def test_the_compiled_bone_check_matches_the_numpy_one(shared_data):
+    """bone_follow_kernels.flag_unfollowed (the live path's) against bone_follow.unfollowed (numpy) on
+    every frame of a real recording, at three tolerances."""
+    from mocapgraph.kinematics.bone_follow import plan_bone_checks, unfollowed
+    from mocapgraph.kinematics.bone_follow_kernels import flag_unfollowed
+    trial, src, ch, mapping, res = _run(shared_data / "kinect2" / "Ges01_wavehand.csv")
+    pts = np.where(np.isfinite(trial.positions), trial.positions, 0.0)
+    for tol in (2.0, 10.0, 20.0):
+        c = plan_bone_checks(ch, mapping, src, tol)
+        ref = unfollowed(c, res.joint_positions, pts)
+        got = np.zeros_like(ref)
+        for f in range(len(pts)):
+            q = np.full(ch.n_joints, 2, np.int8)
+            n = flag_unfollowed(res.joint_positions[f], pts[f], c.joint, c.child, c.a, c.b, c.A, c.cos_limit, q)
+            got[f] = q == 1
+            assert n == got[f].sum()
+        assert (got == ref).all() and ref.any(), tol
