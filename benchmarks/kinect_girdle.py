@@ -14,7 +14,15 @@ Tracked (state 2):
 - per coordinate the mean, the std over frames, and the spread of the per-recording means.
 
 standard_20's girdle offsets (kinematics/character.py) are these means, left/right symmetrised.
-Usage: python benchmarks/kinect_girdle.py
+
+Then, every recording onto standard_20 with the shipped mapping: per girdle bone (HipCenter and
+ShoulderCenter to their children) the angle to the Kinect's bone over the frames with both ends
+Tracked (mean, p95, max), with the girdle joints' source rotations from the best fit over their
+child bones (the rule) beside the TRIAD of two directions (the rule before), and the frames flagged
+estimated; and the one-frame (live) cost of a Kinect frame: rotations_from_points alone and the
+whole Retargeter.process, best fit + bone check against TRIAD without the check, CPU (process_time)
+and wall per frame, measured in the same run, with the load average.
+Usage: python benchmarks/kinect_girdle.py [--frames 2000]
 """
 from __future__ import annotations
 
@@ -75,6 +83,10 @@ def girdle_geometry(path: Path) -> dict[str, np.ndarray]:
 
 
 def main() -> int:
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=2000, help="live frames timed per variant")
+    frames = ap.parse_args().frames
     per = {r: girdle_geometry(SHARED / "kinect2" / f"{r}.csv") for r in RECORDINGS if (SHARED / "kinect2" / f"{r}.csv").exists()}
     if not per:
         print(f"no Kinect v2 recordings in {SHARED / 'kinect2'}")
@@ -95,7 +107,85 @@ def main() -> int:
     hip = (allf["HipLeft"].mean(0) * (1, 1, 1) + allf["HipRight"].mean(0) * (1, -1, 1)) / 2 / H
     sh = (allf["ShoulderLeft"].mean(0) * (1, 1, 1) + allf["ShoulderRight"].mean(0) * (1, -1, 1)) / 2 / H
     print(f"symmetrised, fractions of H: hip (fwd, +-left, up) {np.round(hip, 4)}; shoulder {np.round(sh, 4)}")
+    retargeted(list(per))
+    live_cost(frames)
     return 0
+
+
+def _retargeter(trial, best_fit: bool, tolerance):
+    from mocapgraph.formats.mapping_file import load_mapping
+    from mocapgraph.kinematics.character import standard_20
+    from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
+    from mocapgraph.kinematics.retarget_source import kinect_source, plan_point_rotations
+    src = kinect_source(trial.names, trial.parents)
+    ch = standard_20(1.75)
+    rt = Retargeter(ch, load_mapping("kinect_v2_standard_20"), src, RetargetOptions(follow_tolerance_deg=tolerance))
+    if not best_fit:    # the baseline rule; the live path reads the same plan
+        rt._plan = plan_point_rotations(src, best_fit=False)
+    return rt, ch
+
+
+def retargeted(names: list[str]) -> None:
+    """Girdle bone angles to the Kinect's over every recording: best fit beside TRIAD."""
+    from mocapgraph.formats.kinect_csv import read_kinect_csv
+    trials = [read_kinect_csv(SHARED / "kinect2" / f"{r}.csv", ground="feet") for r in names]
+    print("\ngirdle bones of standard_20 vs the Kinect's, all recordings, deg (mean / p95 / max):")
+    rows: dict[str, list[str]] = {}
+    flagged = {}
+    for best_fit in (True, False):
+        angles: dict[str, list[np.ndarray]] = {}
+        n_flag = 0
+        for t in trials:
+            rt, ch = _retargeter(t, best_fit, 10.0)
+            res = rt.process(t.positions, t.tracking_state == 2)
+            n_flag += int((res.joint_quality[:, [ch.index("HipCenter"), ch.index("ShoulderCenter")]] == 1).any(1).sum())
+            by = {e.joint: e for e in rt.mapping.joints}
+            for j in (ch.index("HipCenter"), ch.index("ShoulderCenter")):
+                for k in ch.children(j):
+                    a, b = t.names.index(by[ch.joint_names[j]].position), t.names.index(by[ch.joint_names[k]].position)
+                    ok = (t.tracking_state[:, a] == 2) & (t.tracking_state[:, b] == 2)
+                    u, v = res.joint_positions[ok, k] - res.joint_positions[ok, j], t.positions[ok, b] - t.positions[ok, a]
+                    cos = np.sum(u * v, 1) / np.linalg.norm(u, axis=1) / np.linalg.norm(v, axis=1)
+                    angles.setdefault(f"{ch.joint_names[j]} -> {ch.joint_names[k]}", []).append(
+                        np.degrees(np.arccos(np.clip(cos, -1, 1))))
+        for bone, parts in angles.items():
+            x = np.concatenate(parts)
+            rows.setdefault(bone, []).append(f"{x.mean():5.1f} / {np.percentile(x, 95):5.1f} / {x.max():5.1f}")
+        flagged[best_fit] = n_flag
+    print(f"  {'bone':<32} {'best fit (the rule)':>22} {'TRIAD (before)':>22}")
+    for bone, r in rows.items():
+        print(f"  {bone:<32} {r[0]:>22} {r[1]:>22}")
+    total = sum(len(t.positions) for t in trials)
+    print(f"  frames with a girdle joint estimated (its bone beyond 10 deg, or a source point held): best fit {flagged[True]}, "
+          f"TRIAD {flagged[False]} of {total}")
+
+
+def live_cost(frames: int) -> None:
+    """One-frame cost of a Kinect v2 frame onto standard_20, CPU and wall per frame."""
+    import time
+    from mocapgraph.formats.kinect_csv import read_kinect_csv
+    from mocapgraph.kinematics.retarget_source import rotations_from_points
+    t = read_kinect_csv(SHARED / "kinect2" / "Ges03_drawlines.csv", ground="feet")
+    good = np.flatnonzero(np.isfinite(t.positions).all((1, 2)))
+    pts = t.positions[good]
+    ok = t.tracking_state[good] == 2
+    idx = np.arange(frames) % len(pts)
+    print(f"\none Kinect v2 frame onto standard_20 (live path, {frames} frames, load average before "
+          f"{os.getloadavg()[0]:.2f}):")
+    for label, best_fit, tol in (("best fit + bone check (the rule)", True, 10.0), ("TRIAD, no check (before)", False, None)):
+        rt, _ = _retargeter(t, best_fit, tol)
+        for i in idx[:50]:
+            rt.process(pts[i:i + 1], ok[i:i + 1])
+        c0, w0 = time.process_time(), time.perf_counter()
+        for i in idx:
+            rotations_from_points(rt._plan, pts[i:i + 1])
+        c1, w1 = time.process_time(), time.perf_counter()
+        for i in idx:
+            rt.process(pts[i:i + 1], ok[i:i + 1])
+        c2, w2 = time.process_time(), time.perf_counter()
+        print(f"  {label:<34} rotations_from_points {1e6 * (c1 - c0) / frames:6.1f} us CPU ({1e6 * (w1 - w0) / frames:6.1f} wall); "
+              f"whole frame {1e6 * (c2 - c1) / frames:6.1f} us CPU ({1e6 * (w2 - w1) / frames:6.1f} wall)")
+    print(f"  load average after {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

@@ -141,13 +141,16 @@ class PointRotationPlan:
     fit_joints: np.ndarray             # joints with three or more children (girdles): best fit over them
     fit_kids: np.ndarray               # [G, K] the points they fit their bones to (-1: padding)
     fit_rest: np.ndarray               # [G, K, 3] unit rest directions to those (0: padding)
+    fit_levels: tuple[tuple[np.ndarray, np.ndarray], ...]   # per level: fit mask, their rows in fit_*
 
 
-def plan_point_rotations(src: SourceSkeleton) -> PointRotationPlan:
+def plan_point_rotations(src: SourceSkeleton, *, best_fit: bool = True) -> PointRotationPlan:
     """For every joint: the child it aims at (the one continuing its incoming bone, else the one
     with most descendants), for two-child joints the other child spanning the second axis, and for
     joints with three or more children (a pelvis, a chest) all of them for a best fit (a child that
-    only passes through to a leaf on the same line by that leaf, see :func:`_through_to_leaf`)."""
+    only passes through to a leaf on the same line by that leaf, see :func:`_through_to_leaf`).
+    ``best_fit=False`` gives those the TRIAD of their aim child and two others instead (the rule
+    before the best fit, kept as the benchmark's baseline)."""
     par = src.point_parents
     n = len(par)
     rest = src.rest_points
@@ -166,7 +169,7 @@ def plan_point_rotations(src: SourceSkeleton) -> PointRotationPlan:
         kids = [int(k) for k in np.flatnonzero(par == j) if np.linalg.norm(rest[k] - rest[j]) > 1e-6]
         if not kids:
             continue
-        if len(kids) >= 3:
+        if len(kids) >= 3 and best_fit:
             fit[j] = [_through_to_leaf(par, rest, j, k) for k in kids]
         incoming = rest[j] - rest[par[j]] if par[j] >= 0 else np.array([0.0, 0.0, 1.0])
         if np.linalg.norm(incoming) < 1e-9:
@@ -198,7 +201,9 @@ def plan_point_rotations(src: SourceSkeleton) -> PointRotationPlan:
         fit_rest[g, :len(kids)] = _unit(rest[kids] - rest[j])
     secondary[fit_joints] = -1      # a fit joint is no two-axis joint
     levels = tuple(np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1))
-    return PointRotationPlan(levels, par, primary, secondary, rest_primary, frames, fit_joints, fit_kids, fit_rest)
+    fit_levels = tuple((np.isin(lv, fit_joints), np.searchsorted(fit_joints, lv[np.isin(lv, fit_joints)])) for lv in levels)
+    return PointRotationPlan(levels, par, primary, secondary, rest_primary, frames, fit_joints, fit_kids, fit_rest,
+                             fit_levels)
 
 
 def _through_to_leaf(par: np.ndarray, rest: np.ndarray, j: int, k: int) -> int:
@@ -257,13 +262,12 @@ def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.nda
     p = np.asarray(points, dtype=np.float64)
     F, n = p.shape[0], p.shape[1]
     q = np.full((F, n, 4), np.nan)
-    for level in plan.levels:
+    for level, (fit, g) in zip(plan.levels, plan.fit_levels):
         par = plan.parents[level]
         carried = np.where((par >= 0)[None, :, None], q[:, np.maximum(par, 0)], IDENTITY)
         out = carried.copy()
         prim = plan.primary[level]
         two = plan.secondary[level, 0] >= 0
-        fit = np.isin(level, plan.fit_joints)
         one = (prim >= 0) & ~two & ~fit
         if one.any():
             js = level[one]
@@ -277,8 +281,7 @@ def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.nda
             out[:, two] = matrix_to_quat(cur @ np.swapaxes(plan.rest_frames[js], -1, -2)[None])
             bad = ~np.isfinite(cur).all(axis=(-1, -2))
             out[:, two] = np.where(bad[..., None], np.nan, out[:, two])
-        if fit.any():
-            g = np.searchsorted(plan.fit_joints, level[fit])
+        if g.size:
             kids = plan.fit_kids[g]                                              # [G, K]
             cur = np.where((kids >= 0)[None, :, :, None], p[:, np.maximum(kids, 0)] - p[:, level[fit], None], 0.0)
             out[:, fit] = matrix_to_quat(best_fit_rotations(plan.fit_rest[g], cur))
