@@ -205,3 +205,32 @@ def test_the_compiled_bone_check_matches_the_numpy_one(shared_data):
             got[f] = q == 1
             assert n == got[f].sum()
         assert (got == ref).all() and ref.any(), tol
+
+
+def test_kinect_v1_mapping_onto_standard_20_follows_the_bones(shared_data):
+    """The shipped Kinect v1 mapping on the Kinect v2 recordings relabelled as v1's 20 joints (v1's
+    HipCenter, Spine, ShoulderCenter are v2's SpineBase, SpineMid, SpineShoulder; no Neck, so
+    ShoulderCenter's bones are the Head and shoulder lines): every tracked bone within 10 deg mean,
+    one-child bones exactly."""
+    from mocapgraph.formats.kinect_csv import KINECT_V1_JOINTS, KINECT_V1_PARENTS
+    alias = {"HipCenter": "SpineBase", "Spine": "SpineMid", "ShoulderCenter": "SpineShoulder"}
+    ch, mapping = standard_20(1.75), load_mapping("kinect_v1_standard_20")
+    lines = []
+    for name in ("Ges01_wavehand", "Ges04_comehere"):
+        v2 = read_kinect_csv(shared_data / "kinect2" / f"{name}.csv", ground="feet")
+        cols = [v2.names.index(alias.get(n, n)) for n in KINECT_V1_JOINTS]
+        pts, state = v2.positions[:, cols], v2.tracking_state[:, cols]
+        src = kinect_source(KINECT_V1_JOINTS, KINECT_V1_PARENTS)
+        assert src.kinect_like == "kinect_v1" and mapping.source == "kinect_v1"
+        res = Retargeter(ch, mapping, src, RetargetOptions()).process(pts, state == 2)
+        assert np.isfinite(res.local_rotations).all()
+        for j, k, a, b in mapped_bones(ch, mapping, src):
+            ok = (state[:, a] == 2) & (state[:, b] == 2)
+            ang = angle_deg(res.joint_positions[ok, k] - res.joint_positions[ok, j], pts[ok, b] - pts[ok, a])
+            if len(ch.children(j)) > 1:
+                lines.append(f"  {name:<16} {ch.joint_names[j]:>14} -> {ch.joint_names[k]:<14} mean {ang.mean():5.1f} "
+                             f"p95 {np.percentile(ang, 95):5.1f} max {ang.max():5.1f}")
+            else:
+                assert ang.max() < 0.01, (name, ch.joint_names[j], ch.joint_names[k])
+            assert ang.mean() < 10.0, (name, ch.joint_names[j], ch.joint_names[k], ang.mean())
+    print("\nKinect v1 mapping (relabelled v2 recordings), girdle bones (deg):\n" + "\n".join(lines))
