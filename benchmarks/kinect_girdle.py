@@ -185,6 +185,23 @@ def live_cost(frames: int) -> None:
         c2, w2 = time.process_time(), time.perf_counter()
         print(f"  {label:<34} rotations_from_points {1e6 * (c1 - c0) / frames:6.1f} us CPU ({1e6 * (w1 - w0) / frames:6.1f} wall); "
               f"whole frame {1e6 * (c2 - c1) / frames:6.1f} us CPU ({1e6 * (w2 - w1) / frames:6.1f} wall)")
+    # the bone check alone: the compiled one-frame kernel beside the numpy reference on one frame
+    from mocapgraph.kinematics.bone_follow import unfollowed
+    from mocapgraph.kinematics.bone_follow_kernels import flag_unfollowed
+    rt, ch = _retargeter(t, True, 10.0)
+    c = rt._checks
+    res = rt.process(pts, ok)
+    q = np.full(ch.n_joints, 2, np.int8)
+    c0, w0 = time.process_time(), time.perf_counter()
+    for i in idx:
+        unfollowed(c, res.joint_positions[i:i + 1], pts[i:i + 1])
+    c1, w1 = time.process_time(), time.perf_counter()
+    for i in idx:
+        flag_unfollowed(res.joint_positions[i], pts[i], c.joint, c.child, c.a, c.b, c.A, c.cos_limit, q)
+    c2, w2 = time.process_time(), time.perf_counter()
+    print(f"  bone check ({c.joint.size} bones) one frame: numpy {1e6 * (c1 - c0) / frames:6.1f} us CPU "
+          f"({1e6 * (w1 - w0) / frames:6.1f} wall), compiled kernel {1e6 * (c2 - c1) / frames:6.2f} us CPU "
+          f"({1e6 * (w2 - w1) / frames:6.2f} wall): {(c1 - c0) / max(c2 - c1, 1e-9):.0f}x")
     print(f"  load average after {os.getloadavg()[0]:.2f}")
 
 
