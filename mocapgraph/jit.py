@@ -25,7 +25,11 @@ import numba
 F = TypeVar("F", bound=Callable)
 
 # Modules whose `warm()` calls each of their kernels once with small inputs (compiles and caches).
-KERNEL_MODULES: tuple[str, ...] = ()
+KERNEL_MODULES: tuple[str, ...] = (
+    "mocapgraph.physics.controller_kernels",
+    "mocapgraph.physics.posture_kernels",
+    "mocapgraph.physics.state_kernels",
+)
 
 
 def kernel(func: F) -> F:

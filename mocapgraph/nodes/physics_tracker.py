@@ -26,6 +26,7 @@ import time
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
+from ..jit import warm_all
 from ..kinematics.character import Character, CharacterError, standard_20
 from ..messages import CharacterInfo, CharacterPose, NodeCommand, NodeStatus, PhysicsScene, PhysicsState
 from ..messages.commands import PHYSICS_COMMANDS, parse_command
@@ -36,6 +37,8 @@ from ..physics.tracker import TargetConditioner
 from ..physics.world import PhysicsWorld, TrackerParams
 
 SUFFIX = "/physical"
+PHYSICS_KERNELS = ("mocapgraph.physics.controller_kernels", "mocapgraph.physics.posture_kernels",
+                   "mocapgraph.physics.state_kernels")
 
 
 class PhysicsTrackerNode(Node):
@@ -101,6 +104,9 @@ class PhysicsTrackerNode(Node):
                                             gravity_compensation=self.gravity_compensation,
                                             foot_max_force=self.foot_max_force,
                                             trunk_max_force=self.trunk_max_force)
+        # load the compiled kernels now (numba's first call in a process costs ~0.5 s even from its
+        # cache): on the first frame it would put the node that far behind its stream
+        warm_all(PHYSICS_KERNELS)
         try:
             if self.posture_db.startswith("synthetic:"):
                 from ..physics.synthetic_targets import synthetic_postures
@@ -110,6 +116,8 @@ class PhysicsTrackerNode(Node):
                 self.db.choose_search()
             elif self.posture_db:
                 self.db = PostureDB.load(self.posture_db)
+            if self.db is not None:
+                self.db.choose_search_compiled()   # brute-force kernel or k-d tree, measured here
             if self.stage:
                 self.stage_def = shifted(load_stage(self.stage), self.stage_offset)
         except (PostureDBError, StageError, ValueError) as exc:
