@@ -203,6 +203,26 @@ def orient(pos, rot, root_in, root, order, parents, rest, orient_out) -> None:
         orient_out[j, 3] = aw * jz + ax * jy - ay * jx + az * jw
 
 
+@kernel
+def condition_brute(pos_in, rot_in, root_in, quality, use_quality, root, order, parents, rest, pair_l, pair_r,
+                    mean, basis, reduced_t, sqnorm, dist, db_pos, db_rot, q, info, pos, rot, orient_out,
+                    filled) -> int:
+    """A whole frame's conditioning with a brute-force database in one call: :func:`clean`, then
+    :func:`complete_brute` when a joint is missing, then :func:`orient`. Returns -2 to hold the last
+    target (nothing usable), else the match index (-1: none)."""
+    state = clean(pos_in, rot_in, quality, use_quality, pos, rot)
+    if state < 0:
+        return -2
+    match = -1
+    if state > 0:
+        match = complete_brute(pos, rot, pair_l, pair_r, root, mean, basis, reduced_t, sqnorm, dist, db_pos,
+                               db_rot, q, info, filled)
+    else:
+        filled[:] = False
+    orient(pos, rot, root_in, root, order, parents, rest, orient_out)
+    return match
+
+
 def warm() -> None:
     """Compile every kernel here once on small inputs (fills the on-disk cache)."""
     J, k, N = 3, 2, 4
@@ -214,6 +234,15 @@ def warm() -> None:
     q, info, filled = np.zeros(k), np.zeros(4), np.zeros(J, dtype=np.bool_)
     complete_brute(pos, rot, pl, pr, 0, np.zeros(3 * J), np.ones((k, 3 * J)), np.zeros((k, N)), np.zeros(N),
                    np.zeros(N), np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), q, info, filled)
+    order, par, rest = np.arange(J, dtype=np.int64), np.array([-1, 0, 0], dtype=np.int64), np.tile([1.0, 0, 0, 0], (J, 1))
+    condition_brute(pos, rot, np.zeros(3), np.full(J, 2, dtype=np.int8), True, 0, order, par, rest, pl, pr,
+                    np.zeros(3 * J), np.ones((k, 3 * J)), np.zeros((k, N)), np.zeros(N), np.zeros(N),
+                    np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), q, info, np.zeros((J, 3)),
+                    np.zeros((J, 4)), np.zeros((J, 4)), filled)
+    # the entry points called directly too (the k-d tree path, the search timing)
+    nearest(q, np.zeros((k, N)), np.zeros(N), np.zeros(N))
+    if query(pos, pl, pr, 0, np.zeros(3 * J), np.ones((k, 3 * J)), q, info):
+        fill(0, info, np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), 0, pos, rot, filled)
     p2, r2 = np.zeros((J, 3)), np.zeros((J, 4))
     clean(pos, rot, np.full(J, 2, dtype=np.int8), True, p2, r2)
     clean(pos, rot, np.zeros(J, dtype=np.int8), False, p2, r2)

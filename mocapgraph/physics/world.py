@@ -21,6 +21,7 @@ of every character at once.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import mujoco
@@ -40,6 +41,15 @@ from .stage import EMPTY_STAGE, PARK_X, Stage, add_stage
 import xml.etree.ElementTree as ET
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
+
+
+def tick(profile: dict[str, float], stage: str, since: float) -> float:
+    """Add the thread CPU time since ``since`` (s) to ``profile[stage]``; returns now."""
+    now = time.thread_time()
+    profile[stage] = profile.get(stage, 0.0) + (now - since)
+    return now
+
+
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 TRUNK_CLASSES = ("lower_trunk", "middle_trunk", "upper_trunk", "head")   # anthropometry's segment classes
 
@@ -95,6 +105,7 @@ class PhysicsWorld:
         self.max_applied_force = 0.0     # N, largest Eq 1 force ever applied
         self.max_applied_torque = 0.0    # N·m, largest Eq 2 torque ever applied
         self.resets = 0                  # times the state went non-finite and was reset to the target
+        self.profile: dict[str, float] | None = None   # set to {} to sum CPU s per stage of step()
         self._pushes: list[_Push] = []
         self._next_ball = 0
         self._dodge_until = np.full(len(self.bodies), -np.inf)
@@ -222,6 +233,11 @@ class PhysicsWorld:
         self._k_joints = [np.ascontiguousarray(cb.body_joints, dtype=np.int64) for cb in self.bodies]
         self._k_parents = [np.ascontiguousarray(cb.character.parents, dtype=np.int64) for cb in self.bodies]
         self._k_pin_rest_z = np.ascontiguousarray(self.pin_rest_z, dtype=np.float64)
+        # views into mjData (mj_resetData keeps its buffers): read every frame without a lookup
+        self._k_warnings = self.data.warning.number
+        self._k_bad = tuple(int(x) for x in self._bad_warnings)
+        self._k_qvel = self.data.qvel
+        self._k_ident = [np.tile(IDENTITY, (cb.character.n_joints, 1)) for cb in self.bodies]
         # published geoms: every character capsule and stage geom (not the floor)
         floor = name(mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self.geom_ids = np.array([g for g in range(m.ngeom) if g != floor])
@@ -284,7 +300,7 @@ class PhysicsWorld:
         Joints without a body (leaves) take ``leaf_rotations`` (their target's) or identity."""
         if self.params.compiled:
             ball_adr, ball_joints, root_adr, root_joint, rest_root, J = self._k_local[k]
-            out = np.tile(IDENTITY, (J, 1)) if leaf_rotations is None else \
+            out = self._k_ident[k].copy() if leaf_rotations is None else \
                 np.array(leaf_rotations, dtype=np.float64, order="C")
             root_pos = np.empty(3)
             sk.local_rotations_into(self.data.qpos, ball_adr, ball_joints, root_adr, root_joint, rest_root, out,
@@ -565,20 +581,30 @@ class PhysicsWorld:
         m, d = self.model, self.data
         ts = m.opt.timestep
         n = max(1, int(round(duration_s / ts)))
+        prof = self.profile
+        t = time.thread_time() if prof is not None else 0.0
         self._update_pins()
         dodging = self._update_dodge()
+        if prof is not None:
+            t = tick(prof, "pins, dodge", t)
         if self.params.compiled:
             self._step_compiled(n)
         else:
             self._step_numpy(n, dodging)
+        if prof is not None:
+            t = time.thread_time()
         if self._pushes:
             self._pushes = [p for p in self._pushes if d.time < p.until]
         self.frames_stepped += 1
-        if d.warning.number[self._bad_warnings].sum() > self._badqacc or not math.isfinite(d.qvel.sum()):
+        wn, (a, b, c) = self._k_warnings, self._k_bad
+        if int(wn[a]) + int(wn[b]) + int(wn[c]) > self._badqacc or not math.isfinite(self._k_qvel.sum()):
             self._recover()
+        if prof is not None:
+            tick(prof, "checks", t)
 
     def _step_compiled(self, n: int) -> None:
         """``n`` substeps with the control as kernels writing ``xfrc_applied`` in place."""
+        t = time.thread_time() if self.profile is not None else 0.0
         m, d = self.model, self.data
         ts = m.opt.timestep
         g = self.params.gains
@@ -589,8 +615,13 @@ class PhysicsWorld:
         site_xpos, cvel, subtree_com, xipos = d.site_xpos, d.cvel, d.subtree_com, d.xipos
         xquat, xmat, xfrc = d.xquat, d.xmat, d.xfrc_applied
         fmax2 = 0.0
+        prof = self.profile
         for i in range(n):
+            if prof is not None:
+                t = tick(prof, "controller", t)
             mujoco.mj_step1(m, d)
+            if prof is not None:
+                t = tick(prof, "mj_step", t)
             ck.substep_control(site_xpos, cvel, subtree_com, xipos, xquat, xmat, xfrc, self._k_site, self._k_body,
                                self._k_root, self._k_bbody, self._k_baxis, self._k_scale, c0, slope, kp, kd,
                                self._k_bound, self.q_t, self.w_t, self.has_rot, i, g.kp_rot, g.kd_rot,
@@ -598,7 +629,11 @@ class PhysicsWorld:
             fmax2 = max(fmax2, tops[0])
             if self._pushes:
                 self._apply_pushes()
+            if prof is not None:
+                t = tick(prof, "controller", t)
             mujoco.mj_step2(m, d)
+            if prof is not None:
+                t = tick(prof, "mj_step", t)
         self.max_applied_force = max(self.max_applied_force, math.sqrt(fmax2))
         self.max_applied_torque = max(self.max_applied_torque, float(tops[1]))
         self.last_forces, self.last_torques = f, tq
@@ -615,6 +650,7 @@ class PhysicsWorld:
 
     def _step_numpy(self, n: int, dodging: bool) -> None:
         """The numpy reference of the control substeps (``controller_kernels``)."""
+        t0 = time.thread_time() if self.profile is not None else 0.0
         m, d = self.model, self.data
         ts = m.opt.timestep
         g = self.params.gains
@@ -646,8 +682,14 @@ class PhysicsWorld:
         A = self._A
         fmax2 = 0.0
         bound2 = self._bound2
+        prof = self.profile
+        t = t0
         for i in range(n):
+            if prof is not None:
+                t = tick(prof, "controller", t)
             mujoco.mj_step1(m, d)
+            if prof is not None:
+                t = tick(prof, "mj_step", t)
             p = d.site_xpos[site]
             cv = d.cvel[pt]
             v = cv[:, 3:] + cross(cv[:, :3], p - d.subtree_com[root])
@@ -686,7 +728,11 @@ class PhysicsWorld:
                 np.matmul(A, W, out=d.xfrc_applied)
             else:
                 d.xfrc_applied[:] = self._A_sparse @ W
+            if prof is not None:
+                t = tick(prof, "controller", t)
             mujoco.mj_step2(m, d)
+            if prof is not None:
+                t = tick(prof, "mj_step", t)
         self.max_applied_force = max(self.max_applied_force, math.sqrt(fmax2))
         self.last_forces, self.last_torques = f, tq
 
