@@ -224,7 +224,7 @@ def graph_latency(seconds: float) -> None:
         return
     print(f"launched graph, synthetic_character 120 Hz -> physics_tracker, {len(v)} frames over {seconds:g} s:")
     print(f"  added latency (input publish -> simulated pose publish) median {np.median(v):.2f} ms, "
-          f"p99 {np.percentile(v, 99):.2f} ms, max {v.max():.2f} ms")
+          f"p99 {np.percentile(v, 99):.2f} ms, max {v.max():.2f} ms (load {load():.2f})")
 
 
 def main() -> None:
@@ -278,7 +278,7 @@ def main() -> None:
               ", ".join(f"{k} {v:.4f}" for k, v in r.items()) + f" (load {load():.2f}; S&H 0.10 ms; target 0.05 ms)")
     for compiled in (False, True):
         fit = 0
-        counts = (1, 2, 4, 8, 12, 16, 24) if compiled else (1, 2, 4, 8, 12)
+        counts = (1, 2, 4, 8, 12, 16, 24, 32, 40) if compiled else (1, 2, 4, 8, 12)
         print(f"N characters in one world, {'compiled kernels' if compiled else 'numpy reference'} (each with "
               "conditioning, a database fill and read-out):")
         for n in counts:
