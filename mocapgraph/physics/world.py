@@ -636,7 +636,7 @@ class PhysicsWorld:
                 t = tick(prof, "mj_step", t)
         self.max_applied_force = max(self.max_applied_force, math.sqrt(fmax2))
         self.max_applied_torque = max(self.max_applied_torque, float(tops[1]))
-        self.last_forces, self.last_torques = f, tq
+        self.last_forces, self.last_torques = f.copy(), tq.copy()   # the kernels' buffers change next step
 
     def _apply_pushes(self) -> None:
         """Active pushes added to ``xfrc_applied`` at their points (after the bounded control)."""

@@ -134,10 +134,15 @@ def test_state_readout_kernels_equal_numpy(clip):
         assert np.abs(r0 - r1).max() < 1e-12 and np.array_equal(t0, t1)
 
 
-def test_conditioning_and_database_kernels_equal_numpy(clip, db):
+@pytest.mark.parametrize("search", ["brute", "kdtree", "split"])
+def test_conditioning_and_database_kernels_equal_numpy(clip, db, search):
+    """Every compiled route: one kernel call (brute force), the k-d tree between two kernels, and
+    the split calls a profiled conditioner makes."""
     ch = clip.character
-    db.choose_search_compiled()
+    db.search_compiled = "brute" if search == "split" else search
     conds = [TargetConditioner(ch, db, compiled=c) for c in (False, True)]
+    if search == "split":
+        conds[1].profile = {}
     rng = np.random.default_rng(3)
     worst = 0.0
     for i in range(len(clip)):
@@ -162,8 +167,11 @@ def test_conditioning_and_database_kernels_equal_numpy(clip, db):
             worst = max(worst, np.nanmax(np.abs(x - y), initial=0.0))
     assert conds[0].filled_frames == conds[1].filled_frames > 100
     assert conds[0].held_frames == conds[1].held_frames > 0
-    print(f"\ncompiled vs numpy conditioning over {len(clip)} frames with holes: largest difference {worst:.1e}")
+    print(f"\ncompiled ({search}) vs numpy conditioning over {len(clip)} frames with holes: largest difference "
+          f"{worst:.1e}")
     assert worst < 1e-12
+    if search == "split":
+        assert conds[1].profile["database"] > 0
 
 
 @pytest.mark.parametrize("size", [300, 10000])
@@ -178,3 +186,27 @@ def test_brute_force_kernel_finds_the_numpy_nearest(size):
         i = pk.nearest(q, red_t, sq, dist)
         d = ((red - q) ** 2).sum(1)
         assert d[i] <= d.min() + 1e-12
+
+
+def test_apply_wrenches_kernel_moves_the_model_as_mj_applyFT(clip):
+    """The kernel's xfrc_applied rows ([f, (p - xipos) x f] summed per body) equal mj_applyFT of each
+    force at its joint point, judged by MuJoCo's own accelerations."""
+    from mocapgraph.physics import controller_kernels as ck
+    w = PhysicsWorld([clip.character])
+    w.set_pose(0, clip.local_rotations[200], clip.root[200])
+    rng = np.random.default_rng(4)
+    w.data.qvel[:] = rng.normal(0, 0.5, w.model.nv)
+    mujoco.mj_forward(w.model, w.data)
+    p = w.point_positions()
+    f = rng.normal(0, 50, p.shape)
+    ck.apply_wrenches(w.data.site_xpos, w.data.xipos, w._k_site, w._k_body, f, w._k_bbody,
+                      np.zeros((len(w._k_bbody), 3)), w.data.xfrc_applied)
+    mujoco.mj_forward(w.model, w.data)
+    qacc_kernel = w.data.qacc.copy()
+    w.data.xfrc_applied[:] = 0
+    qfrc = np.zeros(w.model.nv)
+    for i in range(len(p)):
+        mujoco.mj_applyFT(w.model, w.data, f[i], np.zeros(3), p[i], int(w.pt_body[i]), qfrc)
+    w.data.qfrc_applied[:] = qfrc
+    mujoco.mj_forward(w.model, w.data)
+    np.testing.assert_allclose(qacc_kernel, w.data.qacc, rtol=1e-9, atol=1e-7)
