@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .bone_follow import plan_bone_checks, unfollowed
+from .bone_follow_kernels import flag_unfollowed
 from .character import Character
 from .foot_planting import PlantState, plant_targets, two_bone_ik
 from .quaternion import (matrix_between, matrix_to_quat, norm, quat_conjugate, quat_multiply, quat_power,
@@ -49,6 +51,9 @@ class RetargetOptions:
     contact_height_m: float = 0.03
     contact_speed_mps: float = 0.3
     release_s: float = 0.15
+    # a joint whose bone turned from the source bone by more than this beyond the rest-shape
+    # difference is flagged estimated on that frame (bone_follow); None: never
+    follow_tolerance_deg: float | None = 10.0
 
 
 @dataclass
@@ -305,6 +310,7 @@ class Retargeter:
         self._offset = np.asarray(opt.offset, dtype=np.float64)
         # --- positions-only sources
         self._plan = plan_point_rotations(src) if src.derived_rotations else None
+        self._checks = plan_bone_checks(ch, m, src, opt.follow_tolerance_deg)
         self.reset()
         self._live = None
         # the one-frame path's folded gathers multiply every (held, so finite) point by its weights
@@ -397,9 +403,14 @@ class Retargeter:
         pts = np.asarray(points, dtype=np.float64)
         F = pts.shape[0]
         if F == 1 and self._live is not None:   # the live case: same math, constants folded (retarget_live)
-            return self._live.run(pts[0], None if point_ok is None else np.asarray(point_ok, bool)[0],
-                                  None if rotations is None else np.asarray(rotations, dtype=np.float64)[0],
-                                  None if rotation_ok is None else np.asarray(rotation_ok, bool)[0], times_s)
+            res = self._live.run(pts[0], None if point_ok is None else np.asarray(point_ok, bool)[0],
+                                 None if rotations is None else np.asarray(rotations, dtype=np.float64)[0],
+                                 None if rotation_ok is None else np.asarray(rotation_ok, bool)[0], times_s)
+            c = self._checks
+            if c.joint.size:    # the held points the frame used (bone_follow_kernels: one compiled call)
+                flag_unfollowed(res.joint_positions[0], st.pts, c.joint, c.child, c.a, c.b, c.A, c.cos_limit,
+                                res.joint_quality[0])
+            return res
         pok = np.isfinite(pts).all(-1) if point_ok is None else (np.asarray(point_ok, bool) & np.isfinite(pts).all(-1))
         if rotations is None:
             if self._plan is None:
@@ -472,7 +483,10 @@ class Retargeter:
         parent_w = world[:, self._par]
         parent_w[:, self._root] = _EYE3
         local = self._rest_local_inv @ np.swapaxes(parent_w, -1, -2) @ world
-        return RetargetResult(matrix_to_quat(local), root, pos, self._quality(rq, pq), contact)
+        quality = self._quality(rq, pq)
+        if not self._checks.empty:
+            quality = np.where(unfollowed(self._checks, pos, pts), np.minimum(quality, QUALITY_ESTIMATED), quality)
+        return RetargetResult(matrix_to_quat(local), root, pos, quality.astype(np.int8), contact)
 
     def _quality(self, rq: np.ndarray, pq: np.ndarray) -> np.ndarray:
         """Joint quality [F, J] from the source rotations' and points' [F, R], [F, P]: a joint is as good
