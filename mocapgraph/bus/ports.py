@@ -119,6 +119,12 @@ class Input(_PortDeclaration):
     raw: bool = False
     name: str = ""
 
+    @classmethod
+    def optional(cls, topic: str, msg_type: type[Message], doc: str, *, queue: int,
+                 latched: bool = False) -> "Input":
+        """A subscription the graph may leave unpublished (viewers, bridges draw what there is)."""
+        return cls(topic, msg_type, doc, latched=latched, queue=queue, required=False)
+
     @property
     def type_name(self) -> str:
         return self.msg_type.type_name if self.msg_type else "*"

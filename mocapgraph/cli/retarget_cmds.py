@@ -173,7 +173,8 @@ def _bag_source(p: Path, model_path: str | None, topic: str | None) -> SourceFra
 def _options(args):
     from ..kinematics.retarget import RetargetOptions
     return RetargetOptions(foot_planting=not args.no_foot_planting, spread=not args.no_spread, aim=not args.no_aim,
-                           roll=not args.no_roll, root_scale=not args.no_root_scale, scale=args.scale)
+                           roll=not args.no_roll, root_scale=not args.no_root_scale, scale=args.scale,
+                           follow_tolerance_deg=getattr(args, "follow_tolerance", 10.0))
 
 
 def cmd_retarget(args: argparse.Namespace) -> int:
@@ -294,6 +295,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--topic", help="topic of a bag input (when it has several)")
     p.add_argument("--scale", type=float, default=None, help="root translation ratio (default: leg-length ratio)")
     p.add_argument("--character-name", help="name in bag output")
+    p.add_argument("--follow-tolerance", type=float, default=10.0, metavar="DEG",
+                   help="a joint whose bone turns from the source bone by more than this (beyond the rest-shape "
+                        "difference) is flagged estimated on that frame (default 10; 180: never)")
     for flag, what in (("foot-planting", "foot planting"), ("spread", "spine spread"), ("aim", "clavicle aiming"),
                        ("roll", "roll joints"), ("root-scale", "root scaling")):
         p.add_argument(f"--no-{flag}", action="store_true", help=f"turn {what} off")

@@ -198,26 +198,35 @@ def validate_hierarchy(names: tuple[str, ...], parents: np.ndarray, offsets: np.
 # height H (Drillis & Contini 1966 as tabulated by Winter, "Biomechanics and Motor Control of Human
 # Movement", Fig. 4.1): hip 0.530 H, knee 0.285 H, ankle 0.039 H, shoulder 0.818 H, chin 0.870 H,
 # shoulder width 0.259 H, upper arm 0.186 H, forearm 0.146 H, foot length 0.152 H. Joint places
-# Winter does not give (spine, head centre, hand centre, hip-joint spread) are our choice, noted.
+# Winter does not give (spine, head centre, hand centre) are our choice, noted.
+# The girdles take Kinect v2's shape (Shum & Ho's character is Kinect-like; a rigid girdle of another
+# shape cannot follow the Kinect's bones): measured by benchmarks/kinect_girdle.py over the five
+# ../shared/data/kinect2 recordings (all joints Tracked, 890 frames; H from the leg length), mean,
+# left/right symmetrised. Pelvis frame (up SpineBase->SpineMid, left along the hip line): the hip
+# joints 0.0246 H in front of SpineBase, 0.0557 H to the side, 0.0042 H above it (anatomically too
+# the hip joints lie in front of the lumbo-sacral joint). Chest frame (up SpineShoulder->Head): the
+# shoulders 0.0135 H in front of SpineShoulder and 0.0231 H below it, laterally 0.1267 H (Winter's
+# 0.1295 H is kept, the direction scaled to it). Heights from Winter kept: hip joints 0.530 H,
+# shoulders 0.818 H (so ShoulderCenter sits at 0.8416 H), head centre 0.930 H.
 STANDARD_20_JOINTS: tuple[tuple[str, str | None, tuple[float, float, float]], ...] = (
     # name, parent, offset from the parent as a fraction of H (world axes: X forward, Y left, Z up)
-    ("HipCenter", None, (0.0, 0.0, 0.550)),        # pelvis centre, a little above the hip joints
-    ("Spine", "HipCenter", (0.0, 0.0, 0.110)),    # lumbar, our choice
-    ("ShoulderCenter", "Spine", (0.0, 0.0, 0.158)),  # 0.818 H
-    ("Head", "ShoulderCenter", (0.0, 0.0, 0.112)),   # head centre 0.930 H, our choice
-    ("ShoulderLeft", "ShoulderCenter", (0.0, 0.1295, 0.0)),
+    ("HipCenter", None, (0.0, 0.0, 0.5258)),       # Kinect's SpineBase: 0.0042 H below the hip joints
+    ("Spine", "HipCenter", (0.0, 0.0, 0.1342)),   # lumbar at 0.660 H, our choice
+    ("ShoulderCenter", "Spine", (0.0, 0.0, 0.1816)),  # 0.8416 H: 0.0236 H above the shoulders (Kinect)
+    ("Head", "ShoulderCenter", (0.0, 0.0, 0.0884)),  # head centre 0.930 H, our choice
+    ("ShoulderLeft", "ShoulderCenter", (0.0138, 0.1295, -0.0236)),   # Kinect v2's direction, Winter's width
     ("ElbowLeft", "ShoulderLeft", (0.0, 0.186, 0.0)),    # T-pose: arms along +-Y
     ("WristLeft", "ElbowLeft", (0.0, 0.146, 0.0)),
     ("HandLeft", "WristLeft", (0.0, 0.054, 0.0)),        # hand centre, half of 0.108 H
-    ("ShoulderRight", "ShoulderCenter", (0.0, -0.1295, 0.0)),
+    ("ShoulderRight", "ShoulderCenter", (0.0138, -0.1295, -0.0236)),
     ("ElbowRight", "ShoulderRight", (0.0, -0.186, 0.0)),
     ("WristRight", "ElbowRight", (0.0, -0.146, 0.0)),
     ("HandRight", "WristRight", (0.0, -0.054, 0.0)),
-    ("HipLeft", "HipCenter", (0.0, 0.050, -0.020)),     # hip joint centres 0.10 H apart, our choice
+    ("HipLeft", "HipCenter", (0.0246, 0.0557, 0.0042)),  # Kinect v2's pelvis shape (see above)
     ("KneeLeft", "HipLeft", (0.0, 0.0, -0.245)),
     ("AnkleLeft", "KneeLeft", (0.0, 0.0, -0.246)),
     ("FootLeft", "AnkleLeft", (0.100, 0.0, -0.030)),     # ball of the foot, near the floor
-    ("HipRight", "HipCenter", (0.0, -0.050, -0.020)),
+    ("HipRight", "HipCenter", (0.0246, -0.0557, 0.0042)),
     ("KneeRight", "HipRight", (0.0, 0.0, -0.245)),
     ("AnkleRight", "KneeRight", (0.0, 0.0, -0.246)),
     ("FootRight", "AnkleRight", (0.100, 0.0, -0.030)),

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .bone_follow import plan_bone_checks, unfollowed
+from .bone_follow_kernels import flag_unfollowed
 from .character import Character
 from .foot_planting import PlantState, plant_targets, two_bone_ik
 from .quaternion import (matrix_between, matrix_to_quat, norm, quat_conjugate, quat_multiply, quat_power,
@@ -49,6 +51,9 @@ class RetargetOptions:
     contact_height_m: float = 0.03
     contact_speed_mps: float = 0.3
     release_s: float = 0.15
+    # a joint whose bone turned from the source bone by more than this beyond the rest-shape
+    # difference is flagged estimated on that frame (bone_follow); None: never
+    follow_tolerance_deg: float | None = 10.0
 
 
 @dataclass
@@ -306,6 +311,7 @@ class Retargeter:
         self._offset = np.asarray(opt.offset, dtype=np.float64)
         # --- positions-only sources
         self._plan = plan_point_rotations(src) if src.derived_rotations else None
+        self._checks = plan_bone_checks(ch, m, src, opt.follow_tolerance_deg)
         self.reset()
         self._live = None
         # the one-frame path's folded gathers multiply every (held, so finite) point by its weights
@@ -395,10 +401,19 @@ class Retargeter:
         """One live frame (the node's call): points [P, 3], rotations [R, 4] or None, masks [P], [R]
         or None, time in s; :meth:`process` of that frame (F = 1), without its batch wrapping."""
         if self._live is not None:
-            return self._live.run(points, point_ok, rotations, rotation_ok, float(time_s))
+            return self._live_frame(points, point_ok, rotations, rotation_ok, float(time_s))
         return self.process(points[None], None if point_ok is None else point_ok[None],
                             None if rotations is None else rotations[None],
                             None if rotation_ok is None else rotation_ok[None], float(time_s))
+
+    def _live_frame(self, pts, pok, rot, rok, t) -> RetargetResult:
+        """The one-frame path, then the bone-follow check on the held points the frame used."""
+        res = self._live.run(pts, pok, rot, rok, t)
+        c = self._checks
+        if c.joint.size:    # bone_follow_kernels: one compiled call
+            flag_unfollowed(res.joint_positions[0], self._state.pts, c.joint, c.child, c.a, c.b, c.A, c.cos_limit,
+                            res.joint_quality[0])
+        return res
 
     def process(self, points: np.ndarray, point_ok: np.ndarray | None = None,
                 rotations: np.ndarray | None = None, rotation_ok: np.ndarray | None = None,
@@ -409,9 +424,9 @@ class Retargeter:
         pts = np.asarray(points, dtype=np.float64)
         F = pts.shape[0]
         if F == 1 and self._live is not None:   # the live case: same math, constants folded (retarget_live)
-            return self._live.run(pts[0], None if point_ok is None else np.asarray(point_ok, bool)[0],
-                                  None if rotations is None else np.asarray(rotations, dtype=np.float64)[0],
-                                  None if rotation_ok is None else np.asarray(rotation_ok, bool)[0], times_s)
+            return self._live_frame(pts[0], None if point_ok is None else np.asarray(point_ok, bool)[0],
+                                    None if rotations is None else np.asarray(rotations, dtype=np.float64)[0],
+                                    None if rotation_ok is None else np.asarray(rotation_ok, bool)[0], times_s)
         if self._live is not None:
             self._live.release_state()
         pok = np.isfinite(pts).all(-1) if point_ok is None else (np.asarray(point_ok, bool) & np.isfinite(pts).all(-1))
@@ -486,7 +501,10 @@ class Retargeter:
         parent_w = world[:, self._par]
         parent_w[:, self._root] = _EYE3
         local = self._rest_local_inv @ np.swapaxes(parent_w, -1, -2) @ world
-        return RetargetResult(matrix_to_quat(local), root, pos, self._quality(rq, pq), contact)
+        quality = self._quality(rq, pq)
+        if not self._checks.empty:
+            quality = np.where(unfollowed(self._checks, pos, pts), np.minimum(quality, QUALITY_ESTIMATED), quality)
+        return RetargetResult(matrix_to_quat(local), root, pos, quality.astype(np.int8), contact)
 
     def _quality(self, rq: np.ndarray, pq: np.ndarray) -> np.ndarray:
         """Joint quality [F, J] from the source rotations' and points' [F, R], [F, P]: a joint is as good

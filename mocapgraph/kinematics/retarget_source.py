@@ -141,11 +141,19 @@ class PointRotationPlan:
     secondary: np.ndarray              # [P, 2] points whose difference is the second axis (-1: none)
     rest_primary: np.ndarray           # [P, 3] unit
     rest_frames: np.ndarray            # [P, 3, 3] rest frames of two-axis joints (NaN: none)
+    fit_joints: np.ndarray             # joints with three or more children (girdles): best fit over them
+    fit_kids: np.ndarray               # [G, K] the points they fit their bones to (-1: padding)
+    fit_rest: np.ndarray               # [G, K, 3] unit rest directions to those (0: padding)
+    fit_levels: tuple[tuple[np.ndarray, np.ndarray], ...]   # per level: fit mask, their rows in fit_*
 
 
-def plan_point_rotations(src: SourceSkeleton) -> PointRotationPlan:
+def plan_point_rotations(src: SourceSkeleton, *, best_fit: bool = True) -> PointRotationPlan:
     """For every joint: the child it aims at (the one continuing its incoming bone, else the one
-    with most descendants), and for branching joints two children spanning the second axis."""
+    with most descendants), for two-child joints the other child spanning the second axis, and for
+    joints with three or more children (a pelvis, a chest) all of them for a best fit (a child that
+    only passes through to a leaf on the same line by that leaf, see :func:`_through_to_leaf`).
+    ``best_fit=False`` gives those the TRIAD of their aim child and two others instead (the rule
+    before the best fit, kept as the benchmark's baseline)."""
     par = src.point_parents
     n = len(par)
     rest = src.rest_points
@@ -159,10 +167,13 @@ def plan_point_rotations(src: SourceSkeleton) -> PointRotationPlan:
             ndesc[par[j]] += ndesc[j] + 1
     primary = -np.ones(n, dtype=np.int64)
     secondary = -np.ones((n, 2), dtype=np.int64)
+    fit: dict[int, list[int]] = {}
     for j in range(n):
         kids = [int(k) for k in np.flatnonzero(par == j) if np.linalg.norm(rest[k] - rest[j]) > 1e-6]
         if not kids:
             continue
+        if len(kids) >= 3 and best_fit:
+            fit[j] = [_through_to_leaf(par, rest, j, k) for k in kids]
         incoming = rest[j] - rest[par[j]] if par[j] >= 0 else np.array([0.0, 0.0, 1.0])
         if np.linalg.norm(incoming) < 1e-9:
             incoming = np.array([0.0, 0.0, 1.0])
@@ -183,8 +194,52 @@ def plan_point_rotations(src: SourceSkeleton) -> PointRotationPlan:
     two = secondary[:, 0] >= 0
     if two.any():
         frames[two] = _triad(rest_primary[two], rest[secondary[two, 0]] - rest[secondary[two, 1]])
+    fit_joints = np.array(sorted(fit), dtype=np.int64)
+    K = max((len(v) for v in fit.values()), default=0)
+    fit_kids = -np.ones((len(fit_joints), K), dtype=np.int64)
+    fit_rest = np.zeros((len(fit_joints), K, 3))
+    for g, j in enumerate(fit_joints):
+        kids = fit[int(j)]
+        fit_kids[g, :len(kids)] = kids
+        fit_rest[g, :len(kids)] = _unit(rest[kids] - rest[j])
+    secondary[fit_joints] = -1      # a fit joint is no two-axis joint
     levels = tuple(np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1))
-    return PointRotationPlan(levels, par, primary, secondary, rest_primary, frames)
+    fit_levels = tuple((np.isin(lv, fit_joints), np.searchsorted(fit_joints, lv[np.isin(lv, fit_joints)])) for lv in levels)
+    return PointRotationPlan(levels, par, primary, secondary, rest_primary, frames, fit_joints, fit_kids, fit_rest,
+                             fit_levels)
+
+
+def _through_to_leaf(par: np.ndarray, rest: np.ndarray, j: int, k: int) -> int:
+    """The point a girdle joint j fits its child bone to: k itself, or, when k only passes through
+    to a leaf lying on the rest line j->k beyond it (Kinect v2's Neck on the way to the Head), that
+    leaf: a character without the pass-through joint carries the whole segment on j."""
+    kk = np.flatnonzero(par == k)
+    if len(kk) != 1 or (par == kk[0]).any():
+        return k
+    a, b = rest[k] - rest[j], rest[kk[0]] - rest[j]
+    if np.linalg.norm(b) <= np.linalg.norm(a) or float(a @ b) < 0.9999 * np.linalg.norm(a) * np.linalg.norm(b):
+        return k
+    return int(kk[0])
+
+
+def best_fit_rotations(rest_dirs: np.ndarray, cur: np.ndarray) -> np.ndarray:
+    """Rotation matrices [F, G, 3, 3] best turning unit rest directions [G, K, 3] (0 rows: padding)
+    onto the current bone vectors [F, G, K, 3] (any length; 0 rows: padding), every bone weighted
+    equally (each current vector made unit): Kabsch by SVD, batched over frames and joints, a
+    proper rotation always. NaN where a current vector is not finite or of zero length."""
+    n = np.linalg.norm(cur, axis=-1, keepdims=True)
+    pad = ~(np.abs(rest_dirs).sum(-1) > 0)                                 # [G, K]
+    unit = cur / np.where(n > 0, n, 1.0)
+    bad = ~(np.isfinite(unit).all(-1) & ((n[..., 0] > 1e-12) | pad)).all(-1)   # [F, G]
+    unit = np.where(np.isfinite(unit), unit, 0.0)
+    M = np.einsum("fgki,gkj->fgij", unit, rest_dirs)                        # sum over bones cur rest^T
+    M = np.where(bad[..., None, None], np.eye(3), M)
+    u, _, vt = np.linalg.svd(M)
+    d = np.sign(np.linalg.det(u @ vt))
+    u[..., :, 2] *= np.where(d == 0, 1.0, d)[..., None]
+    out = u @ vt
+    out[bad] = np.nan
+    return out
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -201,19 +256,22 @@ def _triad(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
 
 def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.ndarray:
     """World rotations [F, P, 4] of a positions-only source from its points [F, P, 3], identity
-    in the rest pose: branching joints from their aim child and the span of two other children
-    (TRIAD), one-child joints by the shortest arc from the parent-carried rest direction (so no
-    twist flips), leaves with their parent. NaN where a needed point is missing."""
+    in the rest pose: joints with three or more children (girdles) by the best fit over all their
+    child bones (:func:`best_fit_rotations`, no bone favoured: a rigid girdle cannot match a shape
+    that changes, so the residual is shared), two-child joints from their aim child and the span of
+    the other (TRIAD: a limb's axis follows its main bone exactly), one-child joints by the shortest
+    arc from the parent-carried rest direction (so no twist flips), leaves with their parent. NaN
+    where a needed point is missing."""
     p = np.asarray(points, dtype=np.float64)
     F, n = p.shape[0], p.shape[1]
     q = np.full((F, n, 4), np.nan)
-    for level in plan.levels:
+    for level, (fit, g) in zip(plan.levels, plan.fit_levels):
         par = plan.parents[level]
         carried = np.where((par >= 0)[None, :, None], q[:, np.maximum(par, 0)], IDENTITY)
         out = carried.copy()
         prim = plan.primary[level]
         two = plan.secondary[level, 0] >= 0
-        one = (prim >= 0) & ~two
+        one = (prim >= 0) & ~two & ~fit
         if one.any():
             js = level[one]
             cur = p[:, prim[one]] - p[:, js]
@@ -226,6 +284,10 @@ def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.nda
             out[:, two] = matrix_to_quat(cur @ np.swapaxes(plan.rest_frames[js], -1, -2)[None])
             bad = ~np.isfinite(cur).all(axis=(-1, -2))
             out[:, two] = np.where(bad[..., None], np.nan, out[:, two])
+        if g.size:
+            kids = plan.fit_kids[g]                                              # [G, K]
+            cur = np.where((kids >= 0)[None, :, :, None], p[:, np.maximum(kids, 0)] - p[:, level[fit], None], 0.0)
+            out[:, fit] = matrix_to_quat(best_fit_rotations(plan.fit_rest[g], cur))
         q[:, level] = out
     return q
 

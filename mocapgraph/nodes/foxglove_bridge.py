@@ -26,32 +26,24 @@ QUEUE = 256  # messages per input socket before dropping (counted as gaps)
 FOXGLOVE_APP_ORIGIN = "https://app.foxglove.dev"
 
 
-def _frames(topic: str, t: type[Message], doc: str) -> Input:
-    return Input(topic, t, doc, queue=QUEUE, required=False)
-
-
-def _latched(topic: str, t: type[Message], doc: str) -> Input:
-    return Input(topic, t, doc, latched=True, queue=QUEUE, required=False)
-
-
 class FoxgloveBridge(Node):
     """Serves markers, actors, skeletons, characters, physics bodies and diagnostics to Foxglove."""
 
     summary = "the live graph in the Foxglove app (Foxglove WebSocket protocol, token on 127.0.0.1)"
 
-    markers = _frames("markers", MarkerFrame, "markers: spheres, green seen, red not seen")
-    marker_layout = _latched("marker_layout", MarkerLayout, "marker labels")
-    actor_pose = _frames("actor_pose", ActorPose, "solved actors: joints by quality, bones")
-    skeleton_model = _latched("skeleton_model", SkeletonModel, "actor joint parents (bones)")
-    skeleton_pose = _frames("skeleton_pose", SkeletonPose, "Kinect/BVH skeleton streams")
-    skeleton_info = _latched("skeleton_info", SkeletonInfo, "skeleton joint parents")
-    character_pose = _frames("character_pose", CharacterPose, "retargeted characters")
-    character_info = _latched("character_info", CharacterInfo, "character joint parents")
-    physics_state = _frames("physics_state", PhysicsState, "simulated bodies and stage objects")
-    physics_scene = _latched("physics_scene", PhysicsScene, "body shapes and sizes")
-    node_diagnostics = _frames("diagnostics", Diagnostics, "every node's rates, latency, drops (plots)")
-    calibration_status = _frames("calibration_status", NodeStatus, "calibration state (JSON)")
-    player_status = _frames("player_status", NodeStatus, "bag player state (JSON)")
+    markers = Input.optional("markers", MarkerFrame, "markers: spheres, green seen, red not seen", queue=QUEUE)
+    marker_layout = Input.optional("marker_layout", MarkerLayout, "marker labels", queue=QUEUE, latched=True)
+    actor_pose = Input.optional("actor_pose", ActorPose, "solved actors: joints by quality, bones", queue=QUEUE)
+    skeleton_model = Input.optional("skeleton_model", SkeletonModel, "actor joint parents (bones)", queue=QUEUE, latched=True)
+    skeleton_pose = Input.optional("skeleton_pose", SkeletonPose, "Kinect/BVH skeleton streams", queue=QUEUE)
+    skeleton_info = Input.optional("skeleton_info", SkeletonInfo, "skeleton joint parents", queue=QUEUE, latched=True)
+    character_pose = Input.optional("character_pose", CharacterPose, "retargeted characters", queue=QUEUE)
+    character_info = Input.optional("character_info", CharacterInfo, "character joint parents", queue=QUEUE, latched=True)
+    physics_state = Input.optional("physics_state", PhysicsState, "simulated bodies and stage objects", queue=QUEUE)
+    physics_scene = Input.optional("physics_scene", PhysicsScene, "body shapes and sizes", queue=QUEUE, latched=True)
+    node_diagnostics = Input.optional("diagnostics", Diagnostics, "every node's rates, latency, drops (plots)", queue=QUEUE)
+    calibration_status = Input.optional("calibration_status", NodeStatus, "calibration state (JSON)", queue=QUEUE)
+    player_status = Input.optional("player_status", NodeStatus, "bag player state (JSON)", queue=QUEUE)
 
     host = Param("127.0.0.1", "address Foxglove connects to (loopback unless you mean otherwise)")
     port = Param(8766, "WebSocket port; 0 picks a free one (printed at start)", minimum=0, maximum=65535)

@@ -26,6 +26,7 @@ import time
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
+from ..jit import warm_all
 from ..kinematics.character import Character, CharacterError, standard_20
 from ..messages import CharacterInfo, CharacterPose, NodeCommand, NodeStatus, PhysicsScene, PhysicsState
 from ..messages.commands import PHYSICS_COMMANDS, parse_command
@@ -36,6 +37,8 @@ from ..physics.tracker import TargetConditioner
 from ..physics.world import PhysicsWorld, TrackerParams
 
 SUFFIX = "/physical"
+PHYSICS_KERNELS = ("mocapgraph.physics.controller_kernels", "mocapgraph.physics.posture_kernels",
+                   "mocapgraph.physics.state_kernels")
 
 
 class PhysicsTrackerNode(Node):
@@ -74,6 +77,8 @@ class PhysicsTrackerNode(Node):
                   "empty: the floor only")
     stage_offset = Param([0.0, 0.0, 0.0], "move the whole stage by this much, m (with a retargeter offset)")
     characters = Param([], "character names to simulate, in world order; empty: every one that appears")
+    compiled = Param(True, "per-frame control, database search and read-out as numba kernels (false: the numpy "
+                     "reference path, same results to ~1e-12)")
     stale_s = Param(0.25, "no frame for this long: keep simulating in wall time (stand and wait), s",
                     minimum=0.01)
     max_lag_s = Param(0.05, "a frame published longer ago than this only updates the target (the node "
@@ -100,7 +105,11 @@ class PhysicsTrackerNode(Node):
                                             virtual_joints=self.virtual_joints, dodge=self.dodge,
                                             gravity_compensation=self.gravity_compensation,
                                             foot_max_force=self.foot_max_force,
-                                            trunk_max_force=self.trunk_max_force)
+                                            trunk_max_force=self.trunk_max_force, compiled=self.compiled)
+        # load the compiled kernels now (numba's first call in a process costs ~0.5 s even from its
+        # cache): on the first frame it would put the node that far behind its stream
+        if self.compiled:
+            warm_all(PHYSICS_KERNELS)
         try:
             if self.posture_db.startswith("synthetic:"):
                 from ..physics.synthetic_targets import synthetic_postures
@@ -110,6 +119,8 @@ class PhysicsTrackerNode(Node):
                 self.db.choose_search()
             elif self.posture_db:
                 self.db = PostureDB.load(self.posture_db)
+            if self.db is not None:
+                self.db.choose_search_compiled()   # brute-force kernel or k-d tree, measured here
             if self.stage:
                 self.stage_def = shifted(load_stage(self.stage), self.stage_offset)
         except (PostureDBError, StageError, ValueError) as exc:
@@ -157,7 +168,7 @@ class PhysicsTrackerNode(Node):
             db = self.db if self.db is not None and tuple(self.db.joint_names) == ch.joint_names else None
             if self.db is not None and db is None:
                 self.log.warning("posture database joints do not match %s: no filling for it", ch.name)
-            self.cond.append(TargetConditioner(ch, db))
+            self.cond.append(TargetConditioner(ch, db, compiled=self.compiled))
         self.started_pose = [False] * len(chars)
         # a simulated joint is estimated (1): the body's answer to its target, never a measurement
         self._sim_quality = np.ones(max(c.n_joints for c in chars), dtype=np.int8)

@@ -59,6 +59,9 @@ class RetargeterNode(Node):
     aim = Param(True, "aim clavicles at the shoulders (Kiip 3.5.4)")
     roll = Param(True, "roll joints share the limb twist (Kiip 3.5.5)")
     follow_bones = Param(True, "one-child joints point their bone along the source bone")
+    follow_tolerance_deg = Param(10.0, "a joint whose bone turns from the source bone by more than this beyond the "
+                                       "rest-shape difference is flagged estimated on that frame, deg (180: never)",
+                                 minimum=0.0, maximum=180.0)
     foot_planting = Param(True, "feet in contact stay put and above the floor (Kiip 3.5.6)")
     root_scale = Param(True, "scale the root translation by the leg-length ratio")
     floor_z = Param(0.0, "floor height, m")
@@ -100,6 +103,7 @@ class RetargeterNode(Node):
 
     def _options(self) -> RetargetOptions:
         return RetargetOptions(spread=self.spread, aim=self.aim, roll=self.roll, follow_bones=self.follow_bones,
+                               follow_tolerance_deg=float(self.follow_tolerance_deg),
                                foot_planting=self.foot_planting, root_scale=self.root_scale,
                                scale=self.scale or None, floor_z=self.floor_z,
                                offset=tuple(float(x) for x in (list(self.offset) + [0.0, 0.0, 0.0])[:3]))

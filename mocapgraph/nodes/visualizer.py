@@ -33,32 +33,24 @@ _IDENT_FIELD = {"ActorPose": "actor", "SkeletonPose": "source_id", "CharacterPos
                 "CharacterInfo": "character", "Diagnostics": "node", "NodeStatus": "node"}
 
 
-def _frames(topic: str, msg_type: type[Message], doc: str) -> Input:
-    return Input(topic, msg_type, doc, queue=FRAME_QUEUE, required=False)
-
-
-def _latched(topic: str, msg_type: type[Message], doc: str) -> Input:
-    return Input(topic, msg_type, doc, latched=True, queue=FRAME_QUEUE, required=False)
-
-
 class Visualizer(Node):
     """Serves the live 3D stage page and streams the subscribed topics to it."""
 
     summary = "live 3D stage in the browser (HTTP + WebSocket on 127.0.0.1, port a param)"
 
-    markers = _frames("markers", MarkerFrame, "labelled markers, drawn green (seen) or red (not seen)")
-    marker_layout = _latched("marker_layout", MarkerLayout, "marker labels (names of missing markers)")
-    actor_pose = _frames("actor_pose", ActorPose, "solved actors: joints and bones coloured by quality")
-    skeleton_model = _latched("skeleton_model", SkeletonModel, "calibrated models: bones and per-joint quality")
-    skeleton_pose = _frames("skeleton_pose", SkeletonPose, "generic joint streams (Kinect, BVH)")
-    skeleton_info = _latched("skeleton_info", SkeletonInfo, "joint names and parents of skeleton streams")
-    character_pose = _frames("character_pose", CharacterPose, "retargeted characters")
-    character_info = _latched("character_info", CharacterInfo, "character skeletons (parents for bones)")
-    physics_state = _frames("physics_state", PhysicsState, "simulated bodies")
-    physics_scene = _latched("physics_scene", PhysicsScene, "body shapes and sizes")
-    node_diagnostics = _frames("diagnostics", Diagnostics, "every node's edge rates, latency and drops")
-    calibration_status = _frames("calibration_status", NodeStatus, "calibration state machine")
-    player_status = _frames("player_status", NodeStatus, "bag player state (position, duration)")
+    markers = Input.optional("markers", MarkerFrame, "labelled markers, drawn green (seen) or red (not seen)", queue=FRAME_QUEUE)
+    marker_layout = Input.optional("marker_layout", MarkerLayout, "marker labels (names of missing markers)", queue=FRAME_QUEUE, latched=True)
+    actor_pose = Input.optional("actor_pose", ActorPose, "solved actors: joints and bones coloured by quality", queue=FRAME_QUEUE)
+    skeleton_model = Input.optional("skeleton_model", SkeletonModel, "calibrated models: bones and per-joint quality", queue=FRAME_QUEUE, latched=True)
+    skeleton_pose = Input.optional("skeleton_pose", SkeletonPose, "generic joint streams (Kinect, BVH)", queue=FRAME_QUEUE)
+    skeleton_info = Input.optional("skeleton_info", SkeletonInfo, "joint names and parents of skeleton streams", queue=FRAME_QUEUE, latched=True)
+    character_pose = Input.optional("character_pose", CharacterPose, "retargeted characters", queue=FRAME_QUEUE)
+    character_info = Input.optional("character_info", CharacterInfo, "character skeletons (parents for bones)", queue=FRAME_QUEUE, latched=True)
+    physics_state = Input.optional("physics_state", PhysicsState, "simulated bodies", queue=FRAME_QUEUE)
+    physics_scene = Input.optional("physics_scene", PhysicsScene, "body shapes and sizes", queue=FRAME_QUEUE, latched=True)
+    node_diagnostics = Input.optional("diagnostics", Diagnostics, "every node's edge rates, latency and drops", queue=FRAME_QUEUE)
+    calibration_status = Input.optional("calibration_status", NodeStatus, "calibration state machine", queue=FRAME_QUEUE)
+    player_status = Input.optional("player_status", NodeStatus, "bag player state (position, duration)", queue=FRAME_QUEUE)
 
     calibration_command = Output("calibration_command", NodeCommand, "find_base_pose, capture_gym, process")
     player_command = Output("player_command", NodeCommand, "play, pause, step, seek {position_s: seconds} (the bag player's commands)")

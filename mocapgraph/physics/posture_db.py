@@ -24,6 +24,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..kinematics.quaternion import quat_multiply
+from . import posture_kernels as pk
 
 FORMAT = "mocapgraph.posture_db/1"
 
@@ -129,7 +130,8 @@ class PostureDB:
     components: np.ndarray       # [K, 3J] all principal axes (rows), by decreasing variance
     k: int = 7
     sources: tuple[str, ...] = ()
-    search: str = "brute"        # "brute" or "kdtree"
+    search: str = "brute"        # "brute" or "kdtree" (numpy path)
+    search_compiled: str = "brute"   # the same choice for the compiled path (complete_into)
     _tree: cKDTree | None = field(default=None, repr=False)
     _reduced: np.ndarray | None = field(default=None, repr=False)
 
@@ -176,6 +178,18 @@ class PostureDB:
         self._search_t = np.ascontiguousarray(np.vstack([-2.0 * self._reduced.T, self._sqnorm[None]]))
         self._query = np.ones(self.k + 1)
         self._tree = cKDTree(self._reduced)
+        # the compiled path's contiguous arrays and buffers
+        self._k_reduced_t = np.ascontiguousarray(self._reduced.T)
+        self._k_dist = np.zeros(len(self._reduced))
+        self._k_sqnorm = np.ascontiguousarray(self._sqnorm)
+        self._k_basis = np.ascontiguousarray(self._basis, dtype=np.float64)
+        self._k_mean = np.ascontiguousarray(self.mean, dtype=np.float64)
+        self._k_pos = np.ascontiguousarray(self.positions, dtype=np.float64)
+        self._k_rot = np.ascontiguousarray(self.rotations, dtype=np.float64)
+        self._k_pl = np.array([l for l, _ in self.frame.pairs], dtype=np.int64)
+        self._k_pr = np.array([r for _, r in self.frame.pairs], dtype=np.int64)
+        self._k_q = np.zeros(self.k)
+        self._k_info = np.zeros(4)
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -212,6 +226,44 @@ class PostureDB:
             out[how] = (time.perf_counter() - t) / trials * 1e3
         self.search = min(out, key=out.get)
         return out
+
+    def choose_search_compiled(self, trials: int = 200) -> dict[str, float]:
+        """Time one-query searches of the compiled path (the brute-force kernel against the k-d
+        tree, each called as :meth:`complete_into` calls it; ms per query) and keep the faster."""
+        rng = np.random.default_rng(0)
+        q = self._reduced[rng.integers(0, len(self), trials)] + rng.normal(0, 0.01, (trials, self.k))
+        red, sq, dist = self._k_reduced_t, self._k_sqnorm, self._k_dist
+        out = {}
+        pk.nearest(q[0], red, sq, dist)
+        t = time.perf_counter()
+        for i in range(trials):
+            pk.nearest(q[i], red, sq, dist)
+        out["brute"] = (time.perf_counter() - t) / trials * 1e3
+        tree = self._tree
+        tree.query(q[0], k=1)
+        t = time.perf_counter()
+        for i in range(trials):
+            tree.query(q[i], k=1)
+        out["kdtree"] = (time.perf_counter() - t) / trials * 1e3
+        self.search_compiled = min(out, key=out.get)
+        return out
+
+    def complete_into(self, pos: np.ndarray, rot: np.ndarray, filled: np.ndarray) -> int:
+        """:meth:`complete` as kernels, in place: missing rows of ``pos`` [J, 3] and ``rot`` [J, 4]
+        (C-contiguous float64) from the nearest posture; ``filled`` [J] bool marks them. Returns the
+        match index, or -1 when the query has no root/heading (nothing filled)."""
+        if self.search_compiled == "brute":
+            return pk.complete_brute(pos, rot, self._k_pl, self._k_pr, self.frame.root, self._k_mean,
+                                     self._k_basis, self._k_reduced_t, self._k_sqnorm, self._k_dist, self._k_pos,
+                                     self._k_rot,
+                                     self._k_q, self._k_info, filled)
+        if not pk.query(pos, self._k_pl, self._k_pr, self.frame.root, self._k_mean, self._k_basis, self._k_q,
+                        self._k_info):
+            filled[:] = False
+            return -1
+        idx = int(self._tree.query(self._k_q, k=1)[1])
+        pk.fill(idx, self._k_info, self._k_pos, self._k_rot, self.frame.root, pos, rot, filled)
+        return idx
 
     def match(self, positions: np.ndarray) -> tuple[int, float, np.ndarray, bool]:
         """Nearest posture to one world posture [J, 3] (NaN rows missing):

@@ -76,17 +76,22 @@ def synthetic_targets(start_s: float, stop_s: float, rate: float = 120.0, *, see
     rel = np.swapaxes(Wp, -1, -2) @ W
     local_m = np.swapaxes(rest, -1, -2)[None] @ rel
     local = matrix_to_quat(local_m)
-    rest_pos, _ = ch.rest_pose()
-    r = ch.root
-    root = (R[:, seg[JOINT_SEGMENT[names[r]]]] @ rest_pos[r]) + T[:, seg[JOINT_SEGMENT[names[r]]]]
-    pos, orient = ch.forward_kinematics(local, root)
     geo = actor.geometry
-    truth = np.empty_like(pos)
+    truth = np.empty((len(frames), len(names), 3))
     for j, n in enumerate(names):
         s_name, w = JOINT_POINT[n]
         s = seg[s_name]
         x = (1 - w) * geo.proximal[s] + w * geo.distal[s]
         truth[:, j] = (R[:, s] @ x) + T[:, s]
+    # The root goes where the character's mid-hip point meets the performer's (the hip joints are
+    # defined the same in both bodies; the root joint is not: standard_20's sits behind the hips).
+    rest_pos, _ = ch.rest_pose()
+    r, pelvis = ch.root, seg[JOINT_SEGMENT[names[ch.root]]]
+    hips = [names.index(h) for h in ("HipLeft", "HipRight")]
+    mid_hip_in_pelvis = np.einsum("ij,i->j", R[0, pelvis], truth[0, hips].mean(axis=0) - T[0, pelvis])
+    root_in_pelvis = mid_hip_in_pelvis - (rest_pos[hips].mean(axis=0) - rest_pos[r])
+    root = (R[:, pelvis] @ root_in_pelvis) + T[:, pelvis]
+    pos, orient = ch.forward_kinematics(local, root)
     return TargetClip(ch, frames / rate, local, root, pos, orient, truth)
 
 

@@ -14,11 +14,13 @@ Per frame of a character (positions [J, 3] m, local rotations [J, 4] wxyz, root 
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..kinematics.character import Character
+from . import posture_kernels as pk
 from .posture_db import PostureDB
 from .quat_lean import qmul
 
@@ -54,7 +56,7 @@ class Conditioned:
 class TargetConditioner:
     """Turns one character's incoming poses into world targets (see the module docstring)."""
 
-    def __init__(self, character: Character, db: PostureDB | None = None) -> None:
+    def __init__(self, character: Character, db: PostureDB | None = None, compiled: bool = True) -> None:
         if db is not None and tuple(db.joint_names) != tuple(character.joint_names):
             raise ValueError(f"posture database joints {len(db.joint_names)} do not match character "
                              f"{character.name!r} ({character.n_joints} joints)")
@@ -64,11 +66,67 @@ class TargetConditioner:
         self.last: Conditioned | None = None
         self.filled_frames = 0
         self.held_frames = 0
+        self.compiled = compiled      # kernels (posture_kernels); False: the numpy reference
+        self.profile: dict[str, float] | None = None   # set to {} to sum CPU s of the database part
+        self._k_order = np.ascontiguousarray(np.concatenate(self._levels), dtype=np.int64)
+        self._k_parents = np.ascontiguousarray(character.parents, dtype=np.int64)
+        self._k_rest = np.ascontiguousarray(character.rest_rotations, dtype=np.float64)
+        self._k_noq = np.zeros(character.n_joints, dtype=np.int8)
+        self._k_root = int(character.root)
+        self._k_J = int(character.n_joints)
 
     def condition(self, positions: np.ndarray, local_rotations: np.ndarray, root: np.ndarray,
                   quality: np.ndarray | None = None) -> Conditioned:
         """``quality`` [J] (0 missing, 1 estimated, 2 good): with a database, joints below 2 are
         replaced by the match (a held value is what the database should beat)."""
+        if self.compiled:
+            return self._condition_compiled(positions, local_rotations, root, quality)
+        return self._condition_numpy(positions, local_rotations, root, quality)
+
+    def _condition_compiled(self, positions, local_rotations, root, quality) -> Conditioned:
+        """:meth:`condition` as kernels (``posture_kernels``); fresh output arrays every frame (the
+        last target is kept by reference for holding)."""
+        J = self._k_J
+        pos_in = np.ascontiguousarray(positions, dtype=np.float64).reshape(J, 3)
+        rot_in = np.ascontiguousarray(local_rotations, dtype=np.float64).reshape(J, 4)
+        root = np.ascontiguousarray(root, dtype=np.float64).reshape(3)
+        db = self.db
+        use_q = quality is not None and db is not None
+        q = np.ascontiguousarray(quality, dtype=np.int8) if use_q else self._k_noq
+        pos, rot = np.empty((J, 3)), np.empty((J, 4))
+        if db is not None and db.search_compiled == "brute" and self.profile is None:
+            # the usual frame: one kernel call for all of it
+            orient, filled = np.empty((J, 4)), np.empty(J, bool)
+            match = pk.condition_brute(pos_in, rot_in, root, q, use_q, self._k_root, self._k_order, self._k_parents,
+                                       self._k_rest, db._k_pl, db._k_pr, db._k_mean, db._k_basis, db._k_reduced_t,
+                                       db._k_sqnorm, db._k_dist, db._k_pos, db._k_rot, db._k_q, db._k_info, pos, rot,
+                                       orient, filled)
+            if match == -2:
+                return self._hold()
+            # a match fills at least one joint (the frame had one missing); no match fills none
+            self.filled_frames += match >= 0
+            out = Conditioned(pos, orient, filled, False, match)
+            self.last = out
+            return out
+        state = pk.clean(pos_in, rot_in, q, use_q, pos, rot)
+        if state < 0:
+            return self._hold()
+        filled = np.zeros(J, bool)
+        match = -1
+        if state > 0 and self.db is not None:
+            t = time.thread_time() if self.profile is not None else 0.0
+            match = self.db.complete_into(pos, rot, filled)
+            if self.profile is not None:
+                self.profile["database"] = self.profile.get("database", 0.0) + time.thread_time() - t
+            self.filled_frames += bool(filled.any())
+        orient = np.empty((J, 4))
+        pk.orient(pos, rot, root, self._k_root, self._k_order, self._k_parents, self._k_rest, orient)
+        out = Conditioned(pos, orient, filled, False, match)
+        self.last = out
+        return out
+
+    def _condition_numpy(self, positions, local_rotations, root, quality) -> Conditioned:
+        """The numpy reference of :meth:`condition`."""
         ch = self.character
         pos = np.asarray(positions, float).reshape(ch.n_joints, 3)
         rot = np.asarray(local_rotations, float).reshape(ch.n_joints, 4)
@@ -90,7 +148,10 @@ class TargetConditioner:
         filled = np.zeros(ch.n_joints, bool)
         match = -1
         if self.db is not None and ((~ok_p).any() or bad_rot.any()):
+            t = time.thread_time() if self.profile is not None else 0.0
             pos, rot, filled, match = self.db.complete(pos, rot)
+            if self.profile is not None:
+                self.profile["database"] = self.profile.get("database", 0.0) + time.thread_time() - t
             self.filled_frames += bool(filled.any())
         ok_r = np.isfinite(rot).all(1)
         if not np.isfinite(root).all():

@@ -21,6 +21,7 @@ of every character at once.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import mujoco
@@ -31,6 +32,8 @@ from ..kinematics.character import Character
 from ..kinematics.quaternion import matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix
 from .anthropometry import bone_masses
 from .body import CharacterBody, add_character, add_pins, character_body, fmt, to_xml, world_root
+from . import controller_kernels as ck
+from . import state_kernels as sk
 from .controller import Gains, clip_norm, cross, twist_torques
 from .quat_lean import qmul_conj as _qmul_conj
 from .stage import EMPTY_STAGE, PARK_X, Stage, add_stage
@@ -38,6 +41,16 @@ from .stage import EMPTY_STAGE, PARK_X, Stage, add_stage
 import xml.etree.ElementTree as ET
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
+
+
+def tick(profile: dict[str, float], stage: str, since: float) -> float:
+    """Add the thread CPU time since ``since`` (s) to ``profile[stage]``; returns now."""
+    now = time.thread_time()
+    profile[stage] = profile.get(stage, 0.0) + (now - since)
+    return now
+
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 TRUNK_CLASSES = ("lower_trunk", "middle_trunk", "upper_trunk", "head")   # anthropometry's segment classes
 
 
@@ -59,6 +72,7 @@ class TrackerParams:
     gravity_compensation: float = 0.5  # fraction of each body's weight held up at its centre of mass
     foot_max_force: float = 40.0       # N, Eq 1 bound at the ankles and feet (<= gains.max_force)
     trunk_max_force: float = 60.0      # N, Eq 1 bound at the trunk's joints and the head (<= gains.max_force)
+    compiled: bool = True              # per-frame control as numba kernels; False: the numpy reference
 
 
 @dataclass
@@ -91,6 +105,7 @@ class PhysicsWorld:
         self.max_applied_force = 0.0     # N, largest Eq 1 force ever applied
         self.max_applied_torque = 0.0    # N·m, largest Eq 2 torque ever applied
         self.resets = 0                  # times the state went non-finite and was reset to the target
+        self.profile: dict[str, float] | None = None   # set to {} to sum CPU s per stage of step()
         self._pushes: list[_Push] = []
         self._next_ball = 0
         self._dodge_until = np.full(len(self.bodies), -np.inf)
@@ -201,6 +216,28 @@ class PhysicsWorld:
         # many characters: A is mostly zeros, and a dense product grows with the square of their
         # number (12 characters: 0.3 ms a substep); a sparse one stays linear
         self._A_sparse = csr_matrix(self._A) if self._A.size > 20000 else None
+        # the compiled path's constant index arrays and per-frame buffers (contiguous int64/float64)
+        self._k_site = np.ascontiguousarray(self.pt_site, dtype=np.int64)
+        self._k_body = np.ascontiguousarray(self.pt_body, dtype=np.int64)
+        self._k_root = np.ascontiguousarray(self.pt_root, dtype=np.int64)
+        self._k_bbody = np.ascontiguousarray(self.b_body, dtype=np.int64)
+        self._k_baxis = np.ascontiguousarray(self.b_axis, dtype=np.float64)
+        self._k_scale = np.ascontiguousarray(self.scale_body, dtype=np.float64)
+        self._k_kp = np.ascontiguousarray(self._kp[:, 0])
+        self._k_kd = np.ascontiguousarray(self._kd[:, 0])
+        self._k_bound = np.ascontiguousarray(self.force_bound, dtype=np.float64)
+        self._k_c0, self._k_slope = np.zeros((n, 3)), np.zeros((n, 3))
+        self._k_kpf, self._k_kdf = np.zeros(n), np.zeros(n)
+        self._k_f, self._k_tq = np.zeros((n, 3)), np.zeros((len(self.b_body), 3))
+        self._k_tops = np.zeros(2)
+        self._k_joints = [np.ascontiguousarray(cb.body_joints, dtype=np.int64) for cb in self.bodies]
+        self._k_parents = [np.ascontiguousarray(cb.character.parents, dtype=np.int64) for cb in self.bodies]
+        self._k_pin_rest_z = np.ascontiguousarray(self.pin_rest_z, dtype=np.float64)
+        # views into mjData (mj_resetData keeps its buffers): read every frame without a lookup
+        self._k_warnings = self.data.warning.number
+        self._k_bad = tuple(int(x) for x in self._bad_warnings)
+        self._k_qvel = self.data.qvel
+        self._k_ident = [np.tile(IDENTITY, (cb.character.n_joints, 1)) for cb in self.bodies]
         # published geoms: every character capsule and stage geom (not the floor)
         floor = name(mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self.geom_ids = np.array([g for g in range(m.ngeom) if g != floor])
@@ -213,6 +250,19 @@ class PhysicsWorld:
             for c in cb.bone_child:
                 i = lookup[cb.geom_name(int(c))]
                 self.geom_joints[i] = (a + int(cb.character.parents[c]), a + int(c))
+        self._k_geoms = np.ascontiguousarray(self.geom_ids, dtype=np.int64)
+        self._k_gj0 = np.ascontiguousarray(self.geom_joints[:, 0])
+        self._k_gj1 = np.ascontiguousarray(self.geom_joints[:, 1])
+        self._k_point_err = np.zeros(len(self.pt_body))
+        self._k_local = []   # per character: ball qpos addresses, their joints, root address and joint, rest
+        for k, cb in enumerate(self.bodies):
+            ch = cb.character
+            adr = np.asarray(self.qpos_adr[k], dtype=np.int64)
+            is_root = cb.body_joints == ch.root
+            self._k_local.append((np.ascontiguousarray(adr[~is_root]),
+                                  np.ascontiguousarray(cb.body_joints[~is_root], dtype=np.int64),
+                                  int(adr[is_root][0]), int(ch.root),
+                                  np.ascontiguousarray(ch.rest_rotations[ch.root], dtype=np.float64), ch.n_joints))
         self.ball_joint = [m.jnt_qposadr[m.body_jntadr[name(mujoco.mjtObj.mjOBJ_BODY, b)]] for b in self.stage.ball_names]
         self.ball_dof = [m.jnt_dofadr[m.body_jntadr[name(mujoco.mjtObj.mjOBJ_BODY, b)]] for b in self.stage.ball_names]
         self.ball_body = np.array([name(mujoco.mjtObj.mjOBJ_BODY, b) for b in self.stage.ball_names], dtype=np.int64)
@@ -248,6 +298,14 @@ class PhysicsWorld:
         """Simulated character ``k`` as (local rotations [J, 4] wxyz, root position [3] m).
 
         Joints without a body (leaves) take ``leaf_rotations`` (their target's) or identity."""
+        if self.params.compiled:
+            ball_adr, ball_joints, root_adr, root_joint, rest_root, J = self._k_local[k]
+            out = self._k_ident[k].copy() if leaf_rotations is None else \
+                np.array(leaf_rotations, dtype=np.float64, order="C")
+            root_pos = np.empty(3)
+            sk.local_rotations_into(self.data.qpos, ball_adr, ball_joints, root_adr, root_joint, rest_root, out,
+                                    root_pos)
+            return out, root_pos
         cb = self.bodies[k]
         ch = cb.character
         adr = self.qpos_adr[k]
@@ -293,6 +351,20 @@ class PhysicsWorld:
     def set_target(self, k: int, positions: np.ndarray, orientations: np.ndarray, time_s: float) -> None:
         """Target of character ``k``: joint positions [J, 3] m and world joint orientations [J, 4]
         wxyz (NaN rows: no target for that joint), at input time ``time_s`` (for the velocities)."""
+        prev_t = self.time_of_target[k]
+        if self.params.compiled:
+            p = np.ascontiguousarray(positions, dtype=np.float64)
+            q = np.ascontiguousarray(orientations, dtype=np.float64)
+            ck.set_target_into(p, q, self._k_joints[k], self.point_slice[k].start, self.body_slice[k].start,
+                               -1.0 if prev_t is None else float(time_s - prev_t), self.params.max_target_speed,
+                               20.0, self._k_parents[k], self.pt_min_z, self.p_t, self.v_t, self.q_t, self.w_t,
+                               self.has_rot)
+            self.time_of_target[k] = time_s
+            return
+        self._set_target_numpy(k, positions, orientations, time_s)
+
+    def _set_target_numpy(self, k: int, positions: np.ndarray, orientations: np.ndarray, time_s: float) -> None:
+        """The numpy reference of :meth:`set_target` (``controller_kernels.set_target_into``)."""
         sl = self.point_slice[k]
         bs = self.body_slice[k]
         cb = self.bodies[k]
@@ -427,6 +499,12 @@ class PhysicsWorld:
                 self.data.eq_active[self.pin_eq] = 0
             return
         prm = self.params
+        if prm.compiled:
+            d = self.data
+            ck.switch_pins(self.p_t, self.v_t, self.pin_point, self._k_pin_rest_z, self.pin_on, self.pin_mocap,
+                           d.mocap_pos, d.site_xpos, self._k_site, self.pin_eq, d.eq_active, prm.contact_height,
+                           prm.contact_speed, prm.pin_slack)
+            return
         pt = self.p_t[self.pin_point]
         vt = self.v_t[self.pin_point]
         # NaN compares False: a missing target is neither low (no pin) nor kept (lets go)
@@ -503,8 +581,78 @@ class PhysicsWorld:
         m, d = self.model, self.data
         ts = m.opt.timestep
         n = max(1, int(round(duration_s / ts)))
+        prof = self.profile
+        t = time.thread_time() if prof is not None else 0.0
         self._update_pins()
         dodging = self._update_dodge()
+        if prof is not None:
+            t = tick(prof, "pins, dodge", t)
+        if self.params.compiled:
+            self._step_compiled(n)
+        else:
+            self._step_numpy(n, dodging)
+        if prof is not None:
+            t = time.thread_time()
+        if self._pushes:
+            self._pushes = [p for p in self._pushes if d.time < p.until]
+        self.frames_stepped += 1
+        wn, (a, b, c) = self._k_warnings, self._k_bad
+        if int(wn[a]) + int(wn[b]) + int(wn[c]) > self._badqacc or not math.isfinite(self._k_qvel.sum()):
+            self._recover()
+        if prof is not None:
+            tick(prof, "checks", t)
+
+    def _step_compiled(self, n: int) -> None:
+        """``n`` substeps with the control as kernels writing ``xfrc_applied`` in place."""
+        t = time.thread_time() if self.profile is not None else 0.0
+        m, d = self.model, self.data
+        ts = m.opt.timestep
+        g = self.params.gains
+        c0, slope, kp, kd, f, tq, tops = (self._k_c0, self._k_slope, self._k_kpf, self._k_kdf, self._k_f,
+                                          self._k_tq, self._k_tops)
+        ck.frame_terms(self.p_t, self.v_t, self.override, self.dodge_override, self._k_kp, self._k_kd, n * ts, ts,
+                       c0, slope, kp, kd)
+        site_xpos, cvel, subtree_com, xipos = d.site_xpos, d.cvel, d.subtree_com, d.xipos
+        xquat, xmat, xfrc = d.xquat, d.xmat, d.xfrc_applied
+        fmax2 = 0.0
+        prof = self.profile
+        for i in range(n):
+            if prof is not None:
+                t = tick(prof, "controller", t)
+            mujoco.mj_step1(m, d)
+            if prof is not None:
+                t = tick(prof, "mj_step", t)
+            ck.substep_control(site_xpos, cvel, subtree_com, xipos, xquat, xmat, xfrc, self._k_site, self._k_body,
+                               self._k_root, self._k_bbody, self._k_baxis, self._k_scale, c0, slope, kp, kd,
+                               self._k_bound, self.q_t, self.w_t, self.has_rot, i, g.kp_rot, g.kd_rot,
+                               g.max_torque, f, tq, tops)
+            fmax2 = max(fmax2, tops[0])
+            if self._pushes:
+                self._apply_pushes()
+            if prof is not None:
+                t = tick(prof, "controller", t)
+            mujoco.mj_step2(m, d)
+            if prof is not None:
+                t = tick(prof, "mj_step", t)
+        self.max_applied_force = max(self.max_applied_force, math.sqrt(fmax2))
+        self.max_applied_torque = max(self.max_applied_torque, float(tops[1]))
+        self.last_forces, self.last_torques = f.copy(), tq.copy()   # the kernels' buffers change next step
+
+    def _apply_pushes(self) -> None:
+        """Active pushes added to ``xfrc_applied`` at their points (after the bounded control)."""
+        d = self.data
+        for push in self._pushes:
+            if d.time < push.until:
+                b = self.pt_body[push.point]
+                arm = d.site_xpos[self.pt_site[push.point]] - d.xipos[b]
+                d.xfrc_applied[b, :3] += push.force
+                d.xfrc_applied[b, 3:] += np.cross(arm, push.force)
+
+    def _step_numpy(self, n: int, dodging: bool) -> None:
+        """The numpy reference of the control substeps (``controller_kernels``)."""
+        t0 = time.thread_time() if self.profile is not None else 0.0
+        m, d = self.model, self.data
+        ts = m.opt.timestep
         g = self.params.gains
         vel = self.v_t
         if self._has_override or dodging:
@@ -534,8 +682,14 @@ class PhysicsWorld:
         A = self._A
         fmax2 = 0.0
         bound2 = self._bound2
+        prof = self.profile
+        t = t0
         for i in range(n):
+            if prof is not None:
+                t = tick(prof, "controller", t)
             mujoco.mj_step1(m, d)
+            if prof is not None:
+                t = tick(prof, "mj_step", t)
             p = d.site_xpos[site]
             cv = d.cvel[pt]
             v = cv[:, 3:] + cross(cv[:, :3], p - d.subtree_com[root])
@@ -574,14 +728,13 @@ class PhysicsWorld:
                 np.matmul(A, W, out=d.xfrc_applied)
             else:
                 d.xfrc_applied[:] = self._A_sparse @ W
+            if prof is not None:
+                t = tick(prof, "controller", t)
             mujoco.mj_step2(m, d)
+            if prof is not None:
+                t = tick(prof, "mj_step", t)
         self.max_applied_force = max(self.max_applied_force, math.sqrt(fmax2))
         self.last_forces, self.last_torques = f, tq
-        if self._pushes:
-            self._pushes = [p for p in self._pushes if d.time < p.until]
-        self.frames_stepped += 1
-        if d.warning.number[self._bad_warnings].sum() > self._badqacc or not math.isfinite(d.qvel.sum()):
-            self._recover()
 
     _badqacc = 0
 
@@ -599,12 +752,21 @@ class PhysicsWorld:
     # ----- outputs -----------------------------------------------------------------------------
     def tracking_error(self) -> np.ndarray:
         """Per stacked joint: distance from the simulated joint to its target, m (NaN: no target)."""
+        if self.params.compiled:
+            self.geom_state()
+            return self._k_point_err.copy()
         target = np.where(np.isfinite(self.override), self.override, self.p_t)
         return np.linalg.norm(self.point_positions() - target, axis=1)
 
     def geom_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Published geoms: positions [G, 3] m, orientations [G, 4] wxyz, tracking error [G] m."""
         d = self.data
+        if self.params.compiled:
+            G = len(self.geom_ids)
+            pos, quat, err = np.empty((G, 3)), np.empty((G, 4)), np.empty(G)
+            sk.geom_state_into(d.geom_xpos, d.geom_xmat, self._k_geoms, d.site_xpos, self._k_site, self.p_t,
+                               self.override, self._k_gj0, self._k_gj1, self._k_point_err, pos, quat, err)
+            return pos, quat, err
         pos = d.geom_xpos[self.geom_ids].copy()
         quat = matrix_to_quat(d.geom_xmat[self.geom_ids].reshape(-1, 3, 3))
         err = np.full(len(self.geom_ids), np.nan)

@@ -30,6 +30,10 @@ def test_rest_pose_of_standard_20_stands_on_the_floor():
     assert ch.n_joints == 20 and np.isnan(ch.bone_lengths[ch.root])
     assert pos[:, 2].min() == pytest.approx(0.009 * 1.80)            # feet just above the floor
     assert pos[ch.index("Head"), 2] == pytest.approx(0.930 * 1.80)
+    # Winter's heights kept under the Kinect-shaped girdles: hip joints 0.530 H, shoulders 0.818 H
+    assert pos[[ch.index("HipLeft"), ch.index("HipRight")], 2] == pytest.approx([0.530 * 1.80] * 2)
+    assert pos[[ch.index("ShoulderLeft"), ch.index("ShoulderRight")], 2] == pytest.approx([0.818 * 1.80] * 2)
+    assert pos[ch.index("KneeLeft"), 2] == pytest.approx(0.285 * 1.80)
     assert np.allclose(np.abs(rot[:, 0]), 1.0)                         # identity everywhere at rest
     left, right = pos[ch.index("HandLeft")], pos[ch.index("HandRight")]
     assert left[1] > 0 > right[1] and left[1] == pytest.approx(-right[1])  # Y is left

@@ -153,3 +153,55 @@ def test_capture_rest_pose_writes_an_editable_mapping(launch_graph, tmp_path, sh
     assert g.proc.poll() is None
     g.stop()
     cmd.close()
+
+
+def test_the_live_node_flags_the_girdle_bones_it_cannot_follow(launch_graph, tmp_path, shared_data):
+    """Kinect v2 (Ges01, shrugs) through a launched retargeter: on every published frame the chest
+    and pelvis joints are estimated exactly where one of their bones, measured here from the
+    published joint positions and the recorded Kinect frame, turns more than the node's
+    follow_tolerance_deg (10) from the Kinect's."""
+    csv = shared_data / "kinect2" / "Ges01_wavehand.csv"
+    g = launch_graph(f"""
+nodes:
+  - name: reader
+    type: kinect_reader
+    params: {{file: "{csv}", ground: feet, rate_scale: 4.0, loop: false}}
+  - name: retargeter
+    type: retargeter
+    params: {{source: skeleton, character: standard_20, mapping: kinect_v2_standard_20, follow_tolerance_deg: 10}}
+  - name: rec
+    type: bag_recorder
+    params: {{path: "{tmp_path / 'out.mcap'}", topics: [character_pose, skeleton_pose], flush_s: 0.05}}
+""")
+    g.wait_ready(60)
+    g.wait_for("finished: 154 frames played", 60)
+    import time
+    time.sleep(1.0)
+    g.stop()
+    with BagReader(tmp_path / "out.mcap") as r:
+        src = {m.frame_number: m for _, m in r.decoded("skeleton_pose")}
+        poses = [m for _, m in r.decoded("character_pose")]
+    ch = standard_20(1.75)
+    names = ["SpineBase", "SpineMid", "Neck", "Head", "ShoulderLeft", "ElbowLeft", "WristLeft", "HandLeft",
+             "ShoulderRight", "ElbowRight", "WristRight", "HandRight", "HipLeft", "KneeLeft", "AnkleLeft", "FootLeft",
+             "HipRight", "KneeRight", "AnkleRight", "FootRight", "SpineShoulder"]
+    pairs = {"HipCenter": ("SpineBase", {"Spine": "SpineMid", "HipLeft": "HipLeft", "HipRight": "HipRight"}),
+             "ShoulderCenter": ("SpineShoulder", {"Head": "Head", "ShoulderLeft": "ShoulderLeft",
+                                                  "ShoulderRight": "ShoulderRight"})}
+    checked = flagged = 0
+    for p in poses:
+        s = src[p.frame_number]
+        if not (s.tracking_state[:len(names)] == 2).all():
+            continue        # a held point is estimated for that reason already
+        checked += 1
+        for joint, (sj, kids) in pairs.items():
+            j = ch.index(joint)
+            worst = 0.0
+            for kid, sk in kids.items():
+                a = p.joint_positions[ch.index(kid)] - p.joint_positions[j]
+                b = s.joint_positions[names.index(sk)] - s.joint_positions[names.index(sj)]
+                worst = max(worst, np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+            assert p.joint_quality[j] == (1 if worst > 10.0 else 2), (p.frame_number, joint, worst, p.joint_quality[j])
+            flagged += worst > 10.0
+    print(f"\nlive node, Ges01: {checked} fully tracked frames checked, {flagged} girdle joints flagged estimated")
+    assert checked > 100 and flagged > 10

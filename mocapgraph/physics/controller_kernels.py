@@ -1,0 +1,330 @@
+"""Compiled per-frame controller of the physics world: Eq 1 forces, Eq 2 torques, pins, targets.
+
+The same arithmetic as the numpy reference in :mod:`.world` / :mod:`.controller` (tests compare
+them), as numba kernels that read MuJoCo's ``mjData`` arrays in place and write the body wrenches
+straight into ``data.xfrc_applied``: a force ``f`` at point ``p`` on body ``b`` adds
+``[f, (p - xipos[b]) x f]`` to row ``b``, which is what ``mj_applyFT`` does. Units SI (m, m/s, N,
+N·m, rad), world frame Z up, quaternions wxyz. Point arrays are stacked over every character;
+``pt_*`` index sites/bodies per point, ``b_*`` per controlled body.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..jit import kernel
+
+
+@kernel
+def frame_terms(p_t, v_t, override, dodge_override, kp_pt, kd_pt, span, ts, c0, slope, kp, kd) -> None:
+    """Per-frame Eq 1 terms: with the target moving on at its velocity between frames, the force at
+    substep i is ``c0 + (i + 1) slope - kp p - kd v``. A positional constraint (override, then the
+    dodge's) replaces the target and holds still; a point without a target gets zero gains.
+    In: p_t, v_t, override, dodge_override [N, 3]; kp_pt, kd_pt [N] (N/m, N·s/m); span = substeps *
+    ts (s). Out: c0, slope [N, 3]; kp, kd [N]."""
+    for i in range(p_t.shape[0]):
+        ok = True
+        for c in range(3):
+            t = p_t[i, c]
+            if math.isfinite(override[i, c]):
+                t = override[i, c]
+            if math.isfinite(dodge_override[i, c]):
+                t = dodge_override[i, c]
+            if not math.isfinite(t):
+                ok = False
+        a = kp_pt[i] if ok else 0.0
+        b = kd_pt[i] if ok else 0.0
+        kp[i] = a
+        kd[i] = b
+        for c in range(3):
+            t = p_t[i, c]
+            v = v_t[i, c]
+            if math.isfinite(override[i, c]):
+                t = override[i, c]
+                v = 0.0
+            if math.isfinite(dodge_override[i, c]):
+                t = dodge_override[i, c]
+                v = 0.0
+            if not ok:
+                t = 0.0
+                v = 0.0
+            c0[i, c] = a * (t - v * span) + b * v
+            slope[i, c] = a * v * ts
+
+
+@kernel
+def twist_torques_into(xquat, xmat, cvel, b_body, b_axis, q_t, w_t, has_rot, scale, kp_rot, kd_rot,
+                       max_torque, tq) -> float:
+    """Eq 2 for every controlled body (body ids ``b_body``, bone axes ``b_axis`` [B, 3] in the body
+    frame): the twist of ``q_t q^-1`` about the world axis, torque ``clip(kp theta + kd rate)``
+    along it (gains times ``scale``, the inertia about the axis), 0 without an orientation target
+    or when not finite. Writes ``tq`` [B, 3] N·m; returns the largest norm."""
+    top = 0.0
+    for i in range(b_body.shape[0]):
+        b = b_body[i]
+        a0, a1, a2 = b_axis[i, 0], b_axis[i, 1], b_axis[i, 2]
+        u0 = xmat[b, 0] * a0 + xmat[b, 1] * a1 + xmat[b, 2] * a2
+        u1 = xmat[b, 3] * a0 + xmat[b, 4] * a1 + xmat[b, 5] * a2
+        u2 = xmat[b, 6] * a0 + xmat[b, 7] * a1 + xmat[b, 8] * a2
+        if not has_rot[i]:
+            tq[i, 0] = 0.0
+            tq[i, 1] = 0.0
+            tq[i, 2] = 0.0
+            continue
+        aw, ax_, ay, az = q_t[i, 0], q_t[i, 1], q_t[i, 2], q_t[i, 3]
+        bw, bx, by, bz = xquat[b, 0], -xquat[b, 1], -xquat[b, 2], -xquat[b, 3]
+        ew = aw * bw - ax_ * bx - ay * by - az * bz
+        ex = aw * bx + ax_ * bw + ay * bz - az * by
+        ey = aw * by - ax_ * bz + ay * bw + az * bx
+        ez = aw * bz + ax_ * by - ay * bx + az * bw
+        s = ex * u0 + ey * u1 + ez * u2
+        sign = math.copysign(1.0, ew)
+        theta = 2.0 * math.atan2(s * sign, ew * sign)
+        rate = (w_t[i, 0] - cvel[b, 0]) * u0 + (w_t[i, 1] - cvel[b, 1]) * u1 + (w_t[i, 2] - cvel[b, 2]) * u2
+        t = (kp_rot * scale[i]) * theta + (kd_rot * scale[i]) * rate
+        t = min(max(t, -max_torque), max_torque)
+        if not math.isfinite(t):
+            t = 0.0
+        tq[i, 0] = t * u0
+        tq[i, 1] = t * u1
+        tq[i, 2] = t * u2
+        n = math.sqrt(tq[i, 0] * tq[i, 0] + tq[i, 1] * tq[i, 1] + tq[i, 2] * tq[i, 2])
+        top = max(top, n)
+    return top
+
+
+@kernel
+def joint_forces_into(site_xpos, cvel, subtree_com, pt_site, pt_body, pt_root, c0, slope, step, kp, kd,
+                      bound, f) -> float:
+    """Eq 1 at every joint point for substep ``step``: the point's velocity from its body's ``cvel``
+    about the subtree centre of mass, ``f = c0 + (step + 1) slope - kp p - kd v``, non-finite
+    components zeroed, each norm clipped to ``bound`` [N]. Writes ``f`` [N, 3] N; returns the
+    largest squared norm applied."""
+    top2 = 0.0
+    for i in range(pt_site.shape[0]):
+        s, b, r = pt_site[i], pt_body[i], pt_root[i]
+        px, py, pz = site_xpos[s, 0], site_xpos[s, 1], site_xpos[s, 2]
+        rx, ry, rz = px - subtree_com[r, 0], py - subtree_com[r, 1], pz - subtree_com[r, 2]
+        wx, wy, wz = cvel[b, 0], cvel[b, 1], cvel[b, 2]
+        vx = cvel[b, 3] + (wy * rz - wz * ry)
+        vy = cvel[b, 4] + (wz * rx - wx * rz)
+        vz = cvel[b, 5] + (wx * ry - wy * rx)
+        k = step + 1.0
+        fx = (c0[i, 0] + slope[i, 0] * k) - kp[i] * px - kd[i] * vx
+        fy = (c0[i, 1] + slope[i, 1] * k) - kp[i] * py - kd[i] * vy
+        fz = (c0[i, 2] + slope[i, 2] * k) - kp[i] * pz - kd[i] * vz
+        if not math.isfinite(fx):
+            fx = 0.0
+        if not math.isfinite(fy):
+            fy = 0.0
+        if not math.isfinite(fz):
+            fz = 0.0
+        n2 = fx * fx + fy * fy + fz * fz
+        if n2 > bound[i] * bound[i]:
+            sc = min(1.0, bound[i] / math.sqrt(max(n2, 1e-24)))
+            fx *= sc
+            fy *= sc
+            fz *= sc
+            n2 = fx * fx + fy * fy + fz * fz
+        f[i, 0] = fx
+        f[i, 1] = fy
+        f[i, 2] = fz
+        top2 = max(top2, n2)
+    return top2
+
+
+@kernel
+def apply_wrenches(site_xpos, xipos, pt_site, pt_body, f, b_body, tq, xfrc) -> None:
+    """``xfrc_applied`` [nbody, 6] = the body torques ``tq`` on bodies ``b_body`` plus each point
+    force ``f`` [N, 3] at its site: ``[f, (p - xipos[body]) x f]`` (mj_applyFT at the point)."""
+    xfrc[:, :] = 0.0
+    for i in range(b_body.shape[0]):
+        b = b_body[i]
+        xfrc[b, 3] = tq[i, 0]
+        xfrc[b, 4] = tq[i, 1]
+        xfrc[b, 5] = tq[i, 2]
+    for i in range(pt_site.shape[0]):
+        s, b = pt_site[i], pt_body[i]
+        ax = site_xpos[s, 0] - xipos[b, 0]
+        ay = site_xpos[s, 1] - xipos[b, 1]
+        az = site_xpos[s, 2] - xipos[b, 2]
+        fx, fy, fz = f[i, 0], f[i, 1], f[i, 2]
+        xfrc[b, 0] += fx
+        xfrc[b, 1] += fy
+        xfrc[b, 2] += fz
+        xfrc[b, 3] += ay * fz - az * fy
+        xfrc[b, 4] += az * fx - ax * fz
+        xfrc[b, 5] += ax * fy - ay * fx
+
+
+@kernel
+def substep_control(site_xpos, cvel, subtree_com, xipos, xquat, xmat, xfrc,
+                    pt_site, pt_body, pt_root, b_body, b_axis, scale_body,
+                    c0, slope, kp, kd, bound, q_t, w_t, has_rot,
+                    step, kp_rot, kd_rot, max_torque, f, tq, tops) -> None:
+    """One substep's control after ``mj_step1``: Eq 2 torques on the first substep of a frame (held
+    over the rest), Eq 1 forces, both summed into ``xfrc``. ``tops`` [2]: largest squared force
+    of this substep, largest torque norm (first substep)."""
+    if step == 0:
+        tops[1] = twist_torques_into(xquat, xmat, cvel, b_body, b_axis, q_t, w_t, has_rot, scale_body,
+                                     kp_rot, kd_rot, max_torque, tq)
+    tops[0] = joint_forces_into(site_xpos, cvel, subtree_com, pt_site, pt_body, pt_root, c0, slope, step,
+                                kp, kd, bound, f)
+    apply_wrenches(site_xpos, xipos, pt_site, pt_body, f, b_body, tq, xfrc)
+
+
+@kernel
+def set_target_into(positions, orientations, body_joints, a, b0, dt, max_speed, max_rate, parents, min_z,
+                    p_t, v_t, q_t, w_t, has_rot) -> None:
+    """One character's new target into the stacked arrays (points from ``a``, bodies from ``b0``):
+    velocities by finite differences over ``dt`` s (none when ``dt`` is outside (1e-4, 0.5) s; a
+    row missing now or before gets 0), clipped to ``max_speed`` m/s and ``max_rate`` rad/s; a
+    target under the floor (below ``min_z``) swung up about its parent, else raised; orientations
+    kept where the new one is missing. The numpy reference is ``PhysicsWorld.set_target``."""
+    J = positions.shape[0]
+    B = body_joints.shape[0]
+    use_dt = 1e-4 < dt < 0.5
+    # velocities first: they difference against the previous target
+    for j in range(J):
+        i = a + j
+        if not use_dt:
+            v_t[i, 0] = 0.0
+            v_t[i, 1] = 0.0
+            v_t[i, 2] = 0.0
+            continue
+        vx = (positions[j, 0] - p_t[i, 0]) / dt
+        vy = (positions[j, 1] - p_t[i, 1]) / dt
+        vz = (positions[j, 2] - p_t[i, 2]) / dt
+        if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
+            vx, vy, vz = 0.0, 0.0, 0.0
+        n2 = vx * vx + vy * vy + vz * vz
+        if n2 > max_speed * max_speed:
+            sc = min(1.0, max_speed / math.sqrt(max(n2, 1e-24)))
+            vx *= sc
+            vy *= sc
+            vz *= sc
+        v_t[i, 0] = vx
+        v_t[i, 1] = vy
+        v_t[i, 2] = vz
+    for k in range(B):
+        i = b0 + k
+        j = body_joints[k]
+        qw, qx, qy, qz = orientations[j, 0], orientations[j, 1], orientations[j, 2], orientations[j, 3]
+        ok_q = math.isfinite(qw) and math.isfinite(qx) and math.isfinite(qy) and math.isfinite(qz)
+        wx, wy, wz = 0.0, 0.0, 0.0
+        if use_dt and ok_q and has_rot[i]:
+            # 2 vec(q q_prev^-1) / dt, signed by its scalar part (the short way round)
+            bw, bx, by, bz = q_t[i, 0], -q_t[i, 1], -q_t[i, 2], -q_t[i, 3]
+            ew = qw * bw - qx * bx - qy * by - qz * bz
+            ex = qw * bx + qx * bw + qy * bz - qz * by
+            ey = qw * by - qx * bz + qy * bw + qz * bx
+            ez = qw * bz + qx * by - qy * bx + qz * bw
+            g = math.copysign(2.0 / dt, ew)
+            wx, wy, wz = ex * g, ey * g, ez * g
+            n2 = wx * wx + wy * wy + wz * wz
+            if n2 > max_rate * max_rate:
+                sc = min(1.0, max_rate / math.sqrt(max(n2, 1e-24)))
+                wx *= sc
+                wy *= sc
+                wz *= sc
+        w_t[i, 0] = wx
+        w_t[i, 1] = wy
+        w_t[i, 2] = wz
+        if ok_q:
+            q_t[i, 0] = qw
+            q_t[i, 1] = qx
+            q_t[i, 2] = qy
+            q_t[i, 3] = qz
+        has_rot[i] = ok_q
+    # positions: lift_above_floor on the rows (a partly missing row is missing), from the input
+    for j in range(J):
+        i = a + j
+        px, py, pz = positions[j, 0], positions[j, 1], positions[j, 2]
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+            p_t[i, 0] = np.nan
+            p_t[i, 1] = np.nan
+            p_t[i, 2] = np.nan
+            continue
+        lo = min_z[i]
+        if pz < lo:
+            par = parents[j]
+            q = par if par >= 0 else 0
+            ux, uy, uz = positions[q, 0], positions[q, 1], positions[q, 2]
+            ok_par = math.isfinite(ux) and math.isfinite(uy) and math.isfinite(uz)
+            dx, dy, dzz = px - ux, py - uy, pz - uz
+            L = math.sqrt(dx * dx + dy * dy + dzz * dzz)
+            dz = lo - uz
+            hz = math.sqrt(dx * dx + dy * dy)
+            if ok_par and par >= 0 and abs(dz) < L and hz > 1e-9:
+                h = math.sqrt(max(L * L - dz * dz, 0.0)) / max(hz, 1e-9)
+                px = ux + dx * h
+                py = uy + dy * h
+                pz = uz + dz
+            pz = max(pz, lo)
+        p_t[i, 0] = px
+        p_t[i, 1] = py
+        p_t[i, 2] = pz
+
+
+@kernel
+def switch_pins(p_t, v_t, pin_point, pin_rest_z, pin_on, pin_mocap, mocap_pos, site_xpos, pt_site, pin_eq,
+                eq_active, contact_height, contact_speed, pin_slack) -> bool:
+    """Virtual joints on the feet (Shum & Ho 6.1): a pin switches on where its foot's target is within
+    ``contact_height`` of its rest height and slower than ``contact_speed`` horizontally (placed
+    where the simulated foot is, on the floor), and off when the target lifts, speeds up or slides
+    ``pin_slack`` from it. Writes ``pin_on``, ``mocap_pos`` and ``eq_active``; True if any switched.
+    A missing target (NaN) neither pins nor holds. Reference: ``PhysicsWorld._update_pins``."""
+    changed = False
+    for k in range(pin_point.shape[0]):
+        i = pin_point[k]
+        h = p_t[i, 2] - pin_rest_z[k]
+        vt2 = v_t[i, 0] * v_t[i, 0] + v_t[i, 1] * v_t[i, 1]
+        if pin_on[k]:
+            m = pin_mocap[k]
+            dx = p_t[i, 0] - mocap_pos[m, 0]
+            dy = p_t[i, 1] - mocap_pos[m, 1]
+            keep = (h <= contact_height + 0.01) and (vt2 <= 4.0 * contact_speed * contact_speed) \
+                and (dx * dx + dy * dy <= pin_slack * pin_slack)
+            if not keep:
+                pin_on[k] = False
+                changed = True
+        elif h <= contact_height and vt2 <= contact_speed * contact_speed:
+            s = pt_site[i]
+            m = pin_mocap[k]
+            mocap_pos[m, 0] = site_xpos[s, 0]
+            mocap_pos[m, 1] = site_xpos[s, 1]
+            mocap_pos[m, 2] = pin_rest_z[k]   # on the floor: never hold a foot sunk into it
+            pin_on[k] = True
+            changed = True
+    if changed:
+        for k in range(pin_point.shape[0]):
+            eq_active[pin_eq[k]] = pin_on[k]
+    return changed
+
+
+def warm() -> None:
+    """Compile every kernel here once on small inputs (fills the on-disk cache)."""
+    n, b, nb = 2, 2, 3
+    p3 = np.zeros((n, 3))
+    nan3 = np.full((n, 3), np.nan)
+    c0, slope, f = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    kp, kd = np.zeros(n), np.zeros(n)
+    frame_terms(p3, p3, nan3, nan3, np.ones(n), np.ones(n), 0.01, 0.005, c0, slope, kp, kd)
+    idx = np.arange(n, dtype=np.int64)
+    xq = np.tile([1.0, 0, 0, 0], (nb, 1))
+    xm = np.tile(np.eye(3).ravel(), (nb, 1))
+    cvel = np.zeros((nb, 6))
+    tq = np.zeros((b, 3))
+    qt = np.tile([1.0, 0, 0, 0], (b, 1))
+    has = np.ones(b, dtype=np.bool_)
+    tops = np.zeros(2)
+    substep_control(np.zeros((nb, 3)), cvel, np.zeros((nb, 3)), np.zeros((nb, 3)), xq, xm, np.zeros((nb, 6)),
+                    idx, idx, idx, idx, np.ones((b, 3)), np.ones(b), c0, slope, kp, kd, np.ones(n), qt,
+                    np.zeros((b, 3)), has, 0, 1.0, 1.0, 1.0, f, tq, tops)
+    set_target_into(p3, np.tile([1.0, 0, 0, 0], (n, 1)), idx, 0, 0, 0.01, 6.0, 20.0,
+                    np.array([-1, 0], dtype=np.int64), np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3)),
+                    qt.copy(), np.zeros((b, 3)), has.copy())
+    eq = np.zeros(2, dtype=np.bool_)
+    switch_pins(p3, p3, idx, np.zeros(n), np.zeros(n, dtype=np.bool_), idx, np.zeros((nb, 3)), np.zeros((nb, 3)),
+                idx, idx, eq, 0.03, 0.25, 0.05)
