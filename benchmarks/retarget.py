@@ -249,7 +249,7 @@ nodes:
                 hop.append(m.edge_latency_ms[k])
                 hop_max.append(m.edge_latency_max_ms[k])
     hop, hop_max = np.array(hop[len(hop) // 5:]), np.array(hop_max[len(hop_max) // 5:])
-    if len(hop):
+    if len(hop) and not keep_up:   # (with keep_up the edge figures include the frames skipped)
         h50 = float(np.median(hop))
         print(f"  of which the hop solver -> retargeter (publish to receive, the node's edge stats): p50 {h50:.3f} ms, "
               f"max per second {np.median(hop_max):.3f} ms median, {hop_max.max():.3f} ms worst; the rest (decode, "
