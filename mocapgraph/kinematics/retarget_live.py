@@ -535,12 +535,8 @@ class CompiledFrame:
         P, R = len(rt.source.point_names), len(rt.source.rotation_names)
         self.ones_p, self.ones_r = np.ones(P, np.bool_), np.ones(R, np.bool_)
         self.check_norm = rt._plan is None
-        # scratch, reused every frame
+        # source qualities of the last frame (read when a frame was not all good); float scratch: self.wk
         self.pq, self.rq = np.empty(P, np.int8), np.empty(R, np.int8)
-        self.qn = np.empty((R, 4))
-        self.qk, self.dq = np.empty((max(n, 1), 4)), np.empty((max(n, 1), 4))
-        self.ap = np.empty((max(na, 1), 4))
-        self.D, self.W, self.tmp = np.empty((J + 1, 4)), np.empty((J, 4)), np.empty((2, 4))
         self.jq_good = lk.jq_good
         self.Result = lk.Result
         self.legs = None
@@ -554,8 +550,6 @@ class CompiledFrame:
                                  float(opt.release_s), 0.05)   # plant_one's window_s
             self.ps = np.zeros(13)
             self.ht, self.hxy, self.hn = np.zeros(64), np.zeros((64, 4)), np.zeros(1, np.int64)
-            self.ank, self.toe_z, self.target = np.empty((2, 3)), np.empty(2), np.empty((2, 3))
-            self.speed, self.turns = np.empty(2), np.empty((4, 4))
         self._plant_for = None      # the retargeter state whose plants the arrays above hold
         if self.legs is None:       # the frame kernel's plant arguments, unused
             self.ps, self.ht, self.hxy, self.hn = np.zeros(13), np.zeros(2), np.zeros((2, 4)), np.zeros(1, np.int64)
