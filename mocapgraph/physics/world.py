@@ -64,7 +64,11 @@ class TrackerParams:
     virtual_joints: bool = True        # pin supporting feet
     contact_height: float = 0.03       # m: a foot target this close to its rest height is on the floor
     contact_speed: float = 0.25        # m/s: ... and slower than this horizontally
-    pin_slack: float = 0.05            # m: a pin lets go when its target has moved this far from it
+    pin_slack: float = 0.05            # m: a pin lets go when its target is this far from it (a jump), and
+                                       # a foot this far from its target is not pinned (it catches up first)
+    pin_hold: float = 0.01             # m: a pinned foot stays put while its target is this close to it
+    pin_follow_speed: float = 0.18     # m/s: ... and beyond, follows it at most this fast horizontally
+                                       # (1.5 mm a frame at 120 Hz: a foot pivoting in a turn)
     dodge: bool = False                # raise the forearms when a ball comes at the head
     dodge_horizon_s: float = 0.45      # s ahead a ball is seen coming
     joint_damping: float = 1.0         # N·m·s/rad in every ball joint
@@ -168,6 +172,8 @@ class PhysicsWorld:
         n = len(self.pt_body)
         self.p_t = np.full((n, 3), np.nan)
         self.v_t = np.zeros((n, 3))
+        self.p_in = np.full((n, 3), np.nan)   # the input targets as given (before lifting), m
+        self.v_in = np.zeros((n, 3))          # ... and their velocities, m/s: what foot contact is judged by
         self.q_t = np.tile([1.0, 0, 0, 0], (len(self.b_body), 1))
         self.w_t = np.zeros((len(self.b_body), 3))
         self.has_rot = np.zeros(len(self.b_body), dtype=bool)
@@ -358,7 +364,7 @@ class PhysicsWorld:
             ck.set_target_into(p, q, self._k_joints[k], self.point_slice[k].start, self.body_slice[k].start,
                                -1.0 if prev_t is None else float(time_s - prev_t), self.params.max_target_speed,
                                20.0, self._k_parents[k], self.pt_min_z, self.p_t, self.v_t, self.q_t, self.w_t,
-                               self.has_rot)
+                               self.has_rot, self.p_in, self.v_in)
             self.time_of_target[k] = time_s
             return
         self._set_target_numpy(k, positions, orientations, time_s)
@@ -375,7 +381,23 @@ class PhysicsWorld:
         ok_p = np.isfinite(p).all(1)
         ok_q = np.isfinite(q).all(1)
         all_p, all_q = bool(ok_p.all()), bool(ok_q.all())
-        if dt is not None and 1e-4 < dt < 0.5:
+        # the floor is a constraint too: no target below a capsule's radius (a target foot under
+        # the floor would press the body into it with the full bounded force)
+        if not all_p:
+            p = np.where(ok_p[:, None], p, np.nan)
+        use_dt = dt is not None and 1e-4 < dt < 0.5
+        if use_dt:   # the input's own velocity, what foot contact is judged by
+            vi = (p - self.p_in[sl]) / dt
+            vi[~np.isfinite(vi).all(1)] = 0.0
+            self.v_in[sl] = vi
+        else:
+            self.v_in[sl] = 0.0
+        self.p_in[sl] = p
+        p = lift_above_floor(p, cb.character.parents, self.pt_min_z[sl])
+        if use_dt:
+            # the velocity of the target the body tracks (lifted now minus lifted before): the raw
+            # input minus the last lifted target adds the lift's offset / dt (a toe swung up 20 mm
+            # out of the floor read as 2.4 m/s and let go of a supporting foot's pin)
             v = (p - self.p_t[sl]) / dt
             if not math.isfinite(v.sum()):        # a joint or its previous target missing: no velocity
                 v[~np.isfinite(v).all(1)] = 0.0
@@ -390,11 +412,7 @@ class PhysicsWorld:
         else:
             self.v_t[sl] = 0.0
             self.w_t[bs] = 0.0
-        # the floor is a constraint too: no target below a capsule's radius (a target foot under
-        # the floor would press the body into it with the full bounded force)
-        if not all_p:
-            p = np.where(ok_p[:, None], p, np.nan)
-        self.p_t[sl] = lift_above_floor(p, cb.character.parents, self.pt_min_z[sl])
+        self.p_t[sl] = p
         if all_q:
             self.q_t[bs] = q
         else:
@@ -490,7 +508,9 @@ class PhysicsWorld:
             mujoco.mj_forward(m, d)
 
     # ----- stepping ----------------------------------------------------------------------------
-    def _update_pins(self) -> None:
+    def _update_pins(self, span: float) -> None:
+        """Switch the foot pins for a frame of ``span`` s and draw pinned ones after their targets
+        (``controller_kernels.switch_pins`` is the compiled copy; the rule is in its docstring)."""
         if not len(self.pin_eq):
             return
         if not self.params.virtual_joints:
@@ -499,30 +519,40 @@ class PhysicsWorld:
                 self.data.eq_active[self.pin_eq] = 0
             return
         prm = self.params
+        follow = prm.pin_follow_speed * span
         if prm.compiled:
             d = self.data
-            ck.switch_pins(self.p_t, self.v_t, self.pin_point, self._k_pin_rest_z, self.pin_on, self.pin_mocap,
+            ck.switch_pins(self.p_in, self.v_in, self.pin_point, self._k_pin_rest_z, self.pin_on, self.pin_mocap,
                            d.mocap_pos, d.site_xpos, self._k_site, self.pin_eq, d.eq_active, prm.contact_height,
-                           prm.contact_speed, prm.pin_slack)
+                           prm.contact_speed, prm.pin_slack, prm.pin_hold, follow)
             return
-        pt = self.p_t[self.pin_point]
-        vt = self.v_t[self.pin_point]
+        pt = self.p_in[self.pin_point]   # the input's: a toe lifted out of the floor swings faster
+        vt = self.v_in[self.pin_point]
         # NaN compares False: a missing target is neither low (no pin) nor kept (lets go)
         h = pt[:, 2] - self.pin_rest_z
         vt2 = (vt[:, :2] ** 2).sum(1)
-        on = (h <= prm.contact_height) & (vt2 <= prm.contact_speed ** 2) & ~self.pin_on
+        cur = self.point_positions()[self.pin_point]
+        near = ((pt[:, :2] - cur[:, :2]) ** 2).sum(1) <= prm.pin_slack ** 2
+        on = (h <= prm.contact_height) & (vt2 <= prm.contact_speed ** 2) & near & ~self.pin_on
+        off = np.zeros_like(on)
         if self.pin_on.any():
-            drift2 = ((pt[:, :2] - self.data.mocap_pos[self.pin_mocap, :2]) ** 2).sum(1)
+            anchor = self.data.mocap_pos[self.pin_mocap]
+            gap = pt[:, :2] - anchor[:, :2]
+            drift2 = (gap ** 2).sum(1)
             keep = (h <= prm.contact_height + 0.01) & (vt2 <= 4 * prm.contact_speed ** 2) & (drift2 <= prm.pin_slack ** 2)
             off = self.pin_on & ~keep
-        else:
-            off = on & False
+            pull = self.pin_on & keep & (drift2 > prm.pin_hold ** 2)
+            if pull.any():
+                drift = np.sqrt(drift2[pull])
+                g = np.minimum(follow, drift - prm.pin_hold) / drift
+                anchor[pull, :2] += g[:, None] * gap[pull]
+                self.data.mocap_pos[self.pin_mocap[pull]] = anchor[pull]
         if not (on.any() or off.any()):
-            return                    # no pin switched: nothing to write
+            return                    # no pin switched: nothing more to write
         if on.any():
-            cur = self.point_positions()[self.pin_point[on]]
-            cur[:, 2] = self.pin_rest_z[on]  # on the floor: never hold a foot sunk into it
-            self.data.mocap_pos[self.pin_mocap[on]] = cur
+            at = cur[on]
+            at[:, 2] = self.pin_rest_z[on]  # on the floor: never hold a foot sunk into it
+            self.data.mocap_pos[self.pin_mocap[on]] = at
         self.pin_on = (self.pin_on | on) & ~off
         self.data.eq_active[self.pin_eq] = self.pin_on.astype(np.uint8)
 
@@ -583,7 +613,7 @@ class PhysicsWorld:
         n = max(1, int(round(duration_s / ts)))
         prof = self.profile
         t = time.thread_time() if prof is not None else 0.0
-        self._update_pins()
+        self._update_pins(n * ts)
         dodging = self._update_dodge()
         if prof is not None:
             t = tick(prof, "pins, dodge", t)
