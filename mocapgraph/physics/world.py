@@ -531,9 +531,10 @@ class PhysicsWorld:
         # NaN compares False: a missing target is neither low (no pin) nor kept (lets go)
         h = pt[:, 2] - self.pin_rest_z
         vt2 = (vt[:, :2] ** 2).sum(1)
-        cur = self.point_positions()[self.pin_point]
-        near = ((pt[:, :2] - cur[:, :2]) ** 2).sum(1) <= prm.pin_slack ** 2
-        on = (h <= prm.contact_height) & (vt2 <= prm.contact_speed ** 2) & near & ~self.pin_on
+        on = (h <= prm.contact_height) & (vt2 <= prm.contact_speed ** 2) & ~self.pin_on
+        if on.any():   # only then where the feet are: a foot far from its target catches up first
+            cur = self.point_positions()[self.pin_point]
+            on &= ((pt[:, :2] - cur[:, :2]) ** 2).sum(1) <= prm.pin_slack ** 2
         off = np.zeros_like(on)
         if self.pin_on.any():
             anchor = self.data.mocap_pos[self.pin_mocap]
