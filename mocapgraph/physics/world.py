@@ -10,8 +10,9 @@ points are MuJoCo sites (``site_xpos``); gravity compensation is MuJoCo's ``grav
 body wrenches of a substep are one matmul into ``xfrc_applied``.
 
 Virtual joints (section 6.1) are MuJoCo ``connect`` constraints between a foot point and a mocap
-pin: switched on where the foot's target is on the floor and still, placed where the simulated foot
-is, and off when the target lifts or slides; a held object is a ``weld`` to the hand's body.
+pin: switched on where the foot's input target is on the floor and still, placed where the simulated
+foot is, drawn after a target that drifts from it at a bounded horizontal speed (a pivoting foot),
+and off when the target lifts, speeds up or jumps away; a held object is a ``weld`` to the hand's body.
 Positional constraints replace some targets: ``set_override`` (a hand onto an object, ``reach``)
 and the automatic dodge (forearm targets raised around the head while a ball comes at it, Figure 4).
 
