@@ -352,4 +352,4 @@ def warm() -> None:
                     qt.copy(), np.zeros((b, 3)), has.copy(), np.zeros((n, 3)), np.zeros((n, 3)))
     eq = np.zeros(2, dtype=np.bool_)
     switch_pins(p3, p3, idx, np.zeros(n), np.zeros(n, dtype=np.bool_), idx, np.zeros((nb, 3)), np.zeros((nb, 3)),
-                idx, idx, eq, 0.03, 0.25, 0.05, 0.01, 0.0015)
+                idx, idx, eq, 0.03, 0.25, 0.05, 0.02, 0.0015)

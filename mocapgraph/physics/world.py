@@ -67,7 +67,8 @@ class TrackerParams:
     contact_speed: float = 0.25        # m/s: ... and slower than this horizontally
     pin_slack: float = 0.05            # m: a pin lets go when its target is this far from it (a jump), and
                                        # a foot this far from its target is not pinned (it catches up first)
-    pin_hold: float = 0.01             # m: a pinned foot stays put while its target is this close to it
+    pin_hold: float = 0.02             # m: a pinned foot stays put while its target is this close to it
+                                       # (Kinect v2 feet jitter by 1-2 cm: 1 cm made pins follow the noise)
     pin_follow_speed: float = 0.18     # m/s: ... and beyond, follows it at most this fast horizontally
                                        # (1.5 mm a frame at 120 Hz: a foot pivoting in a turn)
     dodge: bool = False                # raise the forearms when a ball comes at the head
