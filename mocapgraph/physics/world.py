@@ -259,6 +259,9 @@ class PhysicsWorld:
                 i = lookup[cb.geom_name(int(c))]
                 self.geom_joints[i] = (a + int(cb.character.parents[c]), a + int(c))
         self._k_geoms = np.ascontiguousarray(self.geom_ids, dtype=np.int64)
+        # each character's capsules (geom ids), to keep a pose put by set_pose out of the floor
+        self._char_capsules = [np.array([self.geom_ids[lookup[cb.geom_name(int(c))]] for c in cb.bone_child],
+                                        dtype=np.int64) for cb in self.bodies]
         self._k_gj0 = np.ascontiguousarray(self.geom_joints[:, 0])
         self._k_gj1 = np.ascontiguousarray(self.geom_joints[:, 1])
         self._k_point_err = np.zeros(len(self.pt_body))
@@ -330,7 +333,8 @@ class PhysicsWorld:
 
     # ----- targets -----------------------------------------------------------------------------
     def set_pose(self, k: int, local_rotations: np.ndarray, root_position: np.ndarray) -> None:
-        """Put character ``k`` exactly in a pose (local rotations wxyz [J,4], root m), at rest."""
+        """Put character ``k`` exactly in a pose (local rotations wxyz [J,4], root m), at rest, raised
+        onto the floor when a capsule would reach into it."""
         cb = self.bodies[k]
         ch = cb.character
         adr = self.qpos_adr[k]
@@ -348,9 +352,24 @@ class PhysicsWorld:
         for a, n in zip(dof, ndof):
             self.data.qvel[a:a + n] = 0.0
         mujoco.mj_forward(self.model, self.data)
+        # a pose reaching into the floor (a heel strike cutting it, a source whose floor is not
+        # ours) is raised onto it: a body started 5 cm or more deep blows MuJoCo's contact solver
+        # up on its first step (and the node's reset put it back there, again and again)
+        low = self.lowest_point(k)
+        if low < 0.0:
+            r = adr[int(np.flatnonzero(cb.body_joints == ch.root)[0])]
+            q[r + 2] -= low
+            mujoco.mj_forward(self.model, self.data)
         self._snap_held()
         self.pin_on[self.pin_char == k] = False
         self.data.eq_active[self.pin_eq[self.pin_char == k]] = 0
+
+    def lowest_point(self, k: int) -> float:
+        """Height (m, world z; the floor is 0) of the lowest point of character ``k``'s capsules."""
+        g = self._char_capsules[k]
+        d, m = self.data, self.model
+        axis_z = np.abs(d.geom_xmat[g, 8])   # the capsule axis (geom z) against world z
+        return float((d.geom_xpos[g, 2] - axis_z * m.geom_size[g, 1] - m.geom_size[g, 0]).min())
 
     @property
     def pin_char(self) -> np.ndarray:

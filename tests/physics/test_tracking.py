@@ -182,8 +182,11 @@ def test_point_velocities_match_mujoco_jacobians(clip):
     for i in range(len(p)):
         mujoco.mj_jac(w.model, w.data, jacp, None, p[i], int(w.pt_body[i]))
         np.testing.assert_allclose(v[i], jacp @ w.data.qvel, atol=1e-9)
-    # and the simulated joints sit on the target pose we put the body in
-    np.testing.assert_allclose(p[w.point_slice[0]], clip.positions[500], atol=1e-9)
+    # and the simulated joints sit on the target pose we put the body in, raised onto the floor
+    # (this frame's heel capsule cuts 43 mm into it: set_pose never starts a body in the floor)
+    lift = p[w.point_slice[0]][clip.character.root, 2] - clip.positions[500, clip.character.root, 2]
+    np.testing.assert_allclose(p[w.point_slice[0]] - [0.0, 0.0, lift], clip.positions[500], atol=1e-9)
+    assert 0.0 < lift < 0.05 and abs(w.lowest_point(0)) < 1e-9
 
 
 def test_absurd_gains_are_refused_or_bounded():
@@ -203,3 +206,26 @@ def test_physics_mjcf_command_writes_a_model_mujoco_opens(tmp_path):
     r = subprocess.run([sys.executable, "-m", "mocapgraph", "physics", "mjcf", "standard_20", "-o", str(out),
                         "--stage", "nosuch"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "nosuch" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_pose_into_the_floor_is_raised_onto_it_and_tracked_without_blowing_up(clip):
+    """A source whose floor is 20 cm above ours (retargeted Kinect v2 gestures put the toes 16-27
+    cm under it): set_pose raises the body onto the floor (it started inside it and MuJoCo's
+    solver reset the state on the first step), and targets under the floor are tracked on it."""
+    w = PhysicsWorld([clip.character])
+    down = np.array([0.0, 0.0, -0.2])
+    w.set_pose(0, clip.local_rotations[0], clip.root[0] + down)
+    low = w.lowest_point(0)
+    w2 = PhysicsWorld([clip.character])
+    w2.set_pose(0, clip.local_rotations[0], clip.root[0])
+    print(f"\nlowest capsule point after set_pose 20 cm down: {1000 * low:.3f} mm (in the pose as given "
+          f"{1000 * (w2.lowest_point(0) - 0.2):.1f} mm); root raised to {w.joint_positions(0)[clip.character.root, 2]:.3f} m")
+    assert abs(low) < 1e-9
+    assert w.joint_positions(0)[clip.character.root, 2] > clip.root[0, 2] - 0.2 + 0.1
+    lowest = []
+    for i in range(int(1.5 * RATE)):
+        w.set_target(0, clip.positions[i] + down, clip.orientations[i], clip.times[i])
+        w.step(1.0 / RATE)
+        lowest.append(w.lowest_point(0))
+    assert w.resets == 0 and np.isfinite(w.data.qpos).all()
+    assert min(lowest) > -0.005
