@@ -11,16 +11,22 @@ to, and take and return plain float64 arrays (SI units, wxyz quaternions, as eve
 (`__pycache__`, or numba's per-user cache when the package is read-only), so a node process
 loads it in milliseconds after the first run. `python -m mocapgraph.jit` compiles every
 registered kernel module once (scripts/setup.sh runs it, so tests and the demo never compile).
-Set NUMBA_DISABLE_JIT=1 to run the kernels as plain Python under a debugger.
+A compile anywhere else is logged as a warning naming the kernel and its argument types: numba
+compiles once per argument-type signature (a read-only array, as decoded messages are, is a type of
+its own), so a `warm()` that missed a signature would stall a running node for seconds; the log
+says which signature to add. Set NUMBA_DISABLE_JIT=1 to run the kernels as plain Python under a
+debugger.
 """
 from __future__ import annotations
 
 import importlib
+import logging
 import sys
 import time
 from typing import Callable, TypeVar
 
 import numba
+from numba.core import event as numba_event
 
 F = TypeVar("F", bound=Callable)
 
@@ -36,6 +42,34 @@ KERNEL_MODULES: tuple[str, ...] = (
 )
 
 
+_log = logging.getLogger("mocapgraph.jit")
+_warming = False
+runtime_compiles: list[str] = []   # "module.kernel(arg types)" compiled outside warm_all, in this process
+
+
+class _RuntimeCompileReport(numba_event.Listener):
+    """Logs each kernel compiled outside `warm_all` (it stalled the process for that long)."""
+
+    def __init__(self) -> None:
+        self._started: list[float] = []
+
+    def on_start(self, event: numba_event.Event) -> None:
+        self._started.append(time.perf_counter())
+
+    def on_end(self, event: numba_event.Event) -> None:
+        seconds = time.perf_counter() - self._started.pop()
+        if _warming:
+            return
+        func = event.data["dispatcher"].py_func
+        what = f"{func.__module__}.{func.__qualname__}({', '.join(map(str, event.data['args']))})"
+        runtime_compiles.append(what)
+        _log.warning("jit: compiled %s at run time in %.1f s: its module's warm() does not cover "
+                     "these argument types (or the cache is stale: python -m mocapgraph.jit)", what, seconds)
+
+
+numba_event.register("numba:compile", _RuntimeCompileReport())
+
+
 def kernel(func: F) -> F:
     """Compile `func` in nopython mode, cached on disk, releasing the GIL while it runs."""
     return numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")(func)
@@ -43,11 +77,16 @@ def kernel(func: F) -> F:
 
 def warm_all(modules: tuple[str, ...] = KERNEL_MODULES) -> dict[str, float]:
     """Import each kernel module and run its `warm()`; returns seconds per module."""
+    global _warming
     spent: dict[str, float] = {}
-    for name in modules:
-        start = time.perf_counter()
-        importlib.import_module(name).warm()
-        spent[name] = time.perf_counter() - start
+    _warming = True
+    try:
+        for name in modules:
+            start = time.perf_counter()
+            importlib.import_module(name).warm()
+            spent[name] = time.perf_counter() - start
+    finally:
+        _warming = False
     return spent
 
 
