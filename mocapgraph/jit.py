@@ -27,6 +27,7 @@ F = TypeVar("F", bound=Callable)
 # Modules whose `warm()` calls each of their kernels once with small inputs (compiles and caches).
 KERNEL_MODULES: tuple[str, ...] = (
     "mocapgraph.kinematics.bone_follow_kernels",
+    "mocapgraph.kinematics.retarget_source_kernels",
     "mocapgraph.physics.controller_kernels",
     "mocapgraph.physics.posture_kernels",
     "mocapgraph.physics.state_kernels",
