@@ -142,10 +142,17 @@ class PointRotationPlan:
     fit_kids: np.ndarray               # [G, K] the points they fit their bones to (-1: padding)
     fit_rest: np.ndarray               # [G, K, 3] unit rest directions to those (0: padding)
     fit_levels: tuple[tuple[np.ndarray, np.ndarray], ...]   # per level: fit mask, their rows in fit_*
-    # the one-frame kernel's view (retarget_source_kernels.point_rotations), contiguous int64/float64
-    order: np.ndarray = None           # [P] the levels concatenated (a parent before its children)
-    kind: np.ndarray = None            # [P] 0 carries its parent's, 1 shortest arc, 2 TRIAD, 3 best fit
-    fit_row: np.ndarray = None         # [P] a fit joint's row in fit_kids / fit_rest (-1: none)
+    # the one-frame kernel's view (retarget_source_kernels.point_rotations), packed: few arguments
+    # make a cheap call. Columns: [P, 7] int64 (order: the levels concatenated, a parent before its
+    # children; then per joint: parent, kind, primary, secondary a, b, row in fit_*; kind 0 carries
+    # its parent's rotation, 1 shortest arc, 2 TRIAD, 3 best fit); [P, 12] rest_primary, rest_frames
+    frame_index: np.ndarray = None
+    frame_rest: np.ndarray = None
+
+    @property
+    def kind(self) -> np.ndarray:
+        """[P] how each joint's rotation is derived (0 carried, 1 shortest arc, 2 TRIAD, 3 best fit)."""
+        return self.frame_index[:, 2]
 
 
 def plan_point_rotations(src: SourceSkeleton, *, best_fit: bool = True) -> PointRotationPlan:
@@ -211,10 +218,10 @@ def plan_point_rotations(src: SourceSkeleton, *, best_fit: bool = True) -> Point
     kind[fit_joints] = 3
     fit_row = -np.ones(n, dtype=np.int64)
     fit_row[fit_joints] = np.arange(len(fit_joints))
+    index = np.column_stack([np.concatenate(levels), par, kind, primary, secondary, fit_row]).astype(np.int64)
     c = np.ascontiguousarray
-    return PointRotationPlan(levels, c(par, np.int64), primary, secondary, c(rest_primary), c(frames), fit_joints,
-                             c(fit_kids), c(fit_rest), fit_levels, c(np.concatenate(levels), np.int64),
-                             c(kind, np.int64), fit_row)
+    return PointRotationPlan(levels, par, primary, secondary, rest_primary, frames, fit_joints, c(fit_kids),
+                             c(fit_rest), fit_levels, c(index), c(np.hstack([rest_primary, frames.reshape(n, 9)])))
 
 
 def _through_to_leaf(par: np.ndarray, rest: np.ndarray, j: int, k: int) -> int:
@@ -330,8 +337,7 @@ def rotations_from_points_frame(plan: PointRotationPlan, points: np.ndarray, out
     p = np.ascontiguousarray(points, dtype=np.float64)    # one compiled layout (C) for every caller
     if out is None:
         out = np.empty((p.shape[0], 4))
-    kern(p, plan.order, plan.parents, plan.kind, plan.primary, plan.secondary, plan.fit_row, plan.rest_primary,
-         plan.rest_frames, plan.fit_kids, plan.fit_rest, TRIAD_MIN_SIN, FIT_MIN_GAP, out)
+    kern(p, plan.frame_index, plan.frame_rest, plan.fit_kids, plan.fit_rest, TRIAD_MIN_SIN, FIT_MIN_GAP, out)
     return out
 
 

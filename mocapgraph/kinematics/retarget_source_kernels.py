@@ -99,30 +99,30 @@ def _jacobi4(A, V):
 
 
 @kernel
-def point_rotations(points, order, parents, kind, primary, secondary, fit_row, rest_primary, rest_frames,
-                    fit_kids, fit_rest, min_sin, min_gap, out):
+def point_rotations(points, index, rest, fit_kids, fit_rest, min_sin, min_gap, out):
     """World rotations out [P, 4] (wxyz) of one frame's points [P, 3] (m, NaN: missing), as
-    retarget_source.rotations_from_points (see PointRotationPlan for the plan arrays; ``order`` is
-    its levels concatenated). ``min_sin``: a triad whose two axes are closer than this sine is NaN;
+    retarget_source.rotations_from_points, from PointRotationPlan's frame_index [P, 7] (column 0
+    the order, then per joint parent, kind, primary, secondary a and b, fit row), frame_rest
+    [P, 12] (the rest primary direction, the rest frame row-major), fit_kids, fit_rest. ``min_sin``: a triad whose two axes are closer than this sine is NaN;
     ``min_gap``: a best fit whose top two eigenvalues are closer than this times its bone count is
     NaN (the rotation undetermined: collinear bones, or a mirror image symmetric about its axes).
     NaN wherever a needed point is missing."""
     nan = np.nan
     A = np.empty((4, 4))     # the best fit's scratch: one allocation a call, none in the loop
     V = np.empty((4, 4))
-    for i in range(order.shape[0]):
-        j = order[i]
-        pj = parents[j]
+    for i in range(index.shape[0]):
+        j = index[i, 0]
+        pj = index[j, 1]
         if pj >= 0:
             cw, cx, cy, cz = out[pj, 0], out[pj, 1], out[pj, 2], out[pj, 3]
         else:
             cw, cx, cy, cz = 1.0, 0.0, 0.0, 0.0
-        kd = kind[j]
+        kd = index[j, 2]
         if kd == CARRY:
             out[j, 0], out[j, 1], out[j, 2], out[j, 3] = cw, cx, cy, cz
         elif kd == ONE:
             # the rest direction carried by the parent (quaternion.quat_rotate) ...
-            vx, vy, vz = rest_primary[j, 0], rest_primary[j, 1], rest_primary[j, 2]
+            vx, vy, vz = rest[j, 0], rest[j, 1], rest[j, 2]
             tx = 2.0 * (cy * vz - cz * vy)
             ty = 2.0 * (cz * vx - cx * vz)
             tz = 2.0 * (cx * vy - cy * vx)
@@ -130,7 +130,7 @@ def point_rotations(points, order, parents, kind, primary, secondary, fit_row, r
             fy = vy + cw * ty + (cz * tx - cx * tz)
             fz = vz + cw * tz + (cx * ty - cy * tx)
             # ... turned by the shortest arc onto the current bone (quaternion.quat_between) ...
-            k = primary[j]
+            k = index[j, 3]
             ax, ay, az = _unit3(fx, fy, fz)
             bx, by, bz = _unit3(points[k, 0] - points[j, 0], points[k, 1] - points[j, 1], points[k, 2] - points[j, 2])
             w = 1.0 + (ax * bx + ay * by + az * bz)
@@ -151,7 +151,7 @@ def point_rotations(points, order, parents, kind, primary, secondary, fit_row, r
             out[j, 2] = w * cy - x * cz + y * cw + z * cx
             out[j, 3] = w * cz + x * cy - y * cx + z * cw
         elif kd == TWO:
-            k, s0, s1 = primary[j], secondary[j, 0], secondary[j, 1]
+            k, s0, s1 = index[j, 3], index[j, 4], index[j, 5]
             a0, a1, a2 = _unit3(points[k, 0] - points[j, 0], points[k, 1] - points[j, 1], points[k, 2] - points[j, 2])
             u0 = points[s0, 0] - points[s1, 0]
             u1 = points[s0, 1] - points[s1, 1]
@@ -168,19 +168,19 @@ def point_rotations(points, order, parents, kind, primary, secondary, fit_row, r
                 out[j, 0], out[j, 1], out[j, 2], out[j, 3] = nan, nan, nan, nan
                 continue
             # current frame (columns a, b, c) times the rest frame transposed
-            r = rest_frames[j]
-            m00 = a0 * r[0, 0] + b0 * r[0, 1] + c0 * r[0, 2]
-            m01 = a0 * r[1, 0] + b0 * r[1, 1] + c0 * r[1, 2]
-            m02 = a0 * r[2, 0] + b0 * r[2, 1] + c0 * r[2, 2]
-            m10 = a1 * r[0, 0] + b1 * r[0, 1] + c1 * r[0, 2]
-            m11 = a1 * r[1, 0] + b1 * r[1, 1] + c1 * r[1, 2]
-            m12 = a1 * r[2, 0] + b1 * r[2, 1] + c1 * r[2, 2]
-            m20 = a2 * r[0, 0] + b2 * r[0, 1] + c2 * r[0, 2]
-            m21 = a2 * r[1, 0] + b2 * r[1, 1] + c2 * r[1, 2]
-            m22 = a2 * r[2, 0] + b2 * r[2, 1] + c2 * r[2, 2]
+            r = rest[j]
+            m00 = a0 * r[3] + b0 * r[4] + c0 * r[5]
+            m01 = a0 * r[6] + b0 * r[7] + c0 * r[8]
+            m02 = a0 * r[9] + b0 * r[10] + c0 * r[11]
+            m10 = a1 * r[3] + b1 * r[4] + c1 * r[5]
+            m11 = a1 * r[6] + b1 * r[7] + c1 * r[8]
+            m12 = a1 * r[9] + b1 * r[10] + c1 * r[11]
+            m20 = a2 * r[3] + b2 * r[4] + c2 * r[5]
+            m21 = a2 * r[6] + b2 * r[7] + c2 * r[8]
+            m22 = a2 * r[9] + b2 * r[10] + c2 * r[11]
             _shepperd(m00, m01, m02, m10, m11, m12, m20, m21, m22, out, j)
         else:   # FIT: Horn's 4x4 of S_ab = sum_k rest_a cur_b over unit current bones
-            g = fit_row[j]
+            g = index[j, 6]
             sxx = sxy = sxz = syx = syy = syz = szx = szy = szz = 0.0
             bad = False
             nk = 0
@@ -236,24 +236,13 @@ def point_rotations(points, order, parents, kind, primary, secondary, fit_row, r
 
 
 def warm() -> None:
-    """Compile (and cache) the kernel on a five-point source (a fit root, a one-child joint, leaves),
-    for writable points and for read-only ones (a live frame decoded from a message buffer)."""
-    pts = np.array([[0.0, 0, 0], [0, 0, 1.0], [0, 1.0, 0], [0, -1.0, 0.1], [0, 0, 2.0]])
-    frozen = pts.copy()
+    """Compile (and cache) the kernel on a seven-point source with every kind of joint, for
+    writable points and for read-only ones (a live frame decoded from a message buffer)."""
+    from .retarget_source import plan_point_rotations, rotations_from_points_frame, skeleton_source
+    offs = np.array([[0.0, 0, 1], [0, 0, 0.5], [0, 0.2, 0], [0, -0.2, 0.05], [0, 0, 0.4], [0.1, 0, 0.2], [0, 0, -0.4]])
+    src = skeleton_source(list("rabcdef"), [-1, 0, 0, 0, 1, 1, 2], offs, has_orientations=False)
+    plan = plan_point_rotations(src)
+    frozen = src.rest_points.copy()
     frozen.flags.writeable = False
-    for p in (pts, frozen):
-        _warm_one(p)
-
-
-def _warm_one(pts: np.ndarray) -> None:
-    i64 = np.int64
-    out = np.empty((5, 4))
-    point_rotations(pts, np.array([0, 1, 2, 3, 4], i64), np.array([-1, 0, 0, 0, 1], i64),
-                    np.array([FIT, ONE, CARRY, CARRY, CARRY], i64), np.array([1, 4, -1, -1, -1], i64),
-                    -np.ones((5, 2), i64), np.array([0, -1, -1, -1, -1], i64), _unit_rows(pts[[1, 4, 2, 3, 4]] - pts[[0, 1, 0, 0, 1]]),
-                    np.full((5, 3, 3), np.nan), np.array([[1, 2, 3]], i64), _unit_rows(pts[None, 1:4] - pts[0]),
-                    1e-6, 1e-6, out)
-
-
-def _unit_rows(v: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(v / np.linalg.norm(v, axis=-1, keepdims=True))
+    for p in (src.rest_points, frozen):
+        rotations_from_points_frame(plan, p)
