@@ -192,3 +192,29 @@ def test_warm_compiles_what_the_live_path_calls():
     rotations_from_points_frame(plan, frozen.copy())
     rotations_from_points_frame(plan, frozen.tolist())
     assert set(point_rotations.signatures) == seen
+
+
+def test_a_degenerate_girdle_in_a_live_stream_is_held_and_flagged(shared_data):
+    """A live Kinect stream with one frame whose hips lie on the spine line (no pelvis rotation
+    exists): the retargeter holds the pelvis there and flags it estimated, never good, outputs stay
+    finite, the next frame is good again, and the one-frame path equals the batched one."""
+    from mocapgraph.formats.mapping_file import load_mapping
+    from mocapgraph.kinematics.character import standard_20
+    from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
+    from retarget_support import live_minus_batch
+    t, src = _v2(shared_data, "Ges01_wavehand")
+    n = t.names.index
+    pts, ok = t.positions[:40].copy(), t.tracking_state[:40] == 2
+    f = 20
+    assert ok[f - 1:f + 2].all()
+    up = pts[f, n("SpineMid")] - pts[f, n("SpineBase")]
+    pts[f, n("HipLeft")] = pts[f, n("SpineBase")] - 0.5 * up
+    pts[f, n("HipRight")] = pts[f, n("SpineBase")] - 0.3 * up
+    ch, mapping = standard_20(1.75), load_mapping("kinect_v2_standard_20")
+    rt = Retargeter(ch, mapping, src, RetargetOptions())
+    res = [rt.process(pts[i:i + 1], ok[i:i + 1]) for i in range(len(pts))]
+    hip = ch.index("HipCenter")
+    assert [int(r.joint_quality[0, hip]) for r in res[f - 1:f + 2]] == [2, 1, 2]
+    assert np.allclose(res[f].local_rotations[0, hip], res[f - 1].local_rotations[0, hip], atol=1e-12)   # held
+    assert all(np.isfinite(r.local_rotations).all() and np.isfinite(r.joint_positions).all() for r in res)
+    assert live_minus_batch(ch, mapping, src, RetargetOptions(), pts, ok, None, n=len(pts)) < 1e-9
