@@ -5,7 +5,9 @@ trial (FrameSolver.solve), calibration time for 60 s of gym at 120 Hz, and the p
 through a launched graph (synthetic_actor reader at 240 Hz -> frame_solver node): from the
 reader publishing a MarkerFrame to the solver publishing its ActorPose, and on to a subscriber.
 Targets (issue 5): live >= 2000 frames/s, batch >= 20000 frames/s. Issue 10: the global fit's
-live and batch rates beside the segment-wise ones (ratio in the same run), and both accuracies.
+live rate (compiled kernels beside the numpy reference, target >= 2000 frames/s) and batch rate
+beside the segment-wise ones (in the same run), its iterations and the point motion left when a
+frame stops, each stage's share of a live frame (numpy and compiled), and both accuracies.
 Run: .venv/bin/python benchmarks/solver.py [--graph-seconds 20] [--no-graph]
 """
 from __future__ import annotations
@@ -103,6 +105,161 @@ def graph_latency(seconds: float) -> None:
               f"max {v.max():6.2f} ms")
 
 
+def live_global_stages(model, frames: np.ndarray) -> None:
+    """Where one live global-fit frame's time goes (numpy tracker): each stage of
+    GlobalTracker.track and FrameSolver.step timed separately (CPU time, us per frame)."""
+    from scipy.linalg.lapack import dpotrs
+
+    from mocapgraph.kinematics.global_track import _cayley_neg
+
+    solver = FrameSolver(model, fit="global", compiled=False)
+    solver.step(frames[0])          # the first frame comes from the batch path and seeds the tracker
+    tr = solver._tracker
+    L, LK = tr.L, tr._LK
+    spent: dict[str, float] = {}
+    iters: list[int] = []
+    clock = time.thread_time
+
+    def tick(name: str, t0: float) -> float:
+        t1 = clock()
+        spent[name] = spent.get(name, 0.0) + t1 - t0
+        return t1
+
+    n = 0
+    for f in frames[1:]:
+        if tr._R is None:               # declined: let the solver restart the tracker
+            solver.step(f)
+            continue
+        n += 1
+        t = clock()
+        y = f[tr._idx0]
+        seen = np.isfinite(y).all(-1) & tr._pad
+        tr._Y[:3 * LK] = np.where(seen[..., None], y, 0.0).reshape(-1)
+        key = seen.tobytes()
+        if key != tr._code:
+            tr._code = key
+            u = tr._wm0 * seen.reshape(LK)
+            tr._W[:3 * LK] = np.repeat(u, 3)
+            tr._new_markers(seen, u)
+            tr._refresh(tr._R)
+        t = tick("marker gather, NaN masking", t)
+        R, c = tr._R, tr._c
+        X = np.empty((L, 12))
+        last, it = np.inf, 0
+        while True:
+            it += 1
+            X[:, :9] = R.reshape(L, 9)
+            X[:, 9:] = c
+            res = tr._M @ X.reshape(-1) - tr._Y
+            t = tick("residuals", t)
+            gX = (tr._MT @ (tr._W * res)).reshape(L, 12)
+            a = np.swapaxes(gX[:, :9].reshape(L, 3, 3), -1, -2) @ R
+            G = np.concatenate([a.reshape(L, 9) @ tr._V, (gX[:, None, 9:] @ R)[:, 0]], 1)
+            t = tick("Jacobian^T residual (gradient)", t)
+            x = dpotrs(tr._chol, G.reshape(-1), lower=False)[0].reshape(L, 6)
+            t = tick("solve (Cholesky factor reused)", t)
+            c = c - (R @ x[:, 3:, None])[..., 0]
+            sq = np.sqrt((x * x).reshape(L, 2, 3).sum(-1))
+            R = R @ _cayley_neg(x[:, :3], sq[:, 0])
+            step = float((sq * tr._lever).sum(1).max())
+            rate = step / last
+            t = tick("pose update on SO(3), convergence test", t)
+            if step <= tr.tolerance or 0.0 < rate < 1.0 and rate * step <= (1.0 - rate) * tr.tolerance \
+                    or it >= tr.max_iterations:
+                break
+            last = step
+            tr._refresh(R)
+            t = tick("normal equations + Cholesky factor", t)
+        iters.append(it)
+        rms = tr._own_rms(y, seen)
+        tr._R, tr._c = R, c
+        trans = c - (R @ tr._c0[..., None])[..., 0]
+        t = tick("limb fit RMS (quality)", t)
+        solver._global.remember(R, c)
+        res = solver._joints_from_limbs(f[None], R[None], trans[None], tr._all_valid[None], rms[None],
+                                        tr._own[2][None], tr._own[2][None])[0]
+        t = tick("joint centres, qualities, bone lengths", t)
+        solver._temporal(res.joints, res.joint_quality, solver._time(None))
+        solver._frame += 1
+        tick("gap filling", t)
+    total = sum(spent.values())
+    print(f"live global frame, stage by stage (numpy tracker, {n} frames, {np.mean(iters):.2f} "
+          f"iterations a frame, CPU time) [{_load()}]:")
+    for name, s in spent.items():
+        print(f"  {name:<42} {1e6 * s / n:7.1f} us  {100 * s / total:4.0f} %")
+    print(f"  {'total':<42} {1e6 * total / n:7.1f} us  ({n / total:.0f} frames/s)")
+
+
+def live_global_convergence(model, frames: np.ndarray) -> None:
+    """Iterations and the point motion left when each live global frame stopped (compiled)."""
+    solver = FrameSolver(model, fit="global")
+    tr, gf = solver._tracker, solver._global
+    track, its, left, marker_rms, joint_gap = tr.track, [], [], [], []
+
+    def spy(markers):
+        out = track(markers)
+        its.append(0 if out is None else out.iterations)
+        if out is not None:
+            left.append(tr._kernel.info.copy())
+            # The optimum reached: markers' distance to their fitted places, joints' two sides apart.
+            y = markers[tr._idx0]
+            seen = np.isfinite(y).all(-1) & tr._pad
+            d = np.linalg.norm(tr._a @ np.swapaxes(out.rot, -1, -2) + out.centroid[:, None] - y, axis=-1)
+            marker_rms.append(np.sqrt(np.mean(d[seen] ** 2)))
+            qa = (out.rot[gf._ja] @ gf._p_a[..., None])[..., 0] + out.centroid[gf._ja]
+            qb = (out.rot[gf._jb] @ gf._p_b[..., None])[..., 0] + out.centroid[gf._jb]
+            joint_gap.append(np.linalg.norm(qa - qb, axis=-1).max())
+        return out
+
+    tr.track = spy
+    for f in frames:
+        solver.step(f)
+    its_a, info = np.array(its), np.array(left)
+    hist = ", ".join(f"{k}: {v}" for k, v in enumerate(np.bincount(its_a)) if k and v)
+    print(f"live global fit, {len(its_a)} frames: {np.count_nonzero(its_a == 0)} from the batch fit "
+          f"(tracker declined or not started), iterations {hist}; last step's point motion median "
+          f"{1e6 * np.median(info[:, 0]):.2f} um (max {1e6 * info[:, 0].max():.2f}), estimated distance "
+          f"to the optimum median {1e6 * np.median(info[:, 1]):.3f} um (max {1e6 * info[:, 1].max():.2f}; "
+          f"tolerance {1e6 * tr.tolerance:.0f} um)")
+    print(f"  at the optimum: marker residual RMS median {1000 * np.median(marker_rms):.3f} mm, joints' two "
+          f"sides apart at most {1000 * np.median(joint_gap):.3f} mm a frame (median; max {1000 * np.max(joint_gap):.3f})")
+
+
+def live_compiled_stages(model, frames: np.ndarray) -> None:
+    """Where a compiled live global frame's time goes (CPU time, us per frame)."""
+    solver = FrameSolver(model, fit="global")
+    clock = time.thread_time
+    spent = {"global fit kernel (track_frame) + result": 0.0, "joint centres (joint kernel) + result": 0.0,
+             "gap filling": 0.0}
+    wrapped = []
+    for obj, attr, name in ((solver._tracker, "track", "global fit kernel (track_frame) + result"),
+                            (solver, "_joints_from_limbs", "joint centres (joint kernel) + result"),
+                            (solver, "_temporal", "gap filling")):
+        fn = getattr(obj, attr)
+
+        def timed(*a, _fn=fn, _name=name):
+            t0 = clock()
+            out = _fn(*a)
+            spent[_name] += clock() - t0
+            return out
+
+        setattr(obj, attr, timed)
+        wrapped.append((obj, attr))
+    solver.step(frames[0])
+    for k in spent:
+        spent[k] = 0.0
+    t0 = clock()
+    for f in frames[1:]:
+        solver.step(f)
+    total = clock() - t0
+    n = len(frames) - 1
+    spent["rest of FrameSolver.step (Python)"] = total - sum(spent.values())
+    print(f"live global frame, stage by stage (compiled, {n} frames, CPU time) [{_load()}]:")
+    for name, s_ in spent.items():
+        print(f"  {name:<42} {1e6 * s_ / n:7.1f} us  {100 * s_ / total:4.0f} %")
+    print(f"  {'total':<42} {1e6 * total / n:7.1f} us  ({n / total:.0f} frames/s)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--graph-seconds", type=float, default=20.0, help="length of the launched-graph run, s")
@@ -135,12 +292,18 @@ def main() -> None:
     print(f"batch solve, {n} frames, gaps on: {_rate(lambda: FrameSolver(model).solve(perf), n):8.0f} frames/s (target 20000)")
     print(f"batch solve, {n} frames, gaps off:{_rate(lambda: FrameSolver(model, max_gap_s=0).solve(perf), n):8.0f} frames/s")
     # The global fit beside the segment-wise one, measured in the same run (ratio = cost of the fit).
-    print(f"live step, CPU time and wall time ({_load()}):")
-    seg_cpu, seg_wall = _rates(lambda: live(), n_live)
-    glob_cpu, glob_wall = _rates(lambda: live(fit="global"), n_live)
-    print(f"  segment-wise fit:  {seg_cpu:7.0f} frames/s CPU, {seg_wall:7.0f} wall")
-    print(f"  global fit:        {glob_cpu:7.0f} frames/s CPU, {glob_wall:7.0f} wall (target 2000; "
-          f"ratio to segment-wise {glob_cpu / seg_cpu:.2f} CPU)  [{_load()}]")
+    print(f"live step, CPU time and wall time, best of 3 x {n_live} frames [{_load()}]:")
+    rates = {}
+    for name, kw in (("segment-wise, numpy", dict(compiled=False)), ("segment-wise, compiled", {}),
+                     ("global, numpy reference", dict(fit="global", compiled=False)),
+                     ("global, compiled kernels", dict(fit="global"))):
+        rates[name] = cpu, wall = _rates(lambda: live(**kw), n_live)
+        print(f"  {name:<26} {cpu:7.0f} frames/s CPU, {wall:7.0f} wall  [{_load()}]")
+    g, gn, sg = rates["global, compiled kernels"][0], rates["global, numpy reference"][0], rates["segment-wise, compiled"][0]
+    print(f"  global compiled: {g / gn:.2f}x its numpy reference, {g / sg:.2f}x the segment-wise fit (target 2000 frames/s)")
+    live_global_convergence(model, perf)
+    live_compiled_stages(model, perf[:n_live])
+    live_global_stages(model, perf[:n_live])
     seg_b = _rate(lambda: FrameSolver(model).solve(perf), n)
     glob_b = _rate(lambda: FrameSolver(model, fit="global").solve(perf), n)
     print(f"batch solve, global fit:          {glob_b:8.0f} frames/s (segment-wise {seg_b:.0f}, ratio {glob_b / seg_b:.2f})")
@@ -150,7 +313,9 @@ def main() -> None:
                               ("global", FrameSolver(model, fit="global"), "batch, converged"),
                               ("global", FrameSolver(model, fit="global", global_options=one_step),
                                "batch, one step from the segment-wise fit (the first version)"),
-                              ("global", FrameSolver(model, fit="global"), "live, tracked from the last frame")):
+                              ("global", FrameSolver(model, fit="global"), "live, tracked from the last frame, compiled"),
+                              ("global", FrameSolver(model, fit="global", compiled=False),
+                               "live, tracked from the last frame, numpy reference")):
         if how.startswith("live"):
             joints = np.array([solver.step(f).joints for f in perf])
         else:

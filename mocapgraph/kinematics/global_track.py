@@ -18,6 +18,10 @@ rate) or the last step is within ``tolerance`` (m of point motion). The tracker 
 (returns None; the caller solves it from the segment-wise fit and reseeds it) when it has no good
 last frame, a limb cannot be fixed by its own markers, a limb's fit is poor, or the steps do not
 converge.
+
+Each frame runs as one compiled call of :func:`global_fit_kernels.track_frame` (the same steps,
+the normal matrix factored by 6x6 blocks along the limb tree); this numpy code is its reference
+(``compiled=False``) and the tests hold the two to the same joint centres.
 """
 from __future__ import annotations
 
@@ -28,6 +32,7 @@ import numpy as np
 from scipy.linalg.lapack import dpotrf, dpotrs
 
 from mocapgraph.kinematics.global_fit import GlobalFit, _skew
+from mocapgraph.kinematics.global_fit_kernels import TrackBuffers
 from mocapgraph.kinematics.rigid import fit_rigid
 
 
@@ -51,10 +56,13 @@ class GlobalTracker:
 
     rms_tol: float[L] m, a limb fit worse than this makes the tracker decline the frame;
     tolerance: m of point motion (see the module docstring); max_iterations per frame.
+    compiled: run each frame as one compiled kernel (:mod:`global_fit_kernels`: the same steps,
+    block-tree factor instead of the dense one); False keeps this numpy code (the reference).
+    The kernel needs the visibility table (at most 8 markers a limb); beyond, numpy runs.
     """
 
     def __init__(self, fit: GlobalFit, rms_tol: np.ndarray, tolerance: float = 1e-5,
-                 max_iterations: int = 4) -> None:
+                 max_iterations: int = 4, compiled: bool = True) -> None:
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
         self._rms_tol = np.asarray(rms_tol, dtype=float)
@@ -135,6 +143,13 @@ class GlobalTracker:
         self._Y = np.zeros(3 * R_)
         self._all_valid = np.ones(L, dtype=bool)
         self._W = np.repeat(np.concatenate([np.zeros(LK), self._w_fixed]), 3)
+        self._kernel = None
+        self._idx_max = int(idx.max(initial=0))   # a shorter frame takes the numpy path (its IndexError)
+        if compiled and self._valid_table is not None:
+            order = np.concatenate([lv[0] for lv in fit._levels] + [[fit._root]])
+            self._kernel = TrackBuffers(idx, fit._a, fit._wm, ja, jb, fit._p_a, fit._p_b, fit._wj, hj,
+                                        fit._axis, fit._wh, order, self._radius, self._valid_table,
+                                        self._rms_tol)
         self.reset()
 
     def _fixable(self, seen: np.ndarray) -> bool:
@@ -159,6 +174,8 @@ class GlobalTracker:
         self._R = self._c = None
         self._chol = None
         self._code = None
+        if getattr(self, "_kernel", None) is not None:
+            self._kernel.state[0] = 0
 
     # ---- state handed over from the full fit ------------------------------------------------
     def seed(self, rot: np.ndarray, trans: np.ndarray, good: bool) -> None:
@@ -168,7 +185,7 @@ class GlobalTracker:
             self.reset()
             return
         c = (rot @ self._c0[:, :, None])[..., 0] + trans
-        self._R, self._c = rot.copy(), c
+        self._R, self._c = np.ascontiguousarray(rot, dtype=np.float64).copy(), np.ascontiguousarray(c, dtype=np.float64)
 
     # ---- the normal matrix --------------------------------------------------------------------
     def _new_markers(self, seen: np.ndarray, u_markers: np.ndarray) -> None:
@@ -220,6 +237,8 @@ class GlobalTracker:
         """markers float[M,3] (NaN = unseen) -> the frame's global optimum, or None (declined)."""
         if self._R is None:
             return None
+        if self._kernel is not None and markers.shape[0] > self._idx_max:
+            return self._track_compiled(markers)
         y = markers[self._idx0]                                                   # [L,K,3]
         seen = np.isfinite(y).all(-1) & self._pad
         LK, L = self._LK, self.L
@@ -278,6 +297,19 @@ class GlobalTracker:
         self._R, self._c = R, c
         trans = c - (R @ self._c0[..., None])[..., 0]
         return Tracked(R, trans, c, self._all_valid, rms, self._own[2], it)
+
+    def _track_compiled(self, markers: np.ndarray) -> Tracked | None:
+        """:meth:`track` as one compiled kernel call (poses stepped in place on the tracker's own
+        copies; the frame's result is handed out as fresh arrays)."""
+        k = self._kernel
+        it = k.track(np.ascontiguousarray(markers, dtype=np.float64), self._R, self._c,
+                     self.tolerance, self.max_iterations)
+        if it <= 0:
+            self.reset()
+            return None
+        R, c = self._R.copy(), self._c.copy()
+        trans = c - (R @ self._c0[..., None])[..., 0]
+        return Tracked(R, trans, c, self._all_valid, k.rms.copy(), k.nvis.copy(), it)
 
 
 def _cayley_neg(w: np.ndarray, size: np.ndarray) -> np.ndarray:

@@ -18,8 +18,10 @@ from mocapgraph.kinematics.filters import GapFiller, make_filter
 from mocapgraph.kinematics.model import Quality, ActorModel
 from mocapgraph.kinematics.global_fit import GlobalFit, GlobalFitOptions
 from mocapgraph.kinematics.global_track import GlobalTracker
+from mocapgraph.kinematics.joint_kernels import joints_all_seen
 from mocapgraph.kinematics.regression import RegressionStage
-from mocapgraph.kinematics.rigid import fit_rigid, gather_limb_markers
+from mocapgraph.kinematics.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
+from mocapgraph.kinematics.rigid_kernels import fit_frame
 
 FITS = ("segment", "global")
 _GOOD, _EST, _MISS = np.int8(Quality.GOOD), np.int8(Quality.ESTIMATED), np.int8(Quality.MISSING)
@@ -69,6 +71,9 @@ class FrameSolver:
     fit: "segment" (each limb by itself, Kiip) or "global" (all limbs of a frame together under
     the joint constraints, :mod:`mocapgraph.kinematics.global_fit`; warm-started from the
     previous frame, so it also carries state between calls).
+    compiled: a live frame's limb fits (:mod:`rigid_kernels`; global: :mod:`global_fit_kernels`)
+    and joint centres (:mod:`joint_kernels`) run as compiled kernels; False keeps the numpy
+    reference (the same results to rounding; batches always use numpy).
     """
 
     def __init__(
@@ -82,6 +87,7 @@ class FrameSolver:
         limb_rms_tol: float | None = None,
         fit: str = "segment",
         global_options: GlobalFitOptions | None = None,
+        compiled: bool = True,
     ) -> None:
         if fit not in FITS:
             raise ValueError(f"unknown fit {fit!r} (expected one of {', '.join(FITS)})")
@@ -142,9 +148,29 @@ class FrameSolver:
             if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
         ]
         self._setup_joint_points(model)
+        # The compiled live limb fit (one frame's Kabsch fits) and its scratch.
+        self._kernel_fit = compiled
+        if compiled:
+            self._rk = (np.ascontiguousarray(self._ref, dtype=float), np.ascontiguousarray(np.where(idx >= 0, idx, 0), dtype=np.int64),
+                        np.ascontiguousarray(self._w0, dtype=float))
+            self._rk_scratch = (np.zeros((3, 3)), np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((3, 3)))
+            self._rk_max = int(idx.max(initial=0))
+        # The compiled live joint stage: every limb seen and fit well, no regression joints.
+        self._kernel_joints = compiled and not self._regression and self._jq_all_seen is not None
+        if self._kernel_joints:
+            i8 = lambda v: np.ascontiguousarray(v, dtype=np.int64)    # noqa: E731
+            lv = (self._levels if enforce_lengths else []) + [(np.zeros(0, int), np.zeros(0, int), np.zeros(0))]
+            self._k_args = (i8(self._labs), np.ascontiguousarray(self._pt[..., 0]), i8(self._has),
+                            np.ascontiguousarray(self._var_static, dtype=float),
+                            np.ascontiguousarray(self._sig2_lab, dtype=float))
+            self._k_tol = np.ascontiguousarray(self._rms_tol, dtype=float)
+            self._lq_good = np.full((1, len(model.limb_names)), _GOOD)
+            self._k_lengths = (i8(np.concatenate([c for c, _, _ in lv])), i8(np.concatenate([p for _, p, _ in lv])),
+                               np.ascontiguousarray(np.concatenate([b for _, _, b in lv]), dtype=float))
         # Live global frames track the last frame's optimum; limbs fitted through joint points
         # need the segment-wise fit's second pass, so those layouts always start from it.
-        self._tracker = (GlobalTracker(self._global, tol, tolerance=self._global.options.tolerance)
+        self._tracker = (GlobalTracker(self._global, tol, tolerance=self._global.options.tolerance,
+                                       compiled=compiled)
                          if self._global is not None and not self._pl.size else None)
         self._gap = GapFiller(self._J, self.max_gap_s) if self.max_gap_s > 0 else None
         self._filter_spec = (filter, dict(filter_params or {}))
@@ -192,9 +218,19 @@ class FrameSolver:
 
     def _fit_limbs(self, markers: np.ndarray):
         """Limb poses of [T] frames by the segment-wise fit, then (global) the full global fit."""
-        fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
-        rot, trans, valid, rms_l, nfit = fit.rotation, fit.translation, fit.valid, fit.rms, fit.n_visible
-        n_seen = fit.n_visible
+        # A frame with too few markers for the layout takes the numpy path (its IndexError), never
+        # an unchecked read in the kernel.
+        if self._kernel_fit and markers.shape[0] == 1 and markers.shape[1] > self._rk_max:
+            L = self._idx.shape[0]
+            rot, trans, rms_l = np.empty((1, L, 3, 3)), np.empty((1, L, 3)), np.empty((1, L))
+            nfit, ok = np.empty((1, L), dtype=np.int64), np.empty((1, L), dtype=np.int64)
+            fit_frame(np.ascontiguousarray(markers[0], dtype=float), *self._rk, MIN_MARKERS, rot[0], trans[0],
+                      rms_l[0], nfit[0], ok[0], *self._rk_scratch)
+            valid = ok > 0
+        else:
+            fit = fit_rigid(self._ref, gather_limb_markers(markers, self._idx), self._w0)
+            rot, trans, valid, rms_l, nfit = fit.rotation, fit.translation, fit.valid, fit.rms, fit.n_visible
+        n_seen = nfit
         if self._pl.size:
             # Limbs with joint points: refit with the joint centres seen from the other limbs.
             est, ok = self._limb_estimates(rot, trans, valid)
@@ -218,12 +254,22 @@ class FrameSolver:
     def _joints_from_limbs(self, markers, rot, trans, valid, rms_l, nfit, n_seen) -> SolverResult:
         """Joints, qualities and the length correction from limb poses of [T] frames."""
         J, T = self._J, valid.shape[0]
+        if self._kernel_joints and T == 1 and valid.all():
+            # The common live frame (every limb seen and fit well) as one compiled call
+            # (joint_kernels; the code below is its reference).
+            joints = np.empty((1, J, 3))
+            lab_, pt_, has_, vs_, s2_ = self._k_args
+            if joints_all_seen(np.ascontiguousarray(rot[0]), np.ascontiguousarray(trans[0]), lab_, pt_, has_,
+                               vs_, s2_, np.ascontiguousarray(nfit[0], dtype=np.int64),
+                               np.ascontiguousarray(rms_l[0], dtype=float), self._k_tol, *self._k_lengths, joints[0]):
+                return SolverResult(joints, self._jq_all_seen[None].copy(), rot, self._lq_good.copy(), n_seen, rms_l)
+        all_seen = self._jq_all_seen is not None and bool(valid.all()) and bool((rms_l <= self._rms_tol).all())
         lab = self._labs
         rms = rms_l[:, lab]
         # Inverse-variance weights of the two estimates; a poor limb fit weighs 1000x less.
         var = (self._sig2_lab + rms * rms) * (self._var_static / np.maximum(nfit[:, lab], 1))
         est = (rot[:, lab] @ self._pt)[..., 0] + trans[:, lab]                  # [T,2J,3]
-        if self._jq_all_seen is not None and valid.all() and (rms_l <= self._rms_tol).all():
+        if all_seen:
             # Every limb seen and fit well (the common live frame): no masking, known qualities.
             w2 = (self._has / var).reshape(T, 2, J)
             joints = (w2[..., None] * est.reshape(T, 2, J, 3)).sum(1) / w2.sum(1)[..., None]

@@ -1,0 +1,184 @@
+"""Compiled kernel of one frame's weighted rigid fits of every limb's marker cluster.
+
+The same fit as :func:`mocapgraph.kinematics.rigid.fit_rigid` (its numpy code is the reference
+the tests compare this to): per limb the weighted centroids, the covariance ``h = sum w a b^T``
+of the centred reference and current markers, the proper rotation with ``b ~ R a`` (here from
+the leading eigenvector of Horn's 1987 quaternion matrix of h, which is Kabsch's rotation with
+the reflection fix wherever the fit is valid), the translation, the weighted RMS, and validity
+(at least ``min_markers`` seen, second singular value of h over 1e-6 of the first). Float64 /
+int64 arrays (metres, world frame), outputs preallocated by the caller.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mocapgraph.jit import kernel
+
+_COLLINEAR_TOL = 1e-6   # as rigid._COLLINEAR_TOL
+
+
+@kernel
+def _jacobi(A: np.ndarray, V: np.ndarray, vectors: bool) -> None:
+    """Diagonalise the symmetric n x n A in place by cyclic Jacobi rotations (eigenvalues on its
+    diagonal); with ``vectors``, V (set to I here) gets the eigenvectors as columns."""
+    n = A.shape[0]
+    if vectors:
+        for i in range(n):
+            for j in range(n):
+                V[i, j] = 1.0 if i == j else 0.0
+    for sweep in range(50):
+        off = 0.0
+        scale = 0.0
+        for i in range(n):
+            scale += A[i, i] * A[i, i]
+            for j in range(i + 1, n):
+                off += A[i, j] * A[i, j]
+        # Off-diagonal norm below 1e-15 of the diagonal's: eigenvalues and vectors exact to rounding.
+        if off <= 1e-30 * scale:
+            return
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = A[p, q]
+                if apq == 0.0:
+                    continue
+                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
+                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+                cs = 1.0 / np.sqrt(t * t + 1.0)
+                sn = t * cs
+                for k in range(n):
+                    akp, akq = A[k, p], A[k, q]
+                    A[k, p] = cs * akp - sn * akq
+                    A[k, q] = sn * akp + cs * akq
+                for k in range(n):
+                    apk, aqk = A[p, k], A[q, k]
+                    A[p, k] = cs * apk - sn * aqk
+                    A[q, k] = sn * apk + cs * aqk
+                if vectors:
+                    for k in range(n):
+                        vkp, vkq = V[k, p], V[k, q]
+                        V[k, p] = cs * vkp - sn * vkq
+                        V[k, q] = sn * vkp + cs * vkq
+
+
+@kernel
+def fit_frame(markers: np.ndarray, ref: np.ndarray, idx0: np.ndarray, weights: np.ndarray, min_markers: int,
+              rot: np.ndarray, trans: np.ndarray, rms: np.ndarray, nvis: np.ndarray, valid: np.ndarray,
+              h: np.ndarray, N: np.ndarray, V: np.ndarray, M3: np.ndarray) -> None:
+    """Fit every limb of one frame: markers float[M,3] (NaN = unseen), ref[L,K,3] base-pose
+    markers (NaN = unusable), idx0[L,K] marker indices (padding any index, weight 0),
+    weights[L,K] -> rot[L,3,3], trans[L,3] (``x = R x_ref + t``), rms[L] (m), nvis[L], valid[L]
+    (0/1); invalid limbs get NaN rot, trans and rms. h [3,3], N [4,4], V [4,4], M3 [3,3]: scratch."""
+    L, K = idx0.shape
+    for l in range(L):
+        n = 0
+        ws = 0.0
+        cr0 = cr1 = cr2 = cc0 = cc1 = cc2 = 0.0
+        for k in range(K):
+            m = idx0[l, k]
+            w = weights[l, k]
+            if not (w > 0.0 and np.isfinite(markers[m, 0]) and np.isfinite(markers[m, 1])
+                    and np.isfinite(markers[m, 2]) and np.isfinite(ref[l, k, 0])
+                    and np.isfinite(ref[l, k, 1]) and np.isfinite(ref[l, k, 2])):
+                continue
+            n += 1
+            ws += w
+            cr0 += w * ref[l, k, 0]
+            cr1 += w * ref[l, k, 1]
+            cr2 += w * ref[l, k, 2]
+            cc0 += w * markers[m, 0]
+            cc1 += w * markers[m, 1]
+            cc2 += w * markers[m, 2]
+        nvis[l] = n
+        safe = ws if ws > 0.0 else 1.0
+        cr0, cr1, cr2, cc0, cc1, cc2 = cr0 / safe, cr1 / safe, cr2 / safe, cc0 / safe, cc1 / safe, cc2 / safe
+        h[:] = 0.0
+        for k in range(K):
+            m = idx0[l, k]
+            w = weights[l, k]
+            if not (w > 0.0 and np.isfinite(markers[m, 0]) and np.isfinite(markers[m, 1])
+                    and np.isfinite(markers[m, 2]) and np.isfinite(ref[l, k, 0])
+                    and np.isfinite(ref[l, k, 1]) and np.isfinite(ref[l, k, 2])):
+                continue
+            a0, a1, a2 = ref[l, k, 0] - cr0, ref[l, k, 1] - cr1, ref[l, k, 2] - cr2
+            b0, b1, b2 = markers[m, 0] - cc0, markers[m, 1] - cc1, markers[m, 2] - cc2
+            h[0, 0] += w * a0 * b0
+            h[0, 1] += w * a0 * b1
+            h[0, 2] += w * a0 * b2
+            h[1, 0] += w * a1 * b0
+            h[1, 1] += w * a1 * b1
+            h[1, 2] += w * a1 * b2
+            h[2, 0] += w * a2 * b0
+            h[2, 1] += w * a2 * b1
+            h[2, 2] += w * a2 * b2
+        # Singular values of h from the eigenvalues of h^T h (validity: not collinear).
+        for i in range(3):
+            for j in range(3):
+                M3[i, j] = h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j]
+        _jacobi(M3, V, False)
+        e0, e1, e2 = M3[0, 0], M3[1, 1], M3[2, 2]
+        big = max(e0, e1, e2)
+        small = min(e0, e1, e2)
+        mid = e0 + e1 + e2 - big - small
+        s0 = np.sqrt(big) if big > 0.0 else 0.0
+        s1 = np.sqrt(mid) if mid > 0.0 else 0.0
+        ok = n >= min_markers and s0 > 0.0 and s1 > _COLLINEAR_TOL * s0
+        valid[l] = 1 if ok else 0
+        if not ok:
+            for i in range(3):
+                trans[l, i] = np.nan
+                for j in range(3):
+                    rot[l, i, j] = np.nan
+            rms[l] = np.nan
+            continue
+        # Horn's matrix N(h) (as global_track._HORN): its leading eigenvector is the rotation's quaternion.
+        trh = h[0, 0] + h[1, 1] + h[2, 2]
+        N[0, 0] = trh
+        N[0, 1] = N[1, 0] = h[1, 2] - h[2, 1]
+        N[0, 2] = N[2, 0] = h[2, 0] - h[0, 2]
+        N[0, 3] = N[3, 0] = h[0, 1] - h[1, 0]
+        for i in range(3):
+            for j in range(3):
+                N[1 + i, 1 + j] = h[i, j] + h[j, i] - (trh if i == j else 0.0)
+        _jacobi(N, V, True)
+        best = 0
+        for i in range(1, 4):
+            if N[i, i] > N[best, best]:
+                best = i
+        qw, qx, qy, qz = V[0, best], V[1, best], V[2, best], V[3, best]
+        qn = np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        qw, qx, qy, qz = qw / qn, qx / qn, qy / qn, qz / qn
+        R = rot[l]
+        R[0, 0] = 1.0 - 2.0 * (qy * qy + qz * qz)
+        R[0, 1] = 2.0 * (qx * qy - qw * qz)
+        R[0, 2] = 2.0 * (qx * qz + qw * qy)
+        R[1, 0] = 2.0 * (qx * qy + qw * qz)
+        R[1, 1] = 1.0 - 2.0 * (qx * qx + qz * qz)
+        R[1, 2] = 2.0 * (qy * qz - qw * qx)
+        R[2, 0] = 2.0 * (qx * qz - qw * qy)
+        R[2, 1] = 2.0 * (qy * qz + qw * qx)
+        R[2, 2] = 1.0 - 2.0 * (qx * qx + qy * qy)
+        trans[l, 0] = cc0 - (R[0, 0] * cr0 + R[0, 1] * cr1 + R[0, 2] * cr2)
+        trans[l, 1] = cc1 - (R[1, 0] * cr0 + R[1, 1] * cr1 + R[1, 2] * cr2)
+        trans[l, 2] = cc2 - (R[2, 0] * cr0 + R[2, 1] * cr1 + R[2, 2] * cr2)
+        ss = 0.0
+        for k in range(K):
+            m = idx0[l, k]
+            w = weights[l, k]
+            if not (w > 0.0 and np.isfinite(markers[m, 0]) and np.isfinite(markers[m, 1])
+                    and np.isfinite(markers[m, 2]) and np.isfinite(ref[l, k, 0])
+                    and np.isfinite(ref[l, k, 1]) and np.isfinite(ref[l, k, 2])):
+                continue
+            a0, a1, a2 = ref[l, k, 0] - cr0, ref[l, k, 1] - cr1, ref[l, k, 2] - cr2
+            for i in range(3):
+                r = markers[m, i] - (R[i, 0] * a0 + R[i, 1] * a1 + R[i, 2] * a2) - (cc0 if i == 0 else (cc1 if i == 1 else cc2))
+                ss += w * r * r
+        rms[l] = np.sqrt(ss / safe)
+
+
+def warm() -> None:
+    """Compile the kernel once: one limb of three markers."""
+    ref = np.array([[[0.05, 0.0, 0.0], [0.0, 0.05, 0.0], [0.0, 0.0, 0.05]]])
+    L = 1
+    fit_frame(ref[0] + 1.0, ref, np.array([[0, 1, 2]]), np.ones((1, 3)), 3, np.zeros((L, 3, 3)), np.zeros((L, 3)),
+              np.zeros(L), np.zeros(L, dtype=np.int64), np.zeros(L, dtype=np.int64), np.zeros((3, 3)),
+              np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((3, 3)))
