@@ -218,3 +218,20 @@ def test_a_degenerate_girdle_in_a_live_stream_is_held_and_flagged(shared_data):
     assert np.allclose(res[f].local_rotations[0, hip], res[f - 1].local_rotations[0, hip], atol=1e-12)   # held
     assert all(np.isfinite(r.local_rotations).all() and np.isfinite(r.joint_positions).all() for r in res)
     assert live_minus_batch(ch, mapping, src, RetargetOptions(), pts, ok, None, n=len(pts)) < 1e-9
+
+
+@pytest.mark.parametrize("spread", [1e-2, 1e-3, 1e-4])
+def test_a_nearly_collinear_pelvis_is_still_determined_and_alike(spread):
+    """Hips just off the spine line (spread x the spine length sideways): a rotation exists, both
+    give it, equal to 1e-12 (only far closer, at FIT_MIN_GAP, does it become NaN)."""
+    from mocapgraph.formats.kinect_csv import KINECT_V2_JOINTS, KINECT_V2_PARENTS
+    src = kinect_source(KINECT_V2_JOINTS, KINECT_V2_PARENTS)
+    plan = plan_point_rotations(src)
+    n = KINECT_V2_JOINTS.index
+    p = src.rest_points.copy()
+    up = p[n("SpineMid")] - p[n("SpineBase")]
+    side = np.array([0.0, 1.0, 0.0]) * np.linalg.norm(up)
+    p[n("HipLeft")] = p[n("SpineBase")] - 0.5 * up + spread * side
+    p[n("HipRight")] = p[n("SpineBase")] - 0.3 * up - spread * side
+    err, got = _kernel_minus_numpy(plan, p[None])
+    assert np.isfinite(got).all() and err < 1e-12
