@@ -240,7 +240,7 @@ def _through_to_leaf(par: np.ndarray, rest: np.ndarray, j: int, k: int) -> int:
 # Below these a derived rotation is undetermined and NaN (held and flagged downstream), never an
 # arbitrary twist flagged good: a triad's two axes within this sine of parallel; a best fit whose
 # maximum over rotations is not unique to this margin per bone (all bones on one line, or a mirror
-# image symmetric about two of its axes). Both far below anything a body does.
+# image of bones spread equally in two directions). Both far below anything a body does.
 TRIAD_MIN_SIN = 1e-6
 FIT_MIN_GAP = 1e-6
 

@@ -5,9 +5,9 @@ for one frame joint by joint in the plan's topological order (a parent before it
 a live Kinect frame costs microseconds instead of the per-level numpy calls' milliseconds. The
 girdles' best fit (Kabsch by SVD in numpy) is here Horn's quaternion form of the same problem:
 the eigenvector of the largest eigenvalue of a symmetric 4x4 matrix, found by cyclic Jacobi
-rotations (accurate to rounding, no allocation); both maximise sum cur_k . R rest_k over proper
-rotations, so they agree wherever that maximum is unique (the plan's min_gap makes it NaN where
-it is not). Points in m (world), rotations wxyz with w >= 0 for the fitted and triad joints.
+rotations (accurate to rounding; one 4x4 scratch pair a call); both maximise sum cur_k . R rest_k
+over proper rotations, so they agree wherever that maximum is unique (FIT_MIN_GAP makes it NaN in
+both where it is not). Points in m (world), rotations wxyz with w >= 0 for the fitted and triad joints.
 """
 from __future__ import annotations
 
