@@ -37,6 +37,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     "mocapgraph.kinematics.bone_follow_kernels",
     "mocapgraph.kinematics.global_fit_kernels",
     "mocapgraph.kinematics.joint_kernels",
+    "mocapgraph.kinematics.retarget_source_kernels",
     "mocapgraph.kinematics.rigid_kernels",
     "mocapgraph.physics.controller_kernels",
     "mocapgraph.physics.posture_kernels",
