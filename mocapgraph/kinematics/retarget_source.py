@@ -393,6 +393,13 @@ def kinect_source(names, parents, kind_hint: str = "", bone_lengths: np.ndarray 
         n = np.linalg.norm(offs, axis=1)
         use = (par >= 0) & np.isfinite(L) & (L > 1e-3) & (n > 1e-9)
         offs[use] *= (L[use] / n[use])[:, None]
+    src = skeleton_source(names, par, offs, has_orientations=False,
+                          kind_hint=kind_hint or ("kinect_v2" if len(names) == 25 else "kinect_v1"))
+    # The performer's T-pose stands on the floor: with shorter (or longer) legs than the canonical
+    # pose the root comes down (up) by the difference, else the standing root height the retargeter
+    # scales from is the canonical one (a 1.37 m performer's feet came out 21 cm under the floor).
+    root = np.flatnonzero(par < 0)
+    offs[root, 2] -= float(np.nanmin(src.rest_points[:, 2]) - np.nanmin(rest[:, 2]))
     return skeleton_source(names, par, offs, has_orientations=False,
                            kind_hint=kind_hint or ("kinect_v2" if len(names) == 25 else "kinect_v1"))
 
