@@ -19,9 +19,11 @@ Then, every recording onto standard_20 with the shipped mapping: per girdle bone
 ShoulderCenter to their children) the angle to the Kinect's bone over the frames with both ends
 Tracked (mean, p95, max), with the girdle joints' source rotations from the best fit over their
 child bones (the rule) beside the TRIAD of two directions (the rule before), and the frames flagged
-estimated; and the one-frame (live) cost of a Kinect frame: rotations_from_points alone and the
-whole Retargeter.process, best fit + bone check against TRIAD without the check, CPU (process_time)
-and wall per frame, measured in the same run, with the load average.
+estimated; and the one-frame (live) cost of a Kinect frame: the rotations from its points alone
+(the compiled kernel, rotations_from_points_frame, beside the numpy rotations_from_points) and the
+whole Retargeter.process (with the kernel, and with the numpy derivation swapped in), best fit +
+bone check against TRIAD without the check, CPU (process_time) and wall per frame and frames/s,
+measured in the same run, with the load average; and the bone check alone, kernel beside numpy.
 Usage: python benchmarks/kinect_girdle.py [--frames 2000]
 """
 from __future__ import annotations
@@ -161,30 +163,51 @@ def retargeted(names: list[str]) -> None:
 
 
 def live_cost(frames: int) -> None:
-    """One-frame cost of a Kinect v2 frame onto standard_20, CPU and wall per frame."""
+    """One-frame cost of a Kinect v2 frame onto standard_20, CPU and wall per frame: the rotation
+    derivation alone (compiled kernel beside the numpy reference) and the whole Retargeter.process,
+    with the kernel (the live path) and with the numpy derivation swapped in (the baseline)."""
     import time
     from mocapgraph.formats.kinect_csv import read_kinect_csv
-    from mocapgraph.kinematics.retarget_source import rotations_from_points
+    from mocapgraph.kinematics import retarget_live
+    from mocapgraph.kinematics.retarget_source import rotations_from_points, rotations_from_points_frame
     t = read_kinect_csv(SHARED / "kinect2" / "Ges03_drawlines.csv", ground="feet")
     good = np.flatnonzero(np.isfinite(t.positions).all((1, 2)))
     pts = t.positions[good]
     ok = t.tracking_state[good] == 2
     idx = np.arange(frames) % len(pts)
+    kernel_frame = retarget_live.rotations_from_points_frame
+
+    def numpy_frame(plan, p):
+        return rotations_from_points(plan, p[None])[0]
+
+    def timed(call) -> tuple[float, float]:
+        """(CPU us, wall us) per frame of call(i) over the frames."""
+        c0, w0 = time.process_time(), time.perf_counter()
+        for i in idx:
+            call(i)
+        return 1e6 * (time.process_time() - c0) / frames, 1e6 * (time.perf_counter() - w0) / frames
+
     print(f"\none Kinect v2 frame onto standard_20 (live path, {frames} frames, load average before "
-          f"{os.getloadavg()[0]:.2f}):")
+          f"{os.getloadavg()[0]:.2f}); CPU us (wall us), frames/s from CPU:")
     for label, best_fit, tol in (("best fit + bone check (the rule)", True, 10.0), ("TRIAD, no check (before)", False, None)):
         rt, _ = _retargeter(t, best_fit, tol)
         for i in idx[:50]:
             rt.process(pts[i:i + 1], ok[i:i + 1])
-        c0, w0 = time.process_time(), time.perf_counter()
-        for i in idx:
-            rotations_from_points(rt._plan, pts[i:i + 1])
-        c1, w1 = time.process_time(), time.perf_counter()
-        for i in idx:
-            rt.process(pts[i:i + 1], ok[i:i + 1])
-        c2, w2 = time.process_time(), time.perf_counter()
-        print(f"  {label:<34} rotations_from_points {1e6 * (c1 - c0) / frames:6.1f} us CPU ({1e6 * (w1 - w0) / frames:6.1f} wall); "
-              f"whole frame {1e6 * (c2 - c1) / frames:6.1f} us CPU ({1e6 * (w2 - w1) / frames:6.1f} wall)")
+            rotations_from_points_frame(rt._plan, pts[i])
+        d_np = timed(lambda i: numpy_frame(rt._plan, pts[i]))
+        d_k = timed(lambda i: rotations_from_points_frame(rt._plan, pts[i]))
+        whole_k = timed(lambda i: rt.process(pts[i:i + 1], ok[i:i + 1]))
+        retarget_live.rotations_from_points_frame = numpy_frame      # the baseline: numpy derivation
+        try:
+            whole_np = timed(lambda i: rt.process(pts[i:i + 1], ok[i:i + 1]))
+        finally:
+            retarget_live.rotations_from_points_frame = kernel_frame
+        print(f"  {label}:\n"
+              f"    rotations from points: kernel {d_k[0]:7.1f} ({d_k[1]:7.1f}), numpy {d_np[0]:7.1f} ({d_np[1]:7.1f}): "
+              f"{d_np[0] / max(d_k[0], 1e-9):.0f}x\n"
+              f"    whole Retargeter.process: kernel {whole_k[0]:7.1f} ({whole_k[1]:7.1f}) = {1e6 / whole_k[0]:6.0f} frames/s, "
+              f"numpy derivation {whole_np[0]:7.1f} ({whole_np[1]:7.1f}) = {1e6 / whole_np[0]:6.0f} frames/s; "
+              f"load average {os.getloadavg()[0]:.2f}")
     # the bone check alone: the compiled one-frame kernel beside the numpy reference on one frame
     from mocapgraph.kinematics.bone_follow import unfollowed
     from mocapgraph.kinematics.bone_follow_kernels import flag_unfollowed

@@ -23,9 +23,11 @@ import importlib
 import logging
 import sys
 import time
+import traceback
 from typing import Callable, TypeVar
 
 import numba
+import numpy as np
 from numba.core import event as numba_event
 
 F = TypeVar("F", bound=Callable)
@@ -35,6 +37,7 @@ KERNEL_MODULES: tuple[str, ...] = (
     "mocapgraph.kinematics.bone_follow_kernels",
     "mocapgraph.kinematics.global_fit_kernels",
     "mocapgraph.kinematics.joint_kernels",
+    "mocapgraph.kinematics.retarget_source_kernels",
     "mocapgraph.kinematics.rigid_kernels",
     "mocapgraph.physics.controller_kernels",
     "mocapgraph.physics.posture_kernels",
@@ -52,28 +55,42 @@ class _RuntimeCompileReport(numba_event.Listener):
     """Logs each kernel compiled outside `warm_all` (it stalled the process for that long)."""
 
     def __init__(self) -> None:
-        self._started: list[float] = []
+        self._started: list[tuple[float, str]] = []
 
     def on_start(self, event: numba_event.Event) -> None:
-        self._started.append(time.perf_counter())
+        caller = ""
+        if not _warming:   # the innermost of our frames that called into numba (not this module)
+            ours = [f for f in traceback.extract_stack() if "mocapgraph" in f.filename and f.filename != __file__]
+            caller = f", called from {ours[-1].filename}:{ours[-1].lineno}" if ours else ""
+        self._started.append((time.perf_counter(), caller))
 
     def on_end(self, event: numba_event.Event) -> None:
-        seconds = time.perf_counter() - self._started.pop()
+        start, caller = self._started.pop()
         if _warming:
             return
         func = event.data["dispatcher"].py_func
         what = f"{func.__module__}.{func.__qualname__}({', '.join(map(str, event.data['args']))})"
-        runtime_compiles.append(what)
-        _log.warning("jit: compiled %s at run time in %.1f s: its module's warm() does not cover "
-                     "these argument types (or the cache is stale: python -m mocapgraph.jit)", what, seconds)
+        runtime_compiles.append(what + caller)
+        _log.warning("jit: compiled %s at run time in %.1f s%s: its module's warm() does not cover these "
+                     "argument types (or the cache is stale: python -m mocapgraph.jit)",
+                     what, time.perf_counter() - start, caller)
 
 
-numba_event.register("numba:compile", _RuntimeCompileReport())
+if __name__ != "__main__":   # `python -m mocapgraph.jit` runs a second copy of this module
+    numba_event.register("numba:compile", _RuntimeCompileReport())
 
 
 def kernel(func: F) -> F:
     """Compile `func` in nopython mode, cached on disk, releasing the GIL while it runs."""
     return numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")(func)
+
+
+def readonly(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a``, for `warm()` calls: arrays decoded from messages are read-only,
+    and numba compiles a separate signature for them."""
+    view = a.view()
+    view.flags.writeable = False
+    return view
 
 
 def warm_all(modules: tuple[str, ...] = KERNEL_MODULES) -> dict[str, float]:
@@ -99,4 +116,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from mocapgraph.jit import main as package_main   # the copy the kernel modules import
+    sys.exit(package_main())

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapgraph.jit import kernel
+from mocapgraph.jit import kernel, readonly
 
 # Status codes of track_frame (>0 is the iteration count of a tracked frame).
 UNFIXABLE, NOT_POSITIVE, NOT_CONVERGED, POOR_FIT = -1, -2, -3, -4
@@ -539,3 +539,4 @@ def warm() -> None:
     c = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 0.6]])
     markers = np.concatenate([a[0] + c[0], a[1] + c[1]])
     buf.track(markers, R, c, 1e-5, 4)
+    buf.track(readonly(markers), R, c, 1e-5, 4)   # a node's markers are decoded, read-only

@@ -26,7 +26,7 @@ import numpy as np
 
 from .quaternion import matrix_to_quat, quat_multiply, quat_to_matrix
 from .foot_planting import plant_one
-from .retarget_source import rotations_from_points
+from .retarget_source import rotations_from_points_frame
 
 if TYPE_CHECKING:
     from .retarget import Retargeter
@@ -319,7 +319,7 @@ class LiveKernel:
         if rot is None:
             if rt._plan is None:
                 raise ValueError("this source has rotations: pass them")
-            rot = rotations_from_points(rt._plan, (pts if all_good else np.where(pok[:, None], pts, np.nan))[None])[0]
+            rot = rotations_from_points_frame(rt._plan, pts if all_good else np.where(pok[:, None], pts, np.nan))
             nr = np.sqrt(np.einsum("ij,ij->i", rot, rot))
             rok = None
             if not math.isfinite(rot.sum()):

@@ -145,6 +145,17 @@ class PointRotationPlan:
     fit_kids: np.ndarray               # [G, K] the points they fit their bones to (-1: padding)
     fit_rest: np.ndarray               # [G, K, 3] unit rest directions to those (0: padding)
     fit_levels: tuple[tuple[np.ndarray, np.ndarray], ...]   # per level: fit mask, their rows in fit_*
+    # the one-frame kernel's view (retarget_source_kernels.point_rotations), packed: few arguments
+    # make a cheap call. Columns: [P, 7] int64 (order: the levels concatenated, a parent before its
+    # children; then per joint: parent, kind, primary, secondary a, b, row in fit_*; kind 0 carries
+    # its parent's rotation, 1 shortest arc, 2 TRIAD, 3 best fit); [P, 12] rest_primary, rest_frames
+    frame_index: np.ndarray = None
+    frame_rest: np.ndarray = None
+
+    @property
+    def kind(self) -> np.ndarray:
+        """[P] how each joint's rotation is derived (0 carried, 1 shortest arc, 2 TRIAD, 3 best fit)."""
+        return self.frame_index[:, 2]
 
 
 def plan_point_rotations(src: SourceSkeleton, *, best_fit: bool = True) -> PointRotationPlan:
@@ -205,8 +216,15 @@ def plan_point_rotations(src: SourceSkeleton, *, best_fit: bool = True) -> Point
     secondary[fit_joints] = -1      # a fit joint is no two-axis joint
     levels = tuple(np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1))
     fit_levels = tuple((np.isin(lv, fit_joints), np.searchsorted(fit_joints, lv[np.isin(lv, fit_joints)])) for lv in levels)
-    return PointRotationPlan(levels, par, primary, secondary, rest_primary, frames, fit_joints, fit_kids, fit_rest,
-                             fit_levels)
+    kind = np.where(primary >= 0, 1, 0)
+    kind[secondary[:, 0] >= 0] = 2
+    kind[fit_joints] = 3
+    fit_row = -np.ones(n, dtype=np.int64)
+    fit_row[fit_joints] = np.arange(len(fit_joints))
+    index = np.column_stack([np.concatenate(levels), par, kind, primary, secondary, fit_row]).astype(np.int64)
+    c = np.ascontiguousarray
+    return PointRotationPlan(levels, par, primary, secondary, rest_primary, frames, fit_joints, c(fit_kids),
+                             c(fit_rest), fit_levels, c(index), c(np.hstack([rest_primary, frames.reshape(n, 9)])))
 
 
 def _through_to_leaf(par: np.ndarray, rest: np.ndarray, j: int, k: int) -> int:
@@ -222,11 +240,21 @@ def _through_to_leaf(par: np.ndarray, rest: np.ndarray, j: int, k: int) -> int:
     return int(kk[0])
 
 
-def best_fit_rotations(rest_dirs: np.ndarray, cur: np.ndarray) -> np.ndarray:
+# Below these a derived rotation is undetermined and NaN (held and flagged downstream), never an
+# arbitrary twist flagged good: a triad's two axes within this sine of parallel; a best fit whose
+# maximum over rotations is not unique to this margin per bone (all bones on one line, or a mirror
+# image of bones spread equally in two directions). Both far below anything a body does.
+TRIAD_MIN_SIN = 1e-6
+FIT_MIN_GAP = 1e-6
+
+
+def best_fit_rotations(rest_dirs: np.ndarray, cur: np.ndarray, min_gap: float = FIT_MIN_GAP) -> np.ndarray:
     """Rotation matrices [F, G, 3, 3] best turning unit rest directions [G, K, 3] (0 rows: padding)
     onto the current bone vectors [F, G, K, 3] (any length; 0 rows: padding), every bone weighted
     equally (each current vector made unit): Kabsch by SVD, batched over frames and joints, a
-    proper rotation always. NaN where a current vector is not finite or of zero length."""
+    proper rotation always. NaN where a current vector is not finite or of zero length, and where
+    the best rotation is not unique: its objective sum_k cur_k . R rest_k beats the next stationary
+    rotation's by less than ``min_gap`` times the bone count (2 (s2 + d s3) in singular values)."""
     n = np.linalg.norm(cur, axis=-1, keepdims=True)
     pad = ~(np.abs(rest_dirs).sum(-1) > 0)                                 # [G, K]
     unit = cur / np.where(n > 0, n, 1.0)
@@ -234,10 +262,12 @@ def best_fit_rotations(rest_dirs: np.ndarray, cur: np.ndarray) -> np.ndarray:
     unit = np.where(np.isfinite(unit), unit, 0.0)
     M = np.einsum("fgki,gkj->fgij", unit, rest_dirs)                        # sum over bones cur rest^T
     M = np.where(bad[..., None, None], np.eye(3), M)
-    u, _, vt = np.linalg.svd(M)
+    u, sv, vt = np.linalg.svd(M)
     d = np.sign(np.linalg.det(u @ vt))
-    u[..., :, 2] *= np.where(d == 0, 1.0, d)[..., None]
+    d = np.where(d == 0, 1.0, d)
+    u[..., :, 2] *= d[..., None]
     out = u @ vt
+    bad |= ~(2.0 * (sv[..., 1] + d * sv[..., 2]) >= min_gap * (~pad).sum(-1))
     out[bad] = np.nan
     return out
 
@@ -254,6 +284,14 @@ def _triad(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
     return np.stack([a, b, np.cross(a, b)], axis=-1)
 
 
+def _spanned(primary: np.ndarray, secondary: np.ndarray) -> np.ndarray:
+    """[...] True where secondary's part orthogonal to primary is at least TRIAD_MIN_SIN of it."""
+    a = _unit(primary)
+    b = secondary - np.sum(secondary * a, axis=-1, keepdims=True) * a
+    with np.errstate(invalid="ignore"):
+        return np.linalg.norm(b, axis=-1) > TRIAD_MIN_SIN * np.linalg.norm(secondary, axis=-1)
+
+
 def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.ndarray:
     """World rotations [F, P, 4] of a positions-only source from its points [F, P, 3], identity
     in the rest pose: joints with three or more children (girdles) by the best fit over all their
@@ -261,7 +299,8 @@ def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.nda
     that changes, so the residual is shared), two-child joints from their aim child and the span of
     the other (TRIAD: a limb's axis follows its main bone exactly), one-child joints by the shortest
     arc from the parent-carried rest direction (so no twist flips), leaves with their parent. NaN
-    where a needed point is missing."""
+    where a needed point is missing or the rotation is undetermined (TRIAD_MIN_SIN, FIT_MIN_GAP).
+    The batch path and the reference of :func:`rotations_from_points_frame` (the live path's)."""
     p = np.asarray(points, dtype=np.float64)
     F, n = p.shape[0], p.shape[1]
     q = np.full((F, n, 4), np.nan)
@@ -280,9 +319,10 @@ def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.nda
         if two.any():
             js = level[two]
             sec = plan.secondary[js]
-            cur = _triad(p[:, prim[two]] - p[:, js], p[:, sec[:, 0]] - p[:, sec[:, 1]])
+            a, b = p[:, prim[two]] - p[:, js], p[:, sec[:, 0]] - p[:, sec[:, 1]]
+            cur = _triad(a, b)
             out[:, two] = matrix_to_quat(cur @ np.swapaxes(plan.rest_frames[js], -1, -2)[None])
-            bad = ~np.isfinite(cur).all(axis=(-1, -2))
+            bad = ~np.isfinite(cur).all(axis=(-1, -2)) | ~_spanned(a, b)
             out[:, two] = np.where(bad[..., None], np.nan, out[:, two])
         if g.size:
             kids = plan.fit_kids[g]                                              # [G, K]
@@ -290,6 +330,29 @@ def rotations_from_points(plan: PointRotationPlan, points: np.ndarray) -> np.nda
             out[:, fit] = matrix_to_quat(best_fit_rotations(plan.fit_rest[g], cur))
         q[:, level] = out
     return q
+
+
+def rotations_from_points_frame(plan: PointRotationPlan, points: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """One frame of :func:`rotations_from_points`: world rotations [P, 4] (wxyz) from points [P, 3]
+    (m, world; NaN: missing) by the compiled kernel, the same to rounding. ``out``: a [P, 4]
+    float64 array to fill (a new one if None)."""
+    kern = _FRAME_KERNEL or _load_frame_kernel()
+    p = np.ascontiguousarray(points, dtype=np.float64)    # one compiled layout (C) for every caller
+    if out is None:
+        out = np.empty((p.shape[0], 4))
+    kern(p, plan.frame_index, plan.frame_rest, plan.fit_kids, plan.fit_rest, TRIAD_MIN_SIN, FIT_MIN_GAP, out)
+    return out
+
+
+_FRAME_KERNEL = None
+
+
+def _load_frame_kernel():
+    """The kernel, imported on first use (numba is no import-time cost of this module's other users)."""
+    global _FRAME_KERNEL
+    from .retarget_source_kernels import point_rotations
+    _FRAME_KERNEL = point_rotations
+    return point_rotations
 
 
 def kinect_tpose(names, parents) -> np.ndarray:
@@ -333,6 +396,13 @@ def kinect_source(names, parents, kind_hint: str = "", bone_lengths: np.ndarray 
         n = np.linalg.norm(offs, axis=1)
         use = (par >= 0) & np.isfinite(L) & (L > 1e-3) & (n > 1e-9)
         offs[use] *= (L[use] / n[use])[:, None]
+    src = skeleton_source(names, par, offs, has_orientations=False,
+                          kind_hint=kind_hint or ("kinect_v2" if len(names) == 25 else "kinect_v1"))
+    # The performer's T-pose stands on the floor: with shorter (or longer) legs than the canonical
+    # pose the root comes down (up) by the difference, else the standing root height the retargeter
+    # scales from is the canonical one (a 1.37 m performer's feet came out 21 cm under the floor).
+    root = np.flatnonzero(par < 0)
+    offs[root, 2] -= float(np.nanmin(src.rest_points[:, 2]) - np.nanmin(rest[:, 2]))
     return skeleton_source(names, par, offs, has_orientations=False,
                            kind_hint=kind_hint or ("kinect_v2" if len(names) == 25 else "kinect_v1"))
 

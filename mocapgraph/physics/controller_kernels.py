@@ -176,37 +176,76 @@ def substep_control(site_xpos, cvel, subtree_com, xipos, xquat, xmat, xfrc,
 
 @kernel
 def set_target_into(positions, orientations, body_joints, a, b0, dt, max_speed, max_rate, parents, min_z,
-                    p_t, v_t, q_t, w_t, has_rot) -> None:
+                    p_t, v_t, q_t, w_t, has_rot, p_in, v_in) -> None:
     """One character's new target into the stacked arrays (points from ``a``, bodies from ``b0``):
-    velocities by finite differences over ``dt`` s (none when ``dt`` is outside (1e-4, 0.5) s; a
-    row missing now or before gets 0), clipped to ``max_speed`` m/s and ``max_rate`` rad/s; a
-    target under the floor (below ``min_z``) swung up about its parent, else raised; orientations
-    kept where the new one is missing. The numpy reference is ``PhysicsWorld.set_target``."""
+    a target under the floor (below ``min_z``) swung up about its parent, else raised; velocities
+    of those targets by finite differences over ``dt`` s (none when ``dt`` is outside (1e-4, 0.5) s;
+    a row missing now or before gets 0), clipped to ``max_speed`` m/s and ``max_rate`` rad/s;
+    orientations kept where the new one is missing. ``p_in``, ``v_in`` [N, 3]: the input rows as
+    given (a partly missing row NaN) and their velocities (unclipped; 0 where not finite), what
+    the foot pins judge contact by. The numpy reference is ``PhysicsWorld.set_target``."""
     J = positions.shape[0]
     B = body_joints.shape[0]
     use_dt = 1e-4 < dt < 0.5
-    # velocities first: they difference against the previous target
     for j in range(J):
         i = a + j
-        if not use_dt:
-            v_t[i, 0] = 0.0
-            v_t[i, 1] = 0.0
-            v_t[i, 2] = 0.0
-            continue
-        vx = (positions[j, 0] - p_t[i, 0]) / dt
-        vy = (positions[j, 1] - p_t[i, 1]) / dt
-        vz = (positions[j, 2] - p_t[i, 2]) / dt
-        if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
-            vx, vy, vz = 0.0, 0.0, 0.0
-        n2 = vx * vx + vy * vy + vz * vz
-        if n2 > max_speed * max_speed:
-            sc = min(1.0, max_speed / math.sqrt(max(n2, 1e-24)))
-            vx *= sc
-            vy *= sc
-            vz *= sc
+        # the target the body tracks: lift_above_floor on the row (a partly missing row is missing)
+        px, py, pz = positions[j, 0], positions[j, 1], positions[j, 2]
+        ok = math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)
+        if not ok:
+            px, py, pz = np.nan, np.nan, np.nan
+        # the input as given and its velocity (contact is the performer's, not the lifted target's)
+        ix, iy, iz = 0.0, 0.0, 0.0
+        if use_dt and ok:
+            ix = (px - p_in[i, 0]) / dt
+            iy = (py - p_in[i, 1]) / dt
+            iz = (pz - p_in[i, 2]) / dt
+            if not (math.isfinite(ix) and math.isfinite(iy) and math.isfinite(iz)):
+                ix, iy, iz = 0.0, 0.0, 0.0
+        v_in[i, 0] = ix
+        v_in[i, 1] = iy
+        v_in[i, 2] = iz
+        p_in[i, 0] = px
+        p_in[i, 1] = py
+        p_in[i, 2] = pz
+        if ok:
+            lo = min_z[i]
+            if pz < lo:
+                par = parents[j]
+                q = par if par >= 0 else 0
+                ux, uy, uz = positions[q, 0], positions[q, 1], positions[q, 2]
+                ok_par = math.isfinite(ux) and math.isfinite(uy) and math.isfinite(uz)
+                dx, dy, dzz = px - ux, py - uy, pz - uz
+                L = math.sqrt(dx * dx + dy * dy + dzz * dzz)
+                dz = lo - uz
+                hz = math.sqrt(dx * dx + dy * dy)
+                if ok_par and par >= 0 and abs(dz) < L and hz > 1e-9:
+                    h = math.sqrt(max(L * L - dz * dz, 0.0)) / max(hz, 1e-9)
+                    px = ux + dx * h
+                    py = uy + dy * h
+                    pz = uz + dz
+                pz = max(pz, lo)
+        # its velocity: lifted now minus lifted before (not the raw input minus the lifted target,
+        # which adds the lift's offset / dt)
+        vx, vy, vz = 0.0, 0.0, 0.0
+        if use_dt:
+            vx = (px - p_t[i, 0]) / dt
+            vy = (py - p_t[i, 1]) / dt
+            vz = (pz - p_t[i, 2]) / dt
+            if not (math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)):
+                vx, vy, vz = 0.0, 0.0, 0.0
+            n2 = vx * vx + vy * vy + vz * vz
+            if n2 > max_speed * max_speed:
+                sc = min(1.0, max_speed / math.sqrt(max(n2, 1e-24)))
+                vx *= sc
+                vy *= sc
+                vz *= sc
         v_t[i, 0] = vx
         v_t[i, 1] = vy
         v_t[i, 2] = vz
+        p_t[i, 0] = px
+        p_t[i, 1] = py
+        p_t[i, 2] = pz
     for k in range(B):
         i = b0 + k
         j = body_joints[k]
@@ -237,66 +276,52 @@ def set_target_into(positions, orientations, body_joints, a, b0, dt, max_speed, 
             q_t[i, 2] = qy
             q_t[i, 3] = qz
         has_rot[i] = ok_q
-    # positions: lift_above_floor on the rows (a partly missing row is missing), from the input
-    for j in range(J):
-        i = a + j
-        px, py, pz = positions[j, 0], positions[j, 1], positions[j, 2]
-        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
-            p_t[i, 0] = np.nan
-            p_t[i, 1] = np.nan
-            p_t[i, 2] = np.nan
-            continue
-        lo = min_z[i]
-        if pz < lo:
-            par = parents[j]
-            q = par if par >= 0 else 0
-            ux, uy, uz = positions[q, 0], positions[q, 1], positions[q, 2]
-            ok_par = math.isfinite(ux) and math.isfinite(uy) and math.isfinite(uz)
-            dx, dy, dzz = px - ux, py - uy, pz - uz
-            L = math.sqrt(dx * dx + dy * dy + dzz * dzz)
-            dz = lo - uz
-            hz = math.sqrt(dx * dx + dy * dy)
-            if ok_par and par >= 0 and abs(dz) < L and hz > 1e-9:
-                h = math.sqrt(max(L * L - dz * dz, 0.0)) / max(hz, 1e-9)
-                px = ux + dx * h
-                py = uy + dy * h
-                pz = uz + dz
-            pz = max(pz, lo)
-        p_t[i, 0] = px
-        p_t[i, 1] = py
-        p_t[i, 2] = pz
 
 
 @kernel
-def switch_pins(p_t, v_t, pin_point, pin_rest_z, pin_on, pin_mocap, mocap_pos, site_xpos, pt_site, pin_eq,
-                eq_active, contact_height, contact_speed, pin_slack) -> bool:
-    """Virtual joints on the feet (Shum & Ho 6.1): a pin switches on where its foot's target is within
-    ``contact_height`` of its rest height and slower than ``contact_speed`` horizontally (placed
-    where the simulated foot is, on the floor), and off when the target lifts, speeds up or slides
-    ``pin_slack`` from it. Writes ``pin_on``, ``mocap_pos`` and ``eq_active``; True if any switched.
-    A missing target (NaN) neither pins nor holds. Reference: ``PhysicsWorld._update_pins``."""
+def switch_pins(p_in, v_in, pin_point, pin_rest_z, pin_on, pin_mocap, mocap_pos, site_xpos, pt_site, pin_eq,
+                eq_active, contact_height, contact_speed, pin_slack, pin_hold, follow_step) -> bool:
+    """Virtual joints on the feet (Shum & Ho 6.1), judged by the input target (``p_in``, ``v_in``:
+    a toe target under the floor swung up about the ankle moves faster than the toe did): a pin
+    switches on where its foot's target is within
+    ``contact_height`` of its rest height and slower than ``contact_speed`` horizontally, the
+    simulated foot within ``pin_slack`` of it (placed where that foot is, on the floor), and off
+    when the target lifts or speeds up (hysteresis: 1 cm higher, twice as fast) or jumps
+    ``pin_slack`` from it. While on, a target more than ``pin_hold`` from its pin draws the pin
+    after it horizontally by at most ``follow_step`` m (this frame's share of the follow speed):
+    a pivoting foot turns with its target at a bounded rate instead of being let go and caught
+    up at PD speed. Writes ``pin_on``, ``mocap_pos`` and ``eq_active``; True if any switched. A
+    missing target (NaN) neither pins nor holds. Reference: ``PhysicsWorld._update_pins``."""
     changed = False
     for k in range(pin_point.shape[0]):
         i = pin_point[k]
-        h = p_t[i, 2] - pin_rest_z[k]
-        vt2 = v_t[i, 0] * v_t[i, 0] + v_t[i, 1] * v_t[i, 1]
+        h = p_in[i, 2] - pin_rest_z[k]
+        vt2 = v_in[i, 0] * v_in[i, 0] + v_in[i, 1] * v_in[i, 1]
+        m = pin_mocap[k]
         if pin_on[k]:
-            m = pin_mocap[k]
-            dx = p_t[i, 0] - mocap_pos[m, 0]
-            dy = p_t[i, 1] - mocap_pos[m, 1]
+            dx = p_in[i, 0] - mocap_pos[m, 0]
+            dy = p_in[i, 1] - mocap_pos[m, 1]
+            d2 = dx * dx + dy * dy
             keep = (h <= contact_height + 0.01) and (vt2 <= 4.0 * contact_speed * contact_speed) \
-                and (dx * dx + dy * dy <= pin_slack * pin_slack)
+                and (d2 <= pin_slack * pin_slack)
             if not keep:
                 pin_on[k] = False
                 changed = True
+            elif d2 > pin_hold * pin_hold:
+                d = math.sqrt(d2)
+                g = min(follow_step, d - pin_hold) / d
+                mocap_pos[m, 0] += g * dx
+                mocap_pos[m, 1] += g * dy
         elif h <= contact_height and vt2 <= contact_speed * contact_speed:
             s = pt_site[i]
-            m = pin_mocap[k]
-            mocap_pos[m, 0] = site_xpos[s, 0]
-            mocap_pos[m, 1] = site_xpos[s, 1]
-            mocap_pos[m, 2] = pin_rest_z[k]   # on the floor: never hold a foot sunk into it
-            pin_on[k] = True
-            changed = True
+            dx = p_in[i, 0] - site_xpos[s, 0]
+            dy = p_in[i, 1] - site_xpos[s, 1]
+            if dx * dx + dy * dy <= pin_slack * pin_slack:
+                mocap_pos[m, 0] = site_xpos[s, 0]
+                mocap_pos[m, 1] = site_xpos[s, 1]
+                mocap_pos[m, 2] = pin_rest_z[k]   # on the floor: never hold a foot sunk into it
+                pin_on[k] = True
+                changed = True
     if changed:
         for k in range(pin_point.shape[0]):
             eq_active[pin_eq[k]] = pin_on[k]
@@ -324,7 +349,7 @@ def warm() -> None:
                     np.zeros((b, 3)), has, 0, 1.0, 1.0, 1.0, f, tq, tops)
     set_target_into(p3, np.tile([1.0, 0, 0, 0], (n, 1)), idx, 0, 0, 0.01, 6.0, 20.0,
                     np.array([-1, 0], dtype=np.int64), np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3)),
-                    qt.copy(), np.zeros((b, 3)), has.copy())
+                    qt.copy(), np.zeros((b, 3)), has.copy(), np.zeros((n, 3)), np.zeros((n, 3)))
     eq = np.zeros(2, dtype=np.bool_)
     switch_pins(p3, p3, idx, np.zeros(n), np.zeros(n, dtype=np.bool_), idx, np.zeros((nb, 3)), np.zeros((nb, 3)),
-                idx, idx, eq, 0.03, 0.25, 0.05)
+                idx, idx, eq, 0.03, 0.25, 0.05, 0.02, 0.0015)

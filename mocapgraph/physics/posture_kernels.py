@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from ..jit import kernel
+from ..jit import kernel, readonly
 
 
 @kernel
@@ -246,5 +246,12 @@ def warm() -> None:
     p2, r2 = np.zeros((J, 3)), np.zeros((J, 4))
     clean(pos, rot, np.full(J, 2, dtype=np.int8), True, p2, r2)
     clean(pos, rot, np.zeros(J, dtype=np.int8), False, p2, r2)
+    # a node's targets are arrays decoded from CharacterPose: read-only, a signature of their own
+    ro_pos, ro_rot, ro_q = readonly(pos), readonly(rot), readonly(np.full(J, 2, dtype=np.int8))
+    clean(ro_pos, ro_rot, ro_q, True, p2, r2)
+    condition_brute(ro_pos, ro_rot, readonly(np.zeros(3)), ro_q, True, 0, order, par, rest, pl, pr,
+                    np.zeros(3 * J), np.ones((k, 3 * J)), np.zeros((k, N)), np.zeros(N), np.zeros(N),
+                    np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), q, info, np.zeros((J, 3)),
+                    np.zeros((J, 4)), np.zeros((J, 4)), filled)
     orient(p2, rot, np.zeros(3), 0, np.arange(J, dtype=np.int64), np.array([-1, 0, 0], dtype=np.int64),
            np.tile([1.0, 0, 0, 0], (J, 1)), np.zeros((J, 4)))

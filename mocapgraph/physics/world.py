@@ -10,8 +10,9 @@ points are MuJoCo sites (``site_xpos``); gravity compensation is MuJoCo's ``grav
 body wrenches of a substep are one matmul into ``xfrc_applied``.
 
 Virtual joints (section 6.1) are MuJoCo ``connect`` constraints between a foot point and a mocap
-pin: switched on where the foot's target is on the floor and still, placed where the simulated foot
-is, and off when the target lifts or slides; a held object is a ``weld`` to the hand's body.
+pin: switched on where the foot's input target is on the floor and still, placed where the simulated
+foot is, drawn after a target that drifts from it at a bounded horizontal speed (a pivoting foot),
+and off when the target lifts, speeds up or jumps away; a held object is a ``weld`` to the hand's body.
 Positional constraints replace some targets: ``set_override`` (a hand onto an object, ``reach``)
 and the automatic dodge (forearm targets raised around the head while a ball comes at it, Figure 4).
 
@@ -64,7 +65,12 @@ class TrackerParams:
     virtual_joints: bool = True        # pin supporting feet
     contact_height: float = 0.03       # m: a foot target this close to its rest height is on the floor
     contact_speed: float = 0.25        # m/s: ... and slower than this horizontally
-    pin_slack: float = 0.05            # m: a pin lets go when its target has moved this far from it
+    pin_slack: float = 0.05            # m: a pin lets go when its target is this far from it (a jump), and
+                                       # a foot this far from its target is not pinned (it catches up first)
+    pin_hold: float = 0.02             # m: a pinned foot stays put while its target is this close to it
+                                       # (Kinect v2 feet jitter by 1-2 cm: 1 cm made pins follow the noise)
+    pin_follow_speed: float = 0.18     # m/s: ... and beyond, follows it at most this fast horizontally
+                                       # (1.5 mm a frame at 120 Hz: a foot pivoting in a turn)
     dodge: bool = False                # raise the forearms when a ball comes at the head
     dodge_horizon_s: float = 0.45      # s ahead a ball is seen coming
     joint_damping: float = 1.0         # N·m·s/rad in every ball joint
@@ -168,6 +174,8 @@ class PhysicsWorld:
         n = len(self.pt_body)
         self.p_t = np.full((n, 3), np.nan)
         self.v_t = np.zeros((n, 3))
+        self.p_in = np.full((n, 3), np.nan)   # the input targets as given (before lifting), m
+        self.v_in = np.zeros((n, 3))          # ... and their velocities, m/s: what foot contact is judged by
         self.q_t = np.tile([1.0, 0, 0, 0], (len(self.b_body), 1))
         self.w_t = np.zeros((len(self.b_body), 3))
         self.has_rot = np.zeros(len(self.b_body), dtype=bool)
@@ -251,6 +259,9 @@ class PhysicsWorld:
                 i = lookup[cb.geom_name(int(c))]
                 self.geom_joints[i] = (a + int(cb.character.parents[c]), a + int(c))
         self._k_geoms = np.ascontiguousarray(self.geom_ids, dtype=np.int64)
+        # each character's capsules (geom ids), to keep a pose put by set_pose out of the floor
+        self._char_capsules = [np.array([self.geom_ids[lookup[cb.geom_name(int(c))]] for c in cb.bone_child],
+                                        dtype=np.int64) for cb in self.bodies]
         self._k_gj0 = np.ascontiguousarray(self.geom_joints[:, 0])
         self._k_gj1 = np.ascontiguousarray(self.geom_joints[:, 1])
         self._k_point_err = np.zeros(len(self.pt_body))
@@ -322,7 +333,8 @@ class PhysicsWorld:
 
     # ----- targets -----------------------------------------------------------------------------
     def set_pose(self, k: int, local_rotations: np.ndarray, root_position: np.ndarray) -> None:
-        """Put character ``k`` exactly in a pose (local rotations wxyz [J,4], root m), at rest."""
+        """Put character ``k`` exactly in a pose (local rotations wxyz [J,4], root m), at rest, raised
+        onto the floor when a capsule would reach into it."""
         cb = self.bodies[k]
         ch = cb.character
         adr = self.qpos_adr[k]
@@ -340,9 +352,24 @@ class PhysicsWorld:
         for a, n in zip(dof, ndof):
             self.data.qvel[a:a + n] = 0.0
         mujoco.mj_forward(self.model, self.data)
+        # a pose reaching into the floor (a heel strike cutting it, a source whose floor is not
+        # ours) is raised onto it: a body started 5 cm or more deep blows MuJoCo's contact solver
+        # up on its first step (and the node's reset put it back there, again and again)
+        low = self.lowest_point(k)
+        if low < 0.0:
+            r = adr[int(np.flatnonzero(cb.body_joints == ch.root)[0])]
+            q[r + 2] -= low
+            mujoco.mj_forward(self.model, self.data)
         self._snap_held()
         self.pin_on[self.pin_char == k] = False
         self.data.eq_active[self.pin_eq[self.pin_char == k]] = 0
+
+    def lowest_point(self, k: int) -> float:
+        """Height (m, world z; the floor is 0) of the lowest point of character ``k``'s capsules."""
+        g = self._char_capsules[k]
+        d, m = self.data, self.model
+        axis_z = np.abs(d.geom_xmat[g, 8])   # the capsule axis (geom z) against world z
+        return float((d.geom_xpos[g, 2] - axis_z * m.geom_size[g, 1] - m.geom_size[g, 0]).min())
 
     @property
     def pin_char(self) -> np.ndarray:
@@ -358,7 +385,7 @@ class PhysicsWorld:
             ck.set_target_into(p, q, self._k_joints[k], self.point_slice[k].start, self.body_slice[k].start,
                                -1.0 if prev_t is None else float(time_s - prev_t), self.params.max_target_speed,
                                20.0, self._k_parents[k], self.pt_min_z, self.p_t, self.v_t, self.q_t, self.w_t,
-                               self.has_rot)
+                               self.has_rot, self.p_in, self.v_in)
             self.time_of_target[k] = time_s
             return
         self._set_target_numpy(k, positions, orientations, time_s)
@@ -375,7 +402,23 @@ class PhysicsWorld:
         ok_p = np.isfinite(p).all(1)
         ok_q = np.isfinite(q).all(1)
         all_p, all_q = bool(ok_p.all()), bool(ok_q.all())
-        if dt is not None and 1e-4 < dt < 0.5:
+        # the floor is a constraint too: no target below a capsule's radius (a target foot under
+        # the floor would press the body into it with the full bounded force)
+        if not all_p:
+            p = np.where(ok_p[:, None], p, np.nan)
+        use_dt = dt is not None and 1e-4 < dt < 0.5
+        if use_dt:   # the input's own velocity, what foot contact is judged by
+            vi = (p - self.p_in[sl]) / dt
+            vi[~np.isfinite(vi).all(1)] = 0.0
+            self.v_in[sl] = vi
+        else:
+            self.v_in[sl] = 0.0
+        self.p_in[sl] = p
+        p = lift_above_floor(p, cb.character.parents, self.pt_min_z[sl])
+        if use_dt:
+            # the velocity of the target the body tracks (lifted now minus lifted before): the raw
+            # input minus the last lifted target adds the lift's offset / dt (a toe swung up 20 mm
+            # out of the floor read as 2.4 m/s and let go of a supporting foot's pin)
             v = (p - self.p_t[sl]) / dt
             if not math.isfinite(v.sum()):        # a joint or its previous target missing: no velocity
                 v[~np.isfinite(v).all(1)] = 0.0
@@ -390,11 +433,7 @@ class PhysicsWorld:
         else:
             self.v_t[sl] = 0.0
             self.w_t[bs] = 0.0
-        # the floor is a constraint too: no target below a capsule's radius (a target foot under
-        # the floor would press the body into it with the full bounded force)
-        if not all_p:
-            p = np.where(ok_p[:, None], p, np.nan)
-        self.p_t[sl] = lift_above_floor(p, cb.character.parents, self.pt_min_z[sl])
+        self.p_t[sl] = p
         if all_q:
             self.q_t[bs] = q
         else:
@@ -490,7 +529,9 @@ class PhysicsWorld:
             mujoco.mj_forward(m, d)
 
     # ----- stepping ----------------------------------------------------------------------------
-    def _update_pins(self) -> None:
+    def _update_pins(self, span: float) -> None:
+        """Switch the foot pins for a frame of ``span`` s and draw pinned ones after their targets
+        (``controller_kernels.switch_pins`` is the compiled copy; the rule is in its docstring)."""
         if not len(self.pin_eq):
             return
         if not self.params.virtual_joints:
@@ -499,30 +540,41 @@ class PhysicsWorld:
                 self.data.eq_active[self.pin_eq] = 0
             return
         prm = self.params
+        follow = prm.pin_follow_speed * span
         if prm.compiled:
             d = self.data
-            ck.switch_pins(self.p_t, self.v_t, self.pin_point, self._k_pin_rest_z, self.pin_on, self.pin_mocap,
+            ck.switch_pins(self.p_in, self.v_in, self.pin_point, self._k_pin_rest_z, self.pin_on, self.pin_mocap,
                            d.mocap_pos, d.site_xpos, self._k_site, self.pin_eq, d.eq_active, prm.contact_height,
-                           prm.contact_speed, prm.pin_slack)
+                           prm.contact_speed, prm.pin_slack, prm.pin_hold, follow)
             return
-        pt = self.p_t[self.pin_point]
-        vt = self.v_t[self.pin_point]
+        pt = self.p_in[self.pin_point]   # the input's: a toe lifted out of the floor swings faster
+        vt = self.v_in[self.pin_point]
         # NaN compares False: a missing target is neither low (no pin) nor kept (lets go)
         h = pt[:, 2] - self.pin_rest_z
         vt2 = (vt[:, :2] ** 2).sum(1)
         on = (h <= prm.contact_height) & (vt2 <= prm.contact_speed ** 2) & ~self.pin_on
+        if on.any():   # only then where the feet are: a foot far from its target catches up first
+            cur = self.point_positions()[self.pin_point]
+            on &= ((pt[:, :2] - cur[:, :2]) ** 2).sum(1) <= prm.pin_slack ** 2
+        off = np.zeros_like(on)
         if self.pin_on.any():
-            drift2 = ((pt[:, :2] - self.data.mocap_pos[self.pin_mocap, :2]) ** 2).sum(1)
+            anchor = self.data.mocap_pos[self.pin_mocap]
+            gap = pt[:, :2] - anchor[:, :2]
+            drift2 = (gap ** 2).sum(1)
             keep = (h <= prm.contact_height + 0.01) & (vt2 <= 4 * prm.contact_speed ** 2) & (drift2 <= prm.pin_slack ** 2)
             off = self.pin_on & ~keep
-        else:
-            off = on & False
+            pull = self.pin_on & keep & (drift2 > prm.pin_hold ** 2)
+            if pull.any():
+                drift = np.sqrt(drift2[pull])
+                g = np.minimum(follow, drift - prm.pin_hold) / drift
+                anchor[pull, :2] += g[:, None] * gap[pull]
+                self.data.mocap_pos[self.pin_mocap[pull]] = anchor[pull]
         if not (on.any() or off.any()):
-            return                    # no pin switched: nothing to write
+            return                    # no pin switched: nothing more to write
         if on.any():
-            cur = self.point_positions()[self.pin_point[on]]
-            cur[:, 2] = self.pin_rest_z[on]  # on the floor: never hold a foot sunk into it
-            self.data.mocap_pos[self.pin_mocap[on]] = cur
+            at = cur[on]
+            at[:, 2] = self.pin_rest_z[on]  # on the floor: never hold a foot sunk into it
+            self.data.mocap_pos[self.pin_mocap[on]] = at
         self.pin_on = (self.pin_on | on) & ~off
         self.data.eq_active[self.pin_eq] = self.pin_on.astype(np.uint8)
 
@@ -583,7 +635,7 @@ class PhysicsWorld:
         n = max(1, int(round(duration_s / ts)))
         prof = self.profile
         t = time.thread_time() if prof is not None else 0.0
-        self._update_pins()
+        self._update_pins(n * ts)
         dodging = self._update_dodge()
         if prof is not None:
             t = tick(prof, "pins, dodge", t)

@@ -234,3 +234,26 @@ def test_kinect_v1_mapping_onto_standard_20_follows_the_bones(shared_data):
                 assert ang.max() < 0.01, (name, ch.joint_names[j], ch.joint_names[k])
             assert ang.mean() < 10.0, (name, ch.joint_names[j], ch.joint_names[k], ang.mean())
     print("\nKinect v1 mapping (relabelled v2 recordings), girdle bones (deg):\n" + "\n".join(lines))
+
+
+@pytest.mark.parametrize("name", RECORDINGS)
+def test_a_standing_kinect_performer_stands_the_character_on_the_floor(shared_data, name):
+    """The performers stand: with their own bone lengths (as the node and `retarget` take them) the
+    character's root and ankles stay at their standing heights, foot planting off (nothing lifts
+    them). A performer with shorter legs than the canonical T-pose once sank the character 21 cm
+    into the floor: its standing root height was the canonical one."""
+    from mocapgraph.kinematics.retarget_source import observed_bone_lengths
+    trial = read_kinect_csv(shared_data / "kinect2" / f"{name}.csv", ground="feet")
+    tracked = np.where((trial.tracking_state == 2)[..., None], trial.positions, np.nan)
+    src = kinect_source(trial.names, trial.parents, bone_lengths=observed_bone_lengths(tracked, trial.parents))
+    ch = standard_20(1.75)
+    rt = Retargeter(ch, load_mapping("kinect_v2_standard_20"), src, RetargetOptions(foot_planting=False))
+    res = rt.process(trial.positions, trial.tracking_state == 2)
+    rest, _ = ch.rest_pose()
+    root, ankles = ch.index("HipCenter"), [ch.index("AnkleLeft"), ch.index("AnkleRight")]
+    root_z = np.median(res.joint_positions[:, root, 2])
+    ankle_z = np.median(res.joint_positions[:, ankles, 2], axis=0)
+    print(f"\n{name}: root ratio {rt.ratio:.3f}; root {root_z:.3f} m (rest {rest[root, 2]:.3f}), "
+          f"ankles {ankle_z[0]:.3f} / {ankle_z[1]:.3f} m (rest {rest[ankles[0], 2]:.3f})")
+    assert abs(root_z - rest[root, 2]) < 0.04
+    assert (np.abs(ankle_z - rest[ankles, 2]) < 0.06).all()
