@@ -592,7 +592,7 @@ class CompiledFrame:
             if rt._plan is None:
                 raise ValueError("this source has rotations: pass them")
             fin = np.isfinite(pts).all(-1) & pok
-            rot = rotations_from_points(rt._plan, np.where(fin[:, None], pts, np.nan)[None])[0]
+            rot = rotations_from_points_frame(rt._plan, np.where(fin[:, None], pts, np.nan))
             rok = self.ones_r
         elif not (rot.flags.c_contiguous and rot.flags.writeable):
             rot = np.array(rot, order="C")

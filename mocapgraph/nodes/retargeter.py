@@ -92,10 +92,12 @@ class RetargeterNode(Node):
         self._rg_t0: int | None = None
         self._rg_frames = 0
         self._rg_optical: OpticalFrames | None = None   # per-frame point layout of the latched model
-        from ..kinematics import bone_follow_kernels, retarget_kernels
+        from ..kinematics import bone_follow_kernels, retarget_kernels, retarget_source_kernels
         # the compiled kernels now, not at the first frame (which would queue ~0.4 s of frames behind it)
         retarget_kernels.load()
         bone_follow_kernels.warm()
+        if self.source == "skeleton":   # rotations from a positions-only stream (Kinect)
+            retarget_source_kernels.warm()
 
     # ----- status -------------------------------------------------------------------------------
     def _status(self, state: str, detail: str, data: dict | None = None, error: bool = False) -> None:
