@@ -62,13 +62,23 @@ def test_buttons_drive_the_real_calibration_node_and_bag_player(launch_graph, op
             if 0 < len(unreliable) < len(report):
                 break
         assert 0 < len(unreliable) < len(report)  # both kinds on show
-        rows = wait_until(lambda: (r := page.page.evaluate("""() => [...document.querySelectorAll('#joint-table tr')]
-                                   .slice(1).map((tr) => [tr.cells[0].textContent, tr.cells[2].textContent,
-                                   tr.querySelector('.qdot').dataset.reliable])""")) and len(r) == len(report) and r,
-                          what="the joint table")
-        for name, residual, reliable in rows:
-            assert reliable == str(report[name]["reliable"]).lower(), (name, report[name])
-            assert residual == f"{report[name]['residual_mm']:.1f}", (name, report[name])
+
+        def table_shows_the_report():
+            """(rows, report) once the table shows, joint by joint, the node's newest calibrated report
+            (its reliability and residual); the node may have re-sent or redone it meanwhile."""
+            rows = page.page.evaluate("""() => [...document.querySelectorAll('#joint-table tr')]
+                                      .slice(1).map((tr) => [tr.cells[0].textContent, tr.cells[2].textContent,
+                                      tr.querySelector('.qdot').dataset.reliable])""")
+            newest = [m for _, m in tap.of("calibration_status")[seen:] if m.state == "calibrated"][-1]
+            rep = {j["joint"]: j for j in json.loads(newest.data_json)["joints"]}
+            same = len(rows) == len(rep) and all(
+                n in rep and rel == str(rep[n]["reliable"]).lower() and res == f"{rep[n]['residual_mm']:.1f}"
+                for n, res, rel in rows)
+            return (rows, rep) if same else None
+
+        rows, report = wait_until(table_shows_the_report, what="the joint table to show the node's report", timeout=15)
+        unreliable = sorted(n for n, j in report.items() if not j["reliable"])
+        assert 0 < len(unreliable) < len(report)
         shown = sorted(n for n, _, rel in rows if rel == "false")
         assert shown == unreliable
         assert page.page.locator('#joint-table .qdot[title="unreliable"]').count() == len(unreliable)
