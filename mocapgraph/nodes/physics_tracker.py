@@ -27,11 +27,11 @@ import numpy as np
 
 from ..bus import Input, Node, Output, Param
 from ..jit import warm_all
-from ..kinematics.character import Character, CharacterError, standard_20
+from ..kinematics.character import Character, CharacterError
 from ..messages import CharacterInfo, CharacterPose, NodeCommand, NodeStatus, PhysicsScene, PhysicsState
 from ..messages.commands import PHYSICS_COMMANDS, parse_command
 from ..physics.controller import Gains
-from ..physics.posture_db import PostureDB, PostureDBError
+from ..physics.posture_db import PostureDB, PostureDBError, open_posture_db
 from ..physics.stage import EMPTY_STAGE, StageError, load_stage, shifted
 from ..physics.tracker import TargetConditioner
 from ..physics.world import PhysicsWorld, TrackerParams
@@ -111,16 +111,7 @@ class PhysicsTrackerNode(Node):
         if self.compiled:
             warm_all(PHYSICS_KERNELS)
         try:
-            if self.posture_db.startswith("synthetic:"):
-                from ..physics.synthetic_targets import synthetic_postures
-                pos, rot = synthetic_postures(self.posture_db)
-                ch = standard_20()
-                self.db = PostureDB.build(ch.joint_names, ch.parents, pos, rot, sources=(self.posture_db,))
-                self.db.choose_search()
-            elif self.posture_db:
-                self.db = PostureDB.load(self.posture_db)
-            if self.db is not None:
-                self.db.choose_search_compiled()   # brute-force kernel or k-d tree, measured here
+            self.db = open_posture_db(self.posture_db)
             if self.stage:
                 self.stage_def = shifted(load_stage(self.stage), self.stage_offset)
         except (PostureDBError, StageError, ValueError) as exc:

@@ -325,6 +325,26 @@ class PostureDB:
             raise PostureDBError(f"{path}: cannot read posture database ({exc})") from None
 
 
+def open_posture_db(spec: str) -> PostureDB | None:
+    """The database a tracker names: '' none; ``synthetic:CLIPS`` built now on standard_20 (see
+    :func:`~mocapgraph.physics.synthetic_targets.synthetic_postures`); else an ``.npz`` file. Its
+    nearest-posture search is measured here and the faster way chosen (brute-force kernel or k-d
+    tree). PostureDBError or ValueError naming the fault."""
+    if not spec:
+        return None
+    if spec.startswith("synthetic:"):
+        from ..kinematics.character import standard_20
+        from .synthetic_targets import synthetic_postures
+        pos, rot = synthetic_postures(spec)
+        ch = standard_20()
+        db = PostureDB.build(ch.joint_names, ch.parents, pos, rot, sources=(spec,))
+        db.choose_search()
+    else:
+        db = PostureDB.load(spec)
+    db.choose_search_compiled()
+    return db
+
+
 def dedupe(flat: np.ndarray, min_ssd: float) -> np.ndarray:
     """Indices of postures [N, D] kept when each must differ from every kept one by at least
     ``min_ssd`` (sum of squared differences); greedy in order, a k-d tree finds the neighbours."""

@@ -19,8 +19,10 @@ def _poses(log, topic):
 
 def test_tracks_a_live_stream_and_survives_bad_input(launch_graph, tmp_path):
     log = tmp_path / "log.jsonl"
-    faults = ("[{kind: nan, from_s: 2.0, to_s: 2.5}, {kind: nan, from_s: 3.0, to_s: 3.5, joints: [HandRight, KneeLeft]},"
-              " {kind: jump, from_s: 4.0, to_s: 4.6}, {kind: stop, from_s: 5.0, to_s: 6.0}]")
+    # the faults start 3.5 s into the stream: the source streams from its own start, and on a busy
+    # machine the tracker has answered its first frame only 2 s after that
+    faults = ("[{kind: nan, from_s: 3.5, to_s: 4.0}, {kind: nan, from_s: 4.5, to_s: 5.0, joints: [HandRight, KneeLeft]},"
+              " {kind: jump, from_s: 5.5, to_s: 6.1}, {kind: stop, from_s: 6.5, to_s: 7.5}]")
     g = launch_graph(f"""\
 nodes:
   - name: src
@@ -33,7 +35,7 @@ nodes:
     params: {{path: "{log}", topics: [character_pose, sim_character_pose, physics_status]}}
 """)
     g.wait_ready()
-    wait_until(lambda: len(read_jsonl(log, "character_pose")) > 9.5 * 120, timeout=120, what="9.5 s of input", graph=g)
+    wait_until(lambda: len(read_jsonl(log, "character_pose")) > 11.0 * 120, timeout=120, what="11 s of input", graph=g)
     g.stop()
     src, sim = _poses(log, "character_pose"), _poses(log, "sim_character_pose")
     stamps = sorted(set(src) & set(sim))
@@ -42,7 +44,8 @@ nodes:
     # (loading its kernels on a busy machine) would shift the clean window into the first fault
     t = np.array(stamps) * 1e-9
     err = np.array([np.nanmean(np.linalg.norm(sim[s] - src[s], axis=1)) for s in stamps])
-    clean = (t > 0.5) & (t < 1.9)
+    clean = (t > max(0.5, t[0] + 0.3)) & (t < 3.4)   # settled, before the first fault
+    assert clean.sum() >= 60, f"the tracker answered its first frame {t[0]:.2f} s into the stream: no clean window"
     back = t > t[-1] - 1.0                       # the last second, 2.5 s after the last fault
     print(f"\nlive tracking MPJPE {1000 * np.nanmean(err[clean]):.1f} mm; after the faults {1000 * np.nanmean(err[back]):.1f} mm")
     assert np.nanmean(err[clean]) < 0.030
