@@ -261,7 +261,7 @@ class LiveKernel:
         self.root_src = rt._root_src
         # the mid-hip rule (Retargeter._midhip_rule): root += R(W[root]) s
         self.root_j = int(rt._root)
-        self.root_s_forms = None if rt._root_s is None else (_ROT @ rt._root_s[:, None])[None, ..., 0]   # [1, 16, 3]
+        self.root_s = None if rt._root_s is None else [float(v) for v in rt._root_s]
         # foot planting: the joints each leg's thigh and shin turns carry
         self.legs = None
         if rt._legs is not None:
@@ -402,8 +402,8 @@ class LiveKernel:
             WW = np.concatenate([Wp, W], axis=1)
         # 5./6. root, positions and local rotations (w >= 0, as matrix_to_quat gives them)
         root = pflat @ self.root_big + self.root_c
-        if self.root_s_forms is not None:
-            root = root + _rotate_const(W[self.root_j:self.root_j + 1], self.root_s_forms)[0]
+        if self.root_s is not None:      # in plain floats: one numpy call, not three
+            root += _v_rotate(W[self.root_j].tolist(), self.root_s)
         bl = ((Wp[:, :, None] * WW[:, None, :]).reshape(J, 1, 32) @ self.both_forms)[:, 0]
         pos = root + self.anc @ bl[:, :3]
         local = bl[:, 3:]
