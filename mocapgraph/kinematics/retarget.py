@@ -7,7 +7,7 @@ point, aimed joints (clavicles) turned toward the source bone, unmapped joints t
 mapped ancestor, roll joints taking a fraction of the twist about the limb axis; world orientations
 then give the local rotations (Kiip Eq 8: C_L = P_W⁻¹ · C_W, with the rest orientation between)
 and the joint positions; the root moves by the source root scaled by the leg-length ratio with the
-floor matched; foot planting finally holds feet in contact and above the floor (:mod:`foot_planting`).
+floor matched (a source root at the mid-point of the hips puts the character's mid-hip there); foot planting finally holds feet in contact and above the floor (:mod:`foot_planting`).
 
 One code path for live and batch: :meth:`Retargeter.process` takes [F, ...] arrays and carries its
 state (last good source values, plants) from one call to the next, so a live node calls it with
@@ -273,6 +273,7 @@ class Retargeter:
             self.ratio = float(m.scale)
         if s_floor != 0.0:
             self._standing_heights(cpos, c_floor, s_floor)
+        self._root_s = self._midhip_rule(cpos, c_floor)
         # --- positions: ancestor matrix (P = root + Anc @ bone vectors)
         anc = np.zeros((J, J))
         for j in range(J):
@@ -343,6 +344,28 @@ class Retargeter:
         if ratios:
             return float(np.mean(ratios))
         return float(self._h_c / self._h_s) if self._h_s > 1e-6 else 1.0
+
+    def _midhip_rule(self, cpos: np.ndarray, c_floor: float) -> np.ndarray | None:
+        """When the source root point is, at rest, the mid-point of the source points of the
+        character's two hips (within 1 mm) and the character's root is not its own mid-hip, the root
+        formula places the character's mid-hip there: returns s = rest root - rest mid-hip in the root's
+        rest frame (m; the root is then mid-hip + W_root · s) and makes h_c the rest mid-hip height.
+        None (nothing changes) otherwise."""
+        m, src, ch = self.mapping, self.source, self.character
+        if "l" not in m.legs or "r" not in m.legs:
+            return None
+        es = [self._by.get(m.legs[side][0]) for side in ("l", "r")]
+        if any(e is None or e.position is None for e in es):
+            return None
+        mid_src = src.rest_points[[src.point(e.position) for e in es]].mean(0)
+        if not np.linalg.norm(src.rest_points[self._root_src] - mid_src) <= 1e-3:
+            return None
+        mid = cpos[[ch.index(m.legs[side][0]) for side in ("l", "r")]].mean(0)
+        s = self._rest_world[self._root].T @ (cpos[self._root] - mid)
+        if not np.abs(s).max() > 1e-9:   # the root already is the mid-hip (the actor on its own skeleton)
+            return None
+        self._h_c = float(mid[2] - c_floor)
+        return s
 
     def _standing_heights(self, cpos: np.ndarray, c_floor: float, s_floor: float) -> None:
         """The source root's height above the floor when standing, for a source whose rest pose hangs
@@ -492,6 +515,8 @@ class Retargeter:
             world = self._apply_roll(world, r, o, f, upper)
         # 6. root and positions
         root = self._root_position(pts[:, self._root_src])
+        if self._root_s is not None:   # the formula gave the mid-hip: the root sits off it, turning with the root
+            root = root + world[:, self._root] @ self._root_s
         pos = self._positions(world, root)
         contact = np.zeros((F, 2), bool)
         if self._legs is not None:

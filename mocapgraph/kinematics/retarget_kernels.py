@@ -215,15 +215,23 @@ def drive_frame(qn, pts, rot_src, dep_idx, K, rot_joint,
 
 
 @kernel
-def world_from_deltas(D, src_ext, rw_q, W, pts, root_src, root_M, root_c, root):
+def world_from_deltas(D, src_ext, rw_q, W, pts, root_src, root_M, root_c, root_j, root_s, root):
     """World orientations W [J, 4] = D[nearest driven] · rest world orientation; the root [3] (m) from
-    the source root point: root_M (ratio, heading) times it plus root_c (floor matched, offset)."""
+    the source root point: root_M (ratio, heading) times it plus root_c (floor matched, offset), plus
+    R(W[root_j]) root_s (the mid-hip rule's rest root - mid-hip in the root's frame; zero when off)."""
     for j in range(W.shape[0]):
         s = src_ext[j]
         _qmul(D[s, 0], D[s, 1], D[s, 2], D[s, 3], rw_q[j, 0], rw_q[j, 1], rw_q[j, 2], rw_q[j, 3], W, j)
     p0, p1, p2 = pts[root_src, 0], pts[root_src, 1], pts[root_src, 2]
     for r in range(3):
         root[r] = root_M[r, 0] * p0 + root_M[r, 1] * p1 + root_M[r, 2] * p2 + root_c[r]
+    v0, v1, v2 = root_s[0], root_s[1], root_s[2]
+    if v0 != 0.0 or v1 != 0.0 or v2 != 0.0:
+        w, x, y, z = W[root_j, 0], W[root_j, 1], W[root_j, 2], W[root_j, 3]
+        tx, ty, tz = 2.0 * (y * v2 - z * v1), 2.0 * (z * v0 - x * v2), 2.0 * (x * v1 - y * v0)
+        root[0] += v0 + w * tx + y * tz - z * ty
+        root[1] += v1 + w * ty + z * tx - x * tz
+        root[2] += v2 + w * tz + x * ty - y * tx
 
 
 @kernel
@@ -462,14 +470,14 @@ INT_SLOTS = ("rot_src", "dep_idx", "rot_joint", "f_m", "f_a", "f_b", "c_start", 
              "c_iters", "c_correct", "c_end_src", "c_pivot_src", "c_pptr", "c_path", "a_joint", "a_pre", "a_frm",
              "a_to", "src_ext", "parents", "order", "scalars", "hip", "knee", "ankle", "toe", "aff", "which")
 FLOAT_SLOTS = ("K", "f_bone", "f_A", "c_frac", "c_A", "c_off", "a_bone", "a_A", "rw_q", "offsets", "rl_inv",
-               "root_M", "root_c", "l1", "l2", "rest_h", "toe_h", "plant")
+               "root_M", "root_c", "root_s", "l1", "l2", "rest_h", "toe_h", "plant")
 WORK_SLOTS = ("qn", "qk", "dq", "ap", "D", "W", "tmp", "ank", "toe_z", "target", "speed", "turns")
 _NI, _NF = len(INT_SLOTS), len(FLOAT_SLOTS)
 (I_ROT_SRC, I_DEP, I_ROT_JOINT, I_FM, I_FA, I_FB, I_CS, I_CE, I_CJPTR, I_CJ, I_CIT, I_CCOR, I_CES, I_CPS, I_CPPTR,
  I_CPATH, I_AJ, I_APRE, I_AFRM, I_ATO, I_SRC_EXT, I_PAR, I_ORDER, I_SCAL, I_HIP, I_KNEE, I_ANKLE, I_TOE, I_AFF,
  I_WHICH) = range(_NI)
-(F_K, F_FBONE, F_FA, F_CFRAC, F_CA, F_COFF, F_ABONE, F_AA, F_RWQ, F_OFF, F_RLINV, F_RM, F_RC, F_L1, F_L2, F_RH,
- F_TH, F_PLANT) = range(_NF)
+(F_K, F_FBONE, F_FA, F_CFRAC, F_CA, F_COFF, F_ABONE, F_AA, F_RWQ, F_OFF, F_RLINV, F_RM, F_RC, F_RS, F_L1, F_L2,
+ F_RH, F_TH, F_PLANT) = range(_NF)
 (W_QN, W_QK, W_DQ, W_AP, W_D, W_W, W_TMP, W_ANK, W_TOEZ, W_TARGET, W_SPEED, W_TURNS) = range(len(WORK_SLOTS))
 
 
@@ -504,7 +512,7 @@ def retarget_frame(pts, pok, rot, rok, t, st_pts, st_rot, pts_seen, rot_seen, pq
                    ci, cf, wk, root, pos, local, contact):
     """One whole frame (hold, drive, world, root, pose, plant) from the packed constants: writes
     root [3], pos [J, 3], local [J, 4], contact [2]; returns True when every input was good."""
-    sc = _iv(ci, np.int64(I_SCAL))                      # root_src, legs (0/1), toe (0/1), check_norm (0/1)
+    sc = _iv(ci, np.int64(I_SCAL))                      # root_src, legs (0/1), toe (0/1), check_norm (0/1), root joint
     rot_src = _iv(ci, np.int64(I_ROT_SRC))
     n = rot_src.shape[0]
     dep = _iv(ci, np.int64(I_DEP))
@@ -531,7 +539,7 @@ def retarget_frame(pts, pok, rot, rok, t, st_pts, st_rot, pts_seen, rot_seen, pq
                 _wv(ci, wk, np.int64(W_QK), 4), _wv(ci, wk, np.int64(W_DQ), 4), _wv(ci, wk, np.int64(W_AP), 4), D, tmp)
     rw_q = _fm(ci, cf, np.int64(F_RWQ), 4)
     world_from_deltas(D, _iv(ci, np.int64(I_SRC_EXT)), rw_q, W, st_pts, sc[0], _fv(ci, cf, np.int64(F_RM)).reshape((3, 3)),
-                      _fv(ci, cf, np.int64(F_RC)), root)
+                      _fv(ci, cf, np.int64(F_RC)), sc[4], _fv(ci, cf, np.int64(F_RS)), root)
     parents, order = _iv(ci, np.int64(I_PAR)), _iv(ci, np.int64(I_ORDER))
     offsets, rl_inv = _fm(ci, cf, np.int64(F_OFF), 3), _fm(ci, cf, np.int64(F_RLINV), 4)
     pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp)

@@ -259,6 +259,9 @@ class LiveKernel:
         self.root_big = big
         self.root_c = np.array([0.0, 0.0, rt._h_c - rt.ratio * rt._h_s + rt.options.floor_z]) + rt._offset
         self.root_src = rt._root_src
+        # the mid-hip rule (Retargeter._midhip_rule): root += R(W[root]) s
+        self.root_j = int(rt._root)
+        self.root_s = None if rt._root_s is None else [float(v) for v in rt._root_s]
         # foot planting: the joints each leg's thigh and shin turns carry
         self.legs = None
         if rt._legs is not None:
@@ -399,6 +402,8 @@ class LiveKernel:
             WW = np.concatenate([Wp, W], axis=1)
         # 5./6. root, positions and local rotations (w >= 0, as matrix_to_quat gives them)
         root = pflat @ self.root_big + self.root_c
+        if self.root_s is not None:      # in plain floats: one numpy call, not three
+            root += _v_rotate(W[self.root_j].tolist(), self.root_s)
         bl = ((Wp[:, :, None] * WW[:, None, :]).reshape(J, 1, 32) @ self.both_forms)[:, 0]
         pos = root + self.anc @ bl[:, :3]
         local = bl[:, 3:]
@@ -559,11 +564,13 @@ class CompiledFrame:
                     c_iters=self.c_iters, c_correct=self.c_correct, c_end_src=self.c_end_src,
                     c_pivot_src=self.c_pivot_src, c_pptr=self.c_pptr, c_path=self.c_path, a_joint=self.a_joint,
                     a_pre=self.a_pre, a_frm=self.a_frm, a_to=self.a_to, src_ext=self.src_ext, parents=self.parents,
-                    order=self.order, scalars=[self.root_src, self.legs is not None, bool(lg[4]), self.check_norm],
+                    order=self.order, scalars=[self.root_src, self.legs is not None, bool(lg[4]), self.check_norm,
+                                                     lk.root_j],
                     hip=lg[0], knee=lg[1], ankle=lg[2], toe=lg[3], aff=lg[9], which=lg[10])
         floats = dict(K=self.K, f_bone=self.f_bone, f_A=self.f_A, c_frac=self.c_frac, c_A=self.c_A, c_off=self.c_off,
                       a_bone=self.a_bone, a_A=self.a_A, rw_q=self.rw_q, offsets=self.offsets, rl_inv=self.rl_inv,
-                      root_M=self.root_M, root_c=self.root_c, l1=lg[5], l2=lg[6], rest_h=lg[7], toe_h=lg[8],
+                      root_M=self.root_M, root_c=self.root_c,
+                      root_s=np.zeros(3) if rt._root_s is None else rt._root_s, l1=lg[5], l2=lg[6], rest_h=lg[7], toe_h=lg[8],
                       plant=self.plant_params if self.legs is not None else np.zeros(5))
         work = dict(qn=4 * R, qk=4 * max(n, 1), dq=4 * max(n, 1), ap=4 * max(na, 1), D=4 * (J + 1), W=4 * J, tmp=8,
                     ank=6, toe_z=2, target=6, speed=2, turns=16)

@@ -104,6 +104,8 @@ def test_live_equals_batch_synthetic_actor_onto_standard_20(solved_actor, planti
     rok[120:150, 3] = False
     rot[200, 2] *= 1.01
     ch = standard_20(1.75)
+    # the optical root point is the mid-hip, standard_20's hips stand in front of HipCenter: the mid-hip rule is on
+    assert Retargeter(ch, derive_mapping(ch, src), src, live=False)._root_s is not None
     batch, worst = _compare(ch, derive_mapping(ch, src), src, RetargetOptions(foot_planting=planting),
                             pts, None, rot, t[:n], rok)
     assert (batch.joint_quality < 2).any()

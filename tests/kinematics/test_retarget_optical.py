@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocapgraph.kinematics.calibration import calibrate
+from mocapgraph.kinematics.character import standard_20
 from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
 from mocapgraph.kinematics.retarget_mapping import derive_mapping
 from mocapgraph.kinematics.retarget_source import character_from_actor, optical_points, optical_source
@@ -123,3 +124,59 @@ def test_live_frame_by_frame_equals_batch(solved):
         np.testing.assert_allclose(got, getattr(batch, name), atol=1e-9, err_msg=name)
     assert (batch.joint_quality[100:140] == 1).any() and (batch.joint_quality[100:140] == 2).any()
     assert np.isfinite(batch.local_rotations).all()
+
+
+def _leg_length(names, centres, side: str) -> float:
+    i = [list(names).index(f"{j}_{side}") for j in ("hip", "knee", "ankle")]
+    return float(np.linalg.norm(centres[i[1]] - centres[i[0]]) + np.linalg.norm(centres[i[2]] - centres[i[1]]))
+
+
+def test_standard_20s_mid_hip_lands_on_the_actors_true_mid_hip(solved):
+    """standard_20's hips stand in front of its HipCenter (Kinect's girdle) while the optical root point
+    is the actor's mid-hip: the character's mid-hip (not its HipCenter) goes there. standard_20 scaled
+    to the actor's true leg length (ratio 1), from the exact model and from the 1 mm noise solve,
+    against the synthetic truth on every frame."""
+    cap, model, res, src, _, perf = solved
+    sk = cap.skeleton
+    leg = np.mean([_leg_length(sk.joint_names, cap.base_joint_centres, s) for s in "lr"])
+    ch0 = standard_20(1.75)
+    s20_leg = sum(float(np.linalg.norm(ch0.rest_offsets[ch0.index(n)])) for n in ("KneeLeft", "AnkleLeft"))
+    ch = standard_20(1.75 * leg / s20_leg)
+    hips = [ch.index("HipLeft"), ch.index("HipRight")]
+    true_mid = cap.joint_centres[perf][:, [sk.joint_names.index("hip_l"), sk.joint_names.index("hip_r")]].mean(1)
+    # without the rule HipCenter sat on the actor's mid-hip: the character's own mid-hip this far off
+    before = float(np.linalg.norm(ch.rest_pose()[0][hips].mean(0) - ch.rest_pose()[0][ch.root]))
+    exact_src = optical_source(sk.joint_names, sk.joint_parent, sk.joint_limbs, sk.limb_names, cap.base_joint_centres)
+    cases = {"exact model": (exact_src, optical_points(cap.joint_centres[perf], sk.joint_names), cap.limb_quat[perf], None),
+             "solved, 1 mm noise": (src, optical_points(res.joints, model.joint_names), res.limb_rotation,
+                                    res.limb_quality > 0)}
+    errs = {}
+    for what, (s, pts, rot, rok) in cases.items():
+        for planting in (False, True):
+            rt = Retargeter(ch, derive_mapping(ch, s), s, RetargetOptions(scale=1.0, foot_planting=planting))
+            out = rt.process(pts, None, rot, rok, times_s=cap.times[perf])
+            e = np.linalg.norm(out.joint_positions[:, hips].mean(1) - true_mid, axis=-1)
+            errs[what, planting] = e
+            print(f"\n{what}, planting {planting}: standard_20 "
+                  f"mid-hip - actor's true mid-hip over {len(e)} frames: mean {1000 * e.mean():.2f} mm, "
+                  f"max {1000 * e.max():.2f} mm (the source's own mid-hip: max "
+                  f"{1000 * np.linalg.norm(pts[:, -1] - true_mid, axis=-1).max():.2f} mm; the rest hips' offset from "
+                  f"HipCenter, where the mid-hip was before: {1000 * before:.1f} mm)")
+            # ratio 1: the character's mid-hip is the source root point (pelvis, heading-aligned by the root's A)
+            # up to the floor-matching constant
+            want = pts[:, -1] @ rt._root_A.T
+            want[:, 2] = pts[:, -1, 2]
+            gap = out.joint_positions[:, hips].mean(1) - want
+            assert np.abs(gap - gap[0]).max() < 1e-9
+    assert before > 0.04
+    assert errs["exact model", False].max() < 0.001
+    assert errs["exact model", True].max() < 0.001
+    assert errs["solved, 1 mm noise", False].mean() < 0.005 and errs["solved, 1 mm noise", False].max() < 0.008
+    assert errs["solved, 1 mm noise", True].max() < 0.008
+
+
+def test_the_mid_hip_rule_is_off_where_the_root_is_the_mid_hip(solved):
+    """The actor onto its own skeleton (root: pelvis, the mid-hip): nothing changes."""
+    cap, model, res, src, truth_ch, perf = solved
+    rt = Retargeter(truth_ch, derive_mapping(truth_ch, src), src)
+    assert rt._root_s is None
