@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapgraph.jit import kernel
+from mocapgraph.jit import kernel, readonly
 
 _COLLINEAR_TOL = 1e-6   # as rigid._COLLINEAR_TOL
 
@@ -179,6 +179,7 @@ def warm() -> None:
     """Compile the kernel once: one limb of three markers."""
     ref = np.array([[[0.05, 0.0, 0.0], [0.0, 0.05, 0.0], [0.0, 0.0, 0.05]]])
     L = 1
-    fit_frame(ref[0] + 1.0, ref, np.array([[0, 1, 2]]), np.ones((1, 3)), 3, np.zeros((L, 3, 3)), np.zeros((L, 3)),
-              np.zeros(L), np.zeros(L, dtype=np.int64), np.zeros(L, dtype=np.int64), np.zeros((3, 3)),
-              np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((3, 3)))
+    for markers in (ref[0] + 1.0, readonly(ref[0] + 1.0)):   # a node's markers are decoded, read-only
+        fit_frame(markers, ref, np.array([[0, 1, 2]]), np.ones((1, 3)), 3, np.zeros((L, 3, 3)), np.zeros((L, 3)),
+                  np.zeros(L), np.zeros(L, dtype=np.int64), np.zeros(L, dtype=np.int64), np.zeros((3, 3)),
+                  np.zeros((4, 4)), np.zeros((4, 4)), np.zeros((3, 3)))
