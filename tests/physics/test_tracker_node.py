@@ -59,8 +59,9 @@ nodes:
     # no NaN in any simulated pose, even during the NaN frames
     assert all(np.isfinite(p).all() for p in sim.values())
     # the stream stopped for 1 s: the simulation went on (stands and waits) with no input frames
-    sent = sorted(r["publish_ns"] for r in read_jsonl(log, "sim_character_pose"))
-    gaps = np.diff(sent) * 1e-9
+    sent = np.array(sorted(r["publish_ns"] for r in read_jsonl(log, "sim_character_pose"))) * 1e-9
+    gaps = np.diff(sent[sent > sent[0] + 1.0])    # its start-up second aside (a busy machine stalls it once)
+    assert "jit: compiled" not in g.output        # ... but never for a kernel compiled on its first frames
     assert gaps.max() < 0.25 + 0.2, "the simulated character went silent while its input stopped"
     assert _status(log)["sim_time_s"] > 4.0       # behind on a loaded machine it skips steps, never stalls
 
