@@ -18,11 +18,15 @@ from pathlib import Path
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
+from ..jit import warm_all
 from ..kinematics.model import ActorModel, ModelFileError, load_model
 from ..kinematics.solver import FrameSolver
 from ..messages import ActorPose, MarkerFrame, MarkerLayout
 from ..messages import SkeletonModel
 from ..adapters.model_messages import marker_index, missing_pose, model_from_message, pose_message
+
+SOLVER_KERNELS = ("mocapgraph.kinematics.global_fit_kernels", "mocapgraph.kinematics.joint_kernels",
+                  "mocapgraph.kinematics.rigid_kernels")
 
 FILTERS = ("", "one_euro", "constant_velocity")
 
@@ -58,6 +62,9 @@ class FrameSolverNode(Node):
         self._last_t = -np.inf
         self._t0_ns: int | None = None  # capture-time origin, so float seconds stay precise
         self._skipped = 0
+        # the compiled kernels now, not at the first frame (numba's first call costs ~0.5 s even from
+        # its cache: at 240 Hz that queued a hundred frames behind it)
+        warm_all(SOLVER_KERNELS)
         self._bad_frames = 0
         self._failures = 0
         self._refused: tuple[str, str] | None = None
