@@ -92,7 +92,7 @@ def main() -> int:
     from mocapgraph.formats.mapping_file import load_mapping
     from mocapgraph.kinematics.character import standard_20
     from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
-    from mocapgraph.kinematics.retarget_source import kinect_source
+    from mocapgraph.kinematics.retarget_source import kinect_source, observed_bone_lengths
     ch = standard_20(1.75)
     mapping = load_mapping("kinect_v2_standard_20")
     for name in RECORDINGS:
@@ -100,8 +100,10 @@ def main() -> int:
         if not path.exists():
             continue
         trial = read_kinect_csv(path, ground="feet")
-        res = Retargeter(ch, mapping, kinect_source(trial.names, trial.parents), RetargetOptions()).process(
-            trial.positions, trial.tracking_state == 2)
+        # the performer's own bone lengths, as the retargeter node and `mocapgraph retarget` take them
+        tracked = np.where((trial.tracking_state == 2)[..., None], trial.positions, np.nan)
+        src = kinect_source(trial.names, trial.parents, bone_lengths=observed_bone_lengths(tracked, trial.parents))
+        res = Retargeter(ch, mapping, src, RetargetOptions()).process(trial.positions, trial.tracking_state == 2)
         pos, ori = ch.forward_kinematics(res.local_rotations, res.root_positions)
         t = (np.asarray(trial.timestamps_ns) - trial.timestamps_ns[0]) * 1e-9
         toes = [ch.index("FootLeft"), ch.index("FootRight")]
