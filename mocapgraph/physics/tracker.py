@@ -72,6 +72,10 @@ class TargetConditioner:
         self._k_parents = np.ascontiguousarray(character.parents, dtype=np.int64)
         self._k_rest = np.ascontiguousarray(character.rest_rotations, dtype=np.float64)
         self._k_noq = np.zeros(character.n_joints, dtype=np.int8)
+        self._k_q_in = np.zeros(character.n_joints, dtype=np.int8)
+        self._k_pos_in = np.zeros((character.n_joints, 3))
+        self._k_rot_in = np.zeros((character.n_joints, 4))
+        self._k_root_in = np.zeros(3)
         self._k_root = int(character.root)
         self._k_J = int(character.n_joints)
 
@@ -87,12 +91,20 @@ class TargetConditioner:
         """:meth:`condition` as kernels (``posture_kernels``); fresh output arrays every frame (the
         last target is kept by reference for holding)."""
         J = self._k_J
-        pos_in = np.ascontiguousarray(positions, dtype=np.float64).reshape(J, 3)
-        rot_in = np.ascontiguousarray(local_rotations, dtype=np.float64).reshape(J, 4)
-        root = np.ascontiguousarray(root, dtype=np.float64).reshape(3)
+        # copied into this conditioner's own writable buffers (a few us): arrays decoded from
+        # messages are read-only, and numba compiles every kernel again for each mix of read-only
+        # and writable arguments (seconds, on a node's first frame)
+        pos_in, rot_in = self._k_pos_in, self._k_rot_in
+        pos_in[:] = np.reshape(positions, (J, 3))
+        rot_in[:] = np.reshape(local_rotations, (J, 4))
+        self._k_root_in[:] = np.reshape(root, 3)
+        root = self._k_root_in
         db = self.db
         use_q = quality is not None and db is not None
-        q = np.ascontiguousarray(quality, dtype=np.int8) if use_q else self._k_noq
+        q = self._k_noq
+        if use_q:
+            q = self._k_q_in
+            q[:] = np.reshape(quality, J)
         pos, rot = np.empty((J, 3)), np.empty((J, 4))
         if db is not None and db.search_compiled == "brute" and self.profile is None:
             # the usual frame: one kernel call for all of it
