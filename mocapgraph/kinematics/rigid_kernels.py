@@ -61,6 +61,13 @@ def _jacobi(A: np.ndarray, V: np.ndarray, vectors: bool) -> None:
 
 
 @kernel
+def _usable(markers: np.ndarray, m: int, ref: np.ndarray, l: int, k: int, w: float) -> bool:
+    """Marker m (seen) counts for slot k of limb l (its reference point known, its weight > 0)."""
+    return (w > 0.0 and np.isfinite(markers[m, 0]) and np.isfinite(markers[m, 1]) and np.isfinite(markers[m, 2])
+            and np.isfinite(ref[l, k, 0]) and np.isfinite(ref[l, k, 1]) and np.isfinite(ref[l, k, 2]))
+
+
+@kernel
 def fit_frame(markers: np.ndarray, ref: np.ndarray, idx0: np.ndarray, weights: np.ndarray, min_markers: int,
               rot: np.ndarray, trans: np.ndarray, rms: np.ndarray, nvis: np.ndarray, valid: np.ndarray,
               h: np.ndarray, N: np.ndarray, V: np.ndarray, M3: np.ndarray) -> None:
@@ -76,9 +83,7 @@ def fit_frame(markers: np.ndarray, ref: np.ndarray, idx0: np.ndarray, weights: n
         for k in range(K):
             m = idx0[l, k]
             w = weights[l, k]
-            if not (w > 0.0 and np.isfinite(markers[m, 0]) and np.isfinite(markers[m, 1])
-                    and np.isfinite(markers[m, 2]) and np.isfinite(ref[l, k, 0])
-                    and np.isfinite(ref[l, k, 1]) and np.isfinite(ref[l, k, 2])):
+            if not _usable(markers, m, ref, l, k, w):
                 continue
             n += 1
             ws += w
@@ -95,9 +100,7 @@ def fit_frame(markers: np.ndarray, ref: np.ndarray, idx0: np.ndarray, weights: n
         for k in range(K):
             m = idx0[l, k]
             w = weights[l, k]
-            if not (w > 0.0 and np.isfinite(markers[m, 0]) and np.isfinite(markers[m, 1])
-                    and np.isfinite(markers[m, 2]) and np.isfinite(ref[l, k, 0])
-                    and np.isfinite(ref[l, k, 1]) and np.isfinite(ref[l, k, 2])):
+            if not _usable(markers, m, ref, l, k, w):
                 continue
             a0, a1, a2 = ref[l, k, 0] - cr0, ref[l, k, 1] - cr1, ref[l, k, 2] - cr2
             b0, b1, b2 = markers[m, 0] - cc0, markers[m, 1] - cc1, markers[m, 2] - cc2
@@ -164,9 +167,7 @@ def fit_frame(markers: np.ndarray, ref: np.ndarray, idx0: np.ndarray, weights: n
         for k in range(K):
             m = idx0[l, k]
             w = weights[l, k]
-            if not (w > 0.0 and np.isfinite(markers[m, 0]) and np.isfinite(markers[m, 1])
-                    and np.isfinite(markers[m, 2]) and np.isfinite(ref[l, k, 0])
-                    and np.isfinite(ref[l, k, 1]) and np.isfinite(ref[l, k, 2])):
+            if not _usable(markers, m, ref, l, k, w):
                 continue
             a0, a1, a2 = ref[l, k, 0] - cr0, ref[l, k, 1] - cr1, ref[l, k, 2] - cr2
             for i in range(3):
