@@ -87,20 +87,37 @@ class LaunchedGraph:
         return self.proc.returncode
 
 
-@pytest.fixture
-def launch_graph(tmp_path: Path):
-    """Factory: ``launch_graph(path_or_yaml_text, "arg:=value", ...)`` -> LaunchedGraph (stopped at teardown)."""
+def _graph_launcher(folder: Path):
+    """(start, started): a factory of LaunchedGraphs run in ``folder`` and the list it fills."""
     started: list[LaunchedGraph] = []
 
     def start(graph: str | Path, *args: str) -> LaunchedGraph:
         if isinstance(graph, str) and "\n" in graph:
-            path = tmp_path / f"graph_{len(started)}.yaml"
+            path = folder / f"graph_{len(started)}.yaml"
             path.write_text(graph)
             graph = path
-        g = LaunchedGraph(Path(graph).resolve(), list(args), tmp_path)
+        g = LaunchedGraph(Path(graph).resolve(), list(args), folder)
         started.append(g)
         return g
 
+    return start, started
+
+
+@pytest.fixture
+def launch_graph(tmp_path: Path):
+    """Factory: ``launch_graph(path_or_yaml_text, "arg:=value", ...)`` -> LaunchedGraph (stopped at teardown)."""
+    start, started = _graph_launcher(tmp_path)
+    yield start
+    for g in started:
+        g.stop()
+
+
+@pytest.fixture(scope="module")
+def launch_module_graph(tmp_path_factory):
+    """Like ``launch_graph``, for a graph shared by the tests of one module (stopped after the last):
+    each launch costs seconds of interpreter start-up, so tests that only read from the same graph
+    share one."""
+    start, started = _graph_launcher(tmp_path_factory.mktemp("graph"))
     yield start
     for g in started:
         g.stop()

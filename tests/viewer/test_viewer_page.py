@@ -15,11 +15,20 @@ def finite_rows(a: np.ndarray) -> int:
     return int(np.isfinite(a).all(axis=1).sum())
 
 
-@pytest.fixture
-def stage(launch_graph, open_page):
+@pytest.fixture(scope="module")
+def stage_running(launch_module_graph):
+    """The stage graph, launched once for this module: its tests only command the echo nodes and
+    read, and each opens a page of its own."""
     port = free_port()
-    g = launch_graph(stage_graph(port))
+    g = launch_module_graph(stage_graph(port))
     g.wait_ready()
+    return g, port
+
+
+@pytest.fixture
+def stage(stage_running, open_page):
+    g, port = stage_running
+    assert g.proc.poll() is None, g.output
     page = open_page(viewer_url(g))
     page.wait("s.connected && s.framesDrawn > 5 && s.actorsDrawn >= 4", timeout=15)
     return g, page, port
