@@ -51,3 +51,41 @@ def pid_alive(pid: int) -> bool:
 def node_pids(graph) -> dict[str, int]:
     """Node name -> pid of a launched graph, from its manifest."""
     return {n["name"]: n["pid"] for n in fetch_manifest(graph.master)["nodes"]}
+
+
+
+class CommandsRunning:
+    """Independent commands started at once (stdout and stderr captured as text); ``results()``
+    waits for them. Each `python -m mocapgraph` spends ~1 s of CPU importing before it does
+    anything, so a test's independent CLI calls share both cores instead of queueing, or run
+    while the test waits for something else."""
+
+    def __init__(self, commands: list[list[str]], **popen_kw) -> None:
+        import subprocess
+
+        self.commands = commands
+        self.procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                                       text=True, **popen_kw) for c in commands]
+
+    def results(self, timeout: float = 60.0) -> list:
+        """Their CompletedProcesses in the given order (like subprocess.run(..., capture_output=True,
+        text=True)); the time-out is a deadline against hangs, for all of them together."""
+        import subprocess
+
+        t_end = time.monotonic() + timeout
+        out = []
+        try:
+            for c, p in zip(self.commands, self.procs):
+                stdout, stderr = p.communicate(timeout=max(0.1, t_end - time.monotonic()))
+                out.append(subprocess.CompletedProcess(c, p.returncode, stdout, stderr))
+        finally:
+            for p in self.procs:
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+        return out
+
+
+def run_concurrently(commands: list[list[str]], timeout: float = 60.0, **popen_kw) -> list:
+    """Run independent commands at once -> their CompletedProcesses in order (see CommandsRunning)."""
+    return CommandsRunning(commands, **popen_kw).results(timeout)
