@@ -2,13 +2,14 @@
 graph that would publish beyond loopback without keys is refused."""
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
 import zmq
 import zmq.auth
 
-from graph_helpers import wait_until
+from graph_helpers import CommandsRunning, wait_until
 from mocapgraph.cli import main
 from mocapgraph.launch.manifest import fetch_manifest, subscribe
 from mocapgraph.messages import decode
@@ -57,17 +58,21 @@ nodes:
     stranger.curve_publickey, stranger.curve_secretkey, stranger.curve_serverkey = pub_k, sec_k, graph_pub
     stranger.setsockopt(zmq.SUBSCRIBE, topic_frame("markers"))
     stranger.connect(ep)
+    # the command-line tools go through the manifest's key files: echo and record work (started
+    # now, so that their interpreters start up during the 2 s the strangers wait in vain)
+    bag = tmp_path / "rec.mcap"
+    tools = CommandsRunning([[sys.executable, "-m", "mocapgraph", "topic", "echo", "markers", "-n", "2", "--json",
+                              "--timeout", "20"],
+                             [sys.executable, "-m", "mocapgraph", "bag", "record", "markers", "-o", str(bag),
+                              "--duration", "2"]], env=g.env)
     time.sleep(2.0)
     assert not plain.poll(100) and not stranger.poll(100)
     assert tool.poll(1000), "the key holder still receives meanwhile"
     for s in (plain, stranger, tool):
         s.close(0)
-    # the command-line tools go through the manifest's key files: echo and record work
-    r = g.cli("topic", "echo", "markers", "-n", "2", "--json", "--timeout", "20", timeout=60)
-    assert r.returncode == 0 and r.stdout.count("\n") >= 2, r.stderr
-    bag = tmp_path / "rec.mcap"
-    r = g.cli("bag", "record", "markers", "-o", str(bag), "--duration", "2", timeout=60)
-    assert r.returncode == 0 and bag.stat().st_size > 1000, r.stdout + r.stderr
+    echo, record = tools.results(timeout=60)
+    assert echo.returncode == 0 and echo.stdout.count("\n") >= 2, echo.stderr
+    assert record.returncode == 0 and bag.stat().st_size > 1000, record.stdout + record.stderr
 
 
 def test_publishing_beyond_loopback_needs_keys_or_insecure(tmp_path: Path, capsys) -> None:
