@@ -61,9 +61,17 @@ async def _session(url: str, frames: dict[str, int]):
         return info, channels, got
 
 
-def test_foxglove_client_decodes_the_scene(launch_graph):
-    g = launch_graph(GRAPH)
+@pytest.fixture(scope="module")
+def bridge(launch_module_graph):
+    """GRAPH launched once for the tests that only read from it (connect, subscribe, inspect ports);
+    the tests that count refusals in the log or stop the graph launch their own."""
+    g = launch_module_graph(GRAPH)
     g.wait_ready()
+    return g
+
+
+def test_foxglove_client_decodes_the_scene(bridge):
+    g = bridge
     line = g.wait_for("foxglove bridge at ")
     url = re.search(r"(ws://\S+)", line).group(1)
     assert url.startswith("ws://127.0.0.1:") and url.endswith(f"?token={TOKEN}")
@@ -155,12 +163,12 @@ async def _handshake(port: int, query: str = "") -> str:
         return "no websocket"
 
 
-def test_no_port_of_the_bridge_process_opens_without_the_token(launch_graph):
+def test_no_port_of_the_bridge_process_opens_without_the_token(bridge):
     """The SDK's own server (no authentication) used to listen on a second loopback port; now
     every listening port of the process either refuses a tokenless client with 403 or is no
     WebSocket server at all (the bus's ZeroMQ sockets), and exactly one port speaks HTTP."""
-    g = launch_graph(GRAPH)
-    g.wait_ready()
+    g = bridge
+    assert g.proc.poll() is None, g.output
     url = re.search(r"(ws://\S+)", g.wait_for("foxglove bridge at ")).group(1)
     gate = int(url.split("?")[0].rsplit(":", 1)[1].rstrip("/"))
     pid = node_pids(g)["fox"]
