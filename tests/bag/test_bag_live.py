@@ -15,6 +15,7 @@ import pytest
 import zmq
 
 from bagutil import write_bag
+from graph_helpers import run_concurrently
 from mocapgraph.bag.reader import BagReader
 from mocapgraph.bag.recover import recover
 from mocapgraph.launch.check import check_graph
@@ -246,9 +247,10 @@ nodes:
     os.kill(nodes["rec"]["pid"], signal.SIGKILL)
     g.wait_for("node rec exited")
     g.stop()
-    info = g.cli("bag", "info", str(bag))
+    # info reads the killed bag, recover writes a new file beside it: independent, so run at once
+    mg = [sys.executable, "-m", "mocapgraph", "bag"]
+    info, rec = run_concurrently([mg + ["info", str(bag)], mg + ["recover", str(bag)]], timeout=90, env=g.env)
     assert info.returncode == 2 and "truncated or unfinished" in info.stderr and "bag recover" in info.stderr
-    rec = g.cli("bag", "recover", str(bag))
     assert rec.returncode == 0, rec.stderr
     assert "saved" in rec.stdout and "lost" in rec.stdout
     with BagReader(tmp_path / "killed.recovered.mcap") as r:
@@ -273,7 +275,10 @@ nodes:
 """)
     g.wait_ready()
     bag = tmp_path / "cli.mcap"
-    r = g.cli("bag", "record", "-o", str(bag), "--all", "--exclude", "^diag", "--duration", "1.0")
+    # the refused recording runs beside the real one (independent; their start-ups share the cores)
+    mg = [sys.executable, "-m", "mocapgraph", "bag", "record"]
+    r, bad = run_concurrently([mg + ["-o", str(bag), "--all", "--exclude", "^diag", "--duration", "1.0"],
+                               mg + ["nosuchtopic", "--duration", "0.1"]], timeout=90, env=g.env)
     assert r.returncode == 0, r.stderr
     assert "recording 2 topic(s)" in r.stdout and "lost 0" in r.stdout
     with BagReader(bag) as rd:
@@ -289,7 +294,6 @@ nodes:
     assert np.all(np.diff(seqs) == 1) and 0.8 < span_s < 1.3 and len(seqs) > 100, (len(seqs), span_s)
     assert s.metadata["mocapgraph"]["writer"] == "bag record"
     assert s.metadata["mocapgraph"]["graph"].endswith("graph_0.yaml")
-    bad = g.cli("bag", "record", "nosuchtopic", "--duration", "0.1")
     assert bad.returncode == 2 and "no topic 'nosuchtopic'" in bad.stderr and "markers" in bad.stderr
 
 
