@@ -10,6 +10,7 @@ import socket
 import time
 
 import numpy as np
+import pytest
 import zmq
 
 from graph_helpers import node_pids, wait_until
@@ -74,13 +75,16 @@ def _solver_diagnostics(diag_sock: zmq.Socket, timeout: float = 5.0):
     raise AssertionError("no diagnostics from the solver")
 
 
-def test_junk_senders_and_forged_sequence_leave_the_stream_running(launch_graph) -> None:
+@pytest.fixture(scope="module")
+def hostile_graph(launch_module_graph):
+    """(graph, the foreign publisher bound to its external markers endpoint): the synthetic actor
+    (its exact model latched as skeleton_model) and a solver, launched once for both tests; the
+    second floods the reader's subscriptions, which the first test's junk to the solver never reaches."""
     port = _free_port()
-    ctx = zmq.Context.instance()
-    pub = ctx.socket(zmq.PUB)
+    pub = zmq.Context.instance().socket(zmq.PUB)
     pub.setsockopt(zmq.SNDHWM, 0)
     pub.bind(f"tcp://127.0.0.1:{port}")
-    g = launch_graph(f"""
+    g = launch_module_graph(f"""
 external:
   - {{topic: markers, type: MarkerFrame, endpoint: "tcp://127.0.0.1:{port}"}}
 nodes:
@@ -92,6 +96,13 @@ nodes:
     type: frame_solver
 """)
     g.wait_ready(60)
+    yield g, pub
+    pub.close(0)
+
+
+def test_junk_senders_and_forged_sequence_leave_the_stream_running(hostile_graph) -> None:
+    g, pub = hostile_graph
+    assert g.proc.poll() is None, g.output
     manifest = fetch_manifest(g.master)
     poses = PoseCounter(subscribe(manifest, ["actor_pose"]))
     diag = subscribe(manifest, ["diagnostics"])
@@ -143,20 +154,14 @@ nodes:
     d = _solver_diagnostics(diag)
     i = next(i for i, (t, s) in enumerate(zip(d.edge_topics, d.edge_senders)) if t == "markers" and s == "reader")
     assert d.edge_gaps[i] < 1000 and d.edge_anomalies[i] >= 1
-    pub.close(0)
 
 
-def test_subscription_flood_neither_multiplies_latched_values_nor_grows_the_publisher(launch_graph) -> None:
-    g = launch_graph("""
-nodes:
-  - name: reader
-    type: synthetic_actor
-    params: {rate_hz: 30.0}
-""")
-    g.wait_ready(60)
+def test_subscription_flood_neither_multiplies_latched_values_nor_grows_the_publisher(hostile_graph) -> None:
+    g, _ = hostile_graph  # the reader's latched model is on skeleton_model there
+    assert g.proc.poll() is None, g.output
     manifest = fetch_manifest(g.master)
-    endpoint = manifest["topics"]["ground_truth_model"]["publishers"][0]["endpoint"]
-    observer = subscribe(manifest, ["ground_truth_model"])
+    endpoint = manifest["topics"]["skeleton_model"]["publishers"][0]["endpoint"]
+    observer = subscribe(manifest, ["skeleton_model"])
     assert observer.poll(10_000), "a late joiner gets the latched model"
     observer.recv_multipart()
     pid = node_pids(g)["reader"]
@@ -169,7 +174,7 @@ nodes:
     time.sleep(0.3)
     t0 = time.monotonic()
     for i in range(N_JUNK):
-        flood.send(b"\x01ground_truth_model\0")  # the same topic, again and again
+        flood.send(b"\x01skeleton_model\0")  # the same topic, again and again
         if i % 2 == 0:
             flood.send(b"\x01junk-%06d" % i)  # and topics nobody publishes
     copies = 0
@@ -185,6 +190,6 @@ nodes:
     # at most one resend per 50 ms per topic, however many subscribe
     assert copies <= elapsed / 0.05 + 5
     assert rss1 - rss0 <= 20.0
-    late = subscribe(manifest, ["ground_truth_model"])
+    late = subscribe(manifest, ["skeleton_model"])
     assert late.poll(5000), "a late joiner still gets the latched value after the flood"
     flood.close(0)
