@@ -1,6 +1,8 @@
 """Helpers shared by the retargeting tests: BVH sources and bone-direction angles."""
 from __future__ import annotations
 
+import copy
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -62,3 +64,22 @@ def live_minus_batch(ch, mapping, src, opts, pts, pok, rot, times=None, n: int =
             worst = max(worst, float(np.abs(getattr(r, k)[0] - getattr(batch, k)[f]).max()))
         assert (r.joint_quality[0] == batch.joint_quality[f]).all() and (r.contact[0] == batch.contact[f]).all()
     return worst
+
+
+@functools.lru_cache(maxsize=1)
+def _solved_synthetic_actor():
+    from mocapgraph.kinematics.calibration import calibrate
+    from mocapgraph.kinematics.solver import FrameSolver
+    from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
+
+    cap = SyntheticActor("kiip_full_body", options=CaptureOptions(noise_mm=1.0), seed=4).capture()
+    model = calibrate(cap.skeleton, cap.markers[: cap.phases["gym"][1]], rate_hz=cap.rate, source="synthetic")
+    res = FrameSolver(model, rate_hz=cap.rate).solve(cap.markers[cap.phase_slice("performance")])
+    return cap, model, res
+
+
+def solved_synthetic_actor():
+    """(capture, model, solver result) of the synthetic actor (seed 4, 1 mm marker noise), calibrated
+    on its base pose and gym and solved over its performance: built once per session for the
+    retargeting modules that start from it (seconds each), handed out as a copy of its own."""
+    return copy.deepcopy(_solved_synthetic_actor())

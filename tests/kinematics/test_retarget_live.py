@@ -13,12 +13,9 @@ from mocapgraph.formats.mapping_file import load_mapping
 from mocapgraph.kinematics.character import standard_20
 from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
 from mocapgraph.kinematics.retarget_mapping import derive_mapping
-from mocapgraph.kinematics.calibration import calibrate
 from mocapgraph.kinematics.retarget_source import kinect_source, optical_points, optical_source
-from mocapgraph.kinematics.solver import FrameSolver
-from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
 
-from retarget_support import bvh_source
+from retarget_support import bvh_source, solved_synthetic_actor
 
 FIELDS = ("local_rotations", "root_positions", "joint_positions", "joint_quality", "contact")
 
@@ -85,10 +82,8 @@ def test_live_equals_batch_kinect_positions_only_with_dependencies(shared_data):
 @pytest.fixture(scope="module")
 def solved_actor():
     """The synthetic actor (1 mm marker noise) calibrated and solved: source, points, limb rotations, times."""
-    cap = SyntheticActor("kiip_full_body", options=CaptureOptions(noise_mm=1.0), seed=4).capture()
-    model = calibrate(cap.skeleton, cap.markers[: cap.phases["gym"][1]], rate_hz=cap.rate, source="synthetic")
+    cap, model, res = solved_synthetic_actor()
     perf = cap.phase_slice("performance")
-    res = FrameSolver(model, rate_hz=cap.rate).solve(cap.markers[perf])
     src = optical_source(model.joint_names, model.joint_parent, model.joint_limbs, model.limb_names, model.joint_base)
     return src, optical_points(res.joints, model.joint_names), res.limb_rotation, res.limb_quality > 0, cap.times[perf]
 

@@ -6,22 +6,18 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapgraph.kinematics.calibration import calibrate
 from mocapgraph.kinematics.character import standard_20
 from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
 from mocapgraph.kinematics.retarget_mapping import derive_mapping
 from mocapgraph.kinematics.retarget_source import character_from_actor, optical_points, optical_source
-from mocapgraph.kinematics.solver import FrameSolver
-from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
+
+from retarget_support import solved_synthetic_actor
 
 
 @pytest.fixture(scope="module")
 def solved():
-    cap = SyntheticActor("kiip_full_body", options=CaptureOptions(noise_mm=1.0), seed=4).capture()
-    calib = slice(0, cap.phases["gym"][1])
-    model = calibrate(cap.skeleton, cap.markers[calib], rate_hz=cap.rate, source="synthetic")
+    cap, model, res = solved_synthetic_actor()
     perf = cap.phase_slice("performance")
-    res = FrameSolver(model, rate_hz=cap.rate).solve(cap.markers[perf])
     src = optical_source(model.joint_names, model.joint_parent, model.joint_limbs, model.limb_names, model.joint_base)
     truth_ch = character_from_actor(cap.skeleton.joint_names, cap.skeleton.joint_parent, cap.base_joint_centres)
     return cap, model, res, src, truth_ch, perf
