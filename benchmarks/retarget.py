@@ -16,7 +16,9 @@ Prints:
   bag recorder, launched; per frame the CharacterPose publish stamp minus the ActorPose publish
   stamp of the same frame (transport + retargeting): p50, p99, max in ms, and the breakdown: the
   hop solver -> retargeter from the node's own edge statistics (recorded diagnostics), the rest,
-  and the node process's CPU per frame. Target p99 <= 0.3 ms.
+  and the node process's CPU per frame. Target p99 <= 0.3 ms. Three runs: a process per node, the
+  same with keep_up, and the solver and retargeter composed in one process (``process:``: the hop
+  between them in process, the reader and the recorder in their own processes).
 - the machine's load average while it ran (the figures depend on it).
 
 Usage: python benchmarks/retarget.py [--live-frames 3000] [--graph-s 10] [--no-graph | --graph-only]
@@ -259,7 +261,8 @@ nodes:
     if len(cpu) >= 2:
         (u0, c0), (u1, c1) = cpu[len(cpu) // 2], cpu[-1]   # the second half: start-up (imports, kernels) long over
         n = max(1.0, (u1 - u0) * 240.0)
-        print(f"  retargeter process CPU {1e6 * (c1 - c0) / n:.0f} us per 240 Hz frame (everything: bus, diagnostics, "
+        whose = "the composed process's CPU (solver and retargeter)" if composed else "retargeter process CPU"
+        print(f"  {whose} {1e6 * (c1 - c0) / n:.0f} us per 240 Hz frame (everything: bus, diagnostics, "
               f"retargeting); load average now {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 
 
