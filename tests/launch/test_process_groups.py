@@ -20,6 +20,7 @@ from mocapgraph.formats.yaml_source import GraphError
 from mocapgraph.kinematics.calibration import calibrate
 from mocapgraph.kinematics.model import save_model
 from mocapgraph.kinematics.synthetic_actor import SyntheticActor
+from mocapgraph.cli.graph_cmds import to_text
 from mocapgraph.launch.check import check_graph
 from mocapgraph.launch.graph import load_graph
 from mocapgraph.messages import MarkerFrame, NodeStatus
@@ -116,6 +117,13 @@ nodes:
     assert msg.startswith(f"{tmp_path / 'g.yaml'}:4: nodes[a].process:") and "not a process name" in msg, msg
     msg = error("nodes:\n  - name: a\n    type: marker_test_pattern\n    process: 3\n")
     assert ":4: nodes[a].process: wants str" in msg, msg
+    # what is right is shown: `graph show` names each composed node's process
+    (tmp_path / "ok.yaml").write_text("nodes:\n  - {name: a, type: marker_test_pattern, process: p}\n"
+                                      "  - {name: b, type: topic_logger, process: p, params: {topics: [markers]}}\n"
+                                      "  - {name: c, type: topic_logger, params: {topics: [markers]}}\n")
+    shown = to_text(check_graph(load_graph(tmp_path / "ok.yaml"))).splitlines()
+    assert "  a (marker_test_pattern) in process p" in shown and "  b (topic_logger) in process p" in shown
+    assert "  c (topic_logger)" in shown
 
 
 # ----- in one process, no launcher: the loop's rules ---------------------------------------------
