@@ -122,6 +122,7 @@ class _Plan:
         self.text_in: dict[bytes, dict] = {}
         self.last_dims: tuple | None = None
         self.last_layout: list = []
+        self.local_shapes: list | None = None   # the array shapes `local_copy` checked last
 
 
 _CODES = {"int": "q", "float": "d", "bool": "?"}
@@ -304,14 +305,12 @@ def local_copy(msg: Message) -> Message:
     plan = _plan(info)
     d = msg.__dict__
     arrays = [d[a] for a in plan.array_names]
-    dims = tuple(size for arr in arrays for size in arr.shape)
-    if dims != plan.last_dims:
+    shapes = [arr.shape for arr in arrays]
+    if shapes != plan.local_shapes:   # a stream keeps its shapes: checked once per change
         symbols: dict[str, int] = {}
-        layout = []
-        for (spec, dtype), arr in zip(plan.arrays, arrays):
-            _check_shape(info.name, spec, arr.shape, symbols)
-            layout.append((spec.name, dtype, arr.shape, arr.size * dtype.itemsize))
-        plan.last_dims, plan.last_layout = dims, layout
+        for (spec, _), shape in zip(plan.arrays, shapes):
+            _check_shape(info.name, spec, shape, symbols)
+        plan.local_shapes = shapes
     cls = type(msg)
     out = cls.__new__(cls)
     od = out.__dict__
