@@ -16,10 +16,12 @@ Prints:
   bag recorder, launched; per frame the CharacterPose publish stamp minus the ActorPose publish
   stamp of the same frame (transport + retargeting): p50, p99, max in ms, and the breakdown: the
   hop solver -> retargeter from the node's own edge statistics (recorded diagnostics), the rest,
-  and the node process's CPU per frame. Target p99 <= 0.3 ms.
+  and the node process's CPU per frame. Target p99 <= 0.3 ms. Three runs: a process per node, the
+  same with keep_up, and the solver and retargeter composed in one process (``process:``: the hop
+  between them in process, the reader and the recorder in their own processes).
 - the machine's load average while it ran (the figures depend on it).
 
-Usage: python benchmarks/retarget.py [--live-frames 3000] [--graph-s 10] [--no-graph]
+Usage: python benchmarks/retarget.py [--live-frames 3000] [--graph-s 10] [--no-graph | --graph-only]
 """
 from __future__ import annotations
 
@@ -179,7 +181,7 @@ def bench_batch() -> None:
                   f"{motion.n_frames / dt:9.0f} frames/s")
 
 
-def bench_graph(seconds: float, keep_up: bool = False) -> None:
+def bench_graph(seconds: float, keep_up: bool = False, composed: bool = False) -> None:
     from mocapgraph.bag.reader import BagReader
     from mocapgraph.kinematics.calibration import calibrate
     from mocapgraph.kinematics.model import save_model
@@ -189,6 +191,7 @@ def bench_graph(seconds: float, keep_up: bool = False) -> None:
     model = calibrate(cap.skeleton, cap.markers[: cap.phases["gym"][1]], rate_hz=cap.rate, source="synthetic")
     save_model(model, tmp / "model.json")
     graph = tmp / "g.yaml"
+    process = "\n    process: pipeline" if composed else ""
     graph.write_text(f"""
 nodes:
   - name: reader
@@ -198,9 +201,9 @@ nodes:
     type: calibration
     params: {{model_file: "{tmp / 'model.json'}"}}
   - name: solver
-    type: frame_solver
+    type: frame_solver{process}
   - name: retargeter
-    type: retargeter
+    type: retargeter{process}
     params: {{source: actor, character: standard_20, foot_planting: true, keep_up: {str(keep_up).lower()}}}
   - name: rec
     type: bag_recorder
@@ -232,8 +235,9 @@ nodes:
         diag = [m for _, m in r.decoded("diagnostics")]
     lat = np.array([(p - actor[f]) * 1e-6 for f, p in char if f in actor])
     lat = lat[len(lat) // 10:]   # skip the start-up transient
-    print(f"graph at 240 Hz (synthetic actor -> calibration -> solver -> retargeter{', keep_up' if keep_up else ''}), "
-          f"{len(lat)} of {len(actor)} frames retargeted:")
+    how = "solver and retargeter composed in one process (process: pipeline)" if composed else "a process per node"
+    print(f"graph at 240 Hz (synthetic actor -> calibration -> solver -> retargeter{', keep_up' if keep_up else ''}; "
+          f"{how}), {len(lat)} of {len(actor)} frames retargeted:")
     print(f"  latency the retargeter adds (CharacterPose minus ActorPose publish stamp): p50 {np.percentile(lat, 50):.3f} ms, "
           f"p99 {np.percentile(lat, 99):.3f} ms, max {lat.max():.3f} ms (target p99 <= 0.3 ms)")
     # breakdown: the hop solver -> retargeter (publish to receive, the retargeter's own edge figures:
@@ -257,7 +261,8 @@ nodes:
     if len(cpu) >= 2:
         (u0, c0), (u1, c1) = cpu[len(cpu) // 2], cpu[-1]   # the second half: start-up (imports, kernels) long over
         n = max(1.0, (u1 - u0) * 240.0)
-        print(f"  retargeter process CPU {1e6 * (c1 - c0) / n:.0f} us per 240 Hz frame (everything: bus, diagnostics, "
+        whose = "the composed process's CPU (solver and retargeter)" if composed else "retargeter process CPU"
+        print(f"  {whose} {1e6 * (c1 - c0) / n:.0f} us per 240 Hz frame (everything: bus, diagnostics, "
               f"retargeting); load average now {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 
 
@@ -280,15 +285,18 @@ def main() -> None:
     ap.add_argument("--live-frames", type=int, default=2000)
     ap.add_argument("--graph-s", type=float, default=10.0)
     ap.add_argument("--no-graph", action="store_true")
+    ap.add_argument("--graph-only", action="store_true", help="only the hop reference and the graphs")
     a = ap.parse_args()
     print(f"load average before: {' '.join(f'{x:.1f}' for x in os.getloadavg())} ({os.cpu_count()} cores)")
-    bench_live(a.live_frames)
-    bench_node_path(a.live_frames)
-    bench_batch()
+    if not a.graph_only:
+        bench_live(a.live_frames)
+        bench_node_path(a.live_frames)
+        bench_batch()
     if not a.no_graph:
         bench_hop(1200)
         bench_graph(a.graph_s)
         bench_graph(a.graph_s, keep_up=True)
+        bench_graph(a.graph_s, composed=True)
     print(f"load average after: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 
 

@@ -53,6 +53,21 @@ def node_pids(graph) -> dict[str, int]:
     return {n["name"]: n["pid"] for n in fetch_manifest(graph.master)["nodes"]}
 
 
+def assert_pattern_frame(rec: dict, n_markers: int, rate_hz: float, missing_every: int) -> None:
+    """A topic_logger record of a marker_test_pattern frame carries exactly the pattern's positions,
+    marker 0 NaN and invalid on every ``missing_every``-th frame."""
+    import numpy as np
+    from mocapgraph.testing.marker_pattern import pattern_positions
+
+    assert rec["type"] == "MarkerFrame" and rec["sender"] == "pattern", rec
+    frame = rec["msg"]["frame_number"]
+    pos = np.array(rec["msg"]["positions"], dtype=float)
+    want = pattern_positions(frame, n_markers, rate_hz)
+    if frame % missing_every == 0:
+        assert np.isnan(pos[0]).all() and rec["msg"]["valid"][0] is False
+        pos, want = pos[1:], want[1:]
+    np.testing.assert_array_equal(pos, want)
+
 
 class CommandsRunning:
     """Independent commands started at once (stdout and stderr captured as text); ``results()``

@@ -1,13 +1,21 @@
-"""A running node's bound ports: publishing on the XPUB socket, receiving and decoding on a SUB."""
+"""A running node's bound ports: publishing on the XPUB socket, receiving and decoding on a SUB.
+
+Between nodes of one process (a launch graph's ``process:`` group) an output also hands its frames
+straight to the subscribing input ports (`OutputPort.local`), which take them through the same
+checks, statistics and decoding as frames from a socket: at once (the subscriber's handler runs
+inside ``publish``, which is what makes the hop cost microseconds), or on the loop's next turn
+when the publisher is itself being fed in process (so that no handler is ever re-entered).
+"""
 from __future__ import annotations
 
 import time
+from collections import deque
 from typing import TYPE_CHECKING, Any, Callable
 
 import zmq
 
 from ..messages import DecodeError, Envelope, Message, decode_envelope, decode_payload, encode
-from ..messages.codec import topic_frame
+from ..messages.codec import local_copy, topic_frame
 from ..messages.registry import UnknownTypeError, lookup
 from .curve import CurveKeys, make_client
 from .ports import Input, Output
@@ -23,6 +31,9 @@ _POLLIN = int(zmq.POLLIN)
 _EVENTS = int(zmq.EVENTS)
 UNEXPECTED_LOG_S = 5.0  # at most one line per this many seconds about frames from unexpected senders
 BATCH = 256  # messages taken from one input per loop turn, so one busy input cannot starve the others
+#: in-process messages held for an input with no queue limit (a recorder's): more than any burst
+#: one loop turn publishes; beyond it the oldest go, counted as gaps like a full socket queue's
+LOCAL_QUEUE_MAX = 10_000
 
 
 class OutputPort:
@@ -36,6 +47,8 @@ class OutputPort:
         self.seq = 0
         self.last_frames: list | None = None
         self.topic_key = topic_frame(topic)
+        #: input ports of nodes in this process subscribed to this topic (fed without ZeroMQ)
+        self.local: list[InputPort] = []
 
     def publish(self, msg: Message, capture_ns: int | None = None) -> None:
         """Send ``msg``. ``capture_ns`` is when the data was captured (defaults to now)."""
@@ -47,7 +60,7 @@ class OutputPort:
         if self.latched:
             frames = [bytes(f) for f in frames]  # keep a copy we own for resends
             self.last_frames = frames
-        self._send(frames)
+        self._send(frames, msg)
 
     def publish_frames(self, frames: list, latched: bool = False) -> None:
         """Send already-encoded frames (a bag player's recorded bytes) on this port's topic.
@@ -63,12 +76,53 @@ class OutputPort:
         self.seq += 1
         self._send(frames)
 
-    def _send(self, frames: list) -> None:
+    def _send(self, frames: list, msg: Message | None = None) -> None:
+        """To the subscribers in this process (``msg``: what ``frames`` encode, handed over without
+        decoding), then over ZeroMQ. In that order: a pipeline composed in one process runs its
+        next stage before the copies for recorders and viewers go out (the hop's latency)."""
+        if self.local:
+            self._send_local(frames, msg)
+        self.send_zmq(frames)
+
+    def send_zmq(self, frames: list) -> None:
+        """To the subscribers over ZeroMQ only (a latched value re-sent to a late joiner)."""
         send = self.node._pub.send
         copy = len(frames[-1]) < 65536  # zero-copy pays off only for large payloads
         for f in frames[:-1]:
             send(f, _SNDMORE, copy=copy)
         send(frames[-1], 0, copy=copy)
+
+    def _send_local(self, frames: list, msg: Message | None) -> None:
+        """Hand the message to this process's subscribers: at once when no in-process delivery is
+        under way (the handler publishing is then the only one running, and it is never one of
+        them: no handler is re-entered), else queued for the loop's next turn.
+
+        Each gets its own copy (`local_copy`: read-only arrays, shapes checked) beside the header
+        frames; raw subscribers (recorders) and messages that fail the check get the bytes."""
+        owned: list | None = None
+        items = []
+        for port in self.local:
+            copy = None
+            if msg is not None and not port.decl.raw:
+                try:
+                    copy = local_copy(msg)
+                except DecodeError:
+                    copy = None   # the subscriber decodes the bytes and rejects them, as over a socket
+            if copy is None and owned is None:
+                # bytes of our own: array frames are views of the message, which its sender may reuse
+                owned = [f if type(f) is bytes else bytes(f) for f in frames]
+            items.append((port, owned if copy is None else frames[:3], copy))
+        loop = self.node._loop
+        if loop.delivering:
+            for port, fr, copy in items:
+                port.post_local(fr, copy)
+            return
+        loop.delivering = True
+        try:
+            for port, fr, copy in items:
+                port.take_now(fr, copy)
+        finally:
+            loop.delivering = False
 
 
 class InputPort:
@@ -84,6 +138,8 @@ class InputPort:
         self._unexpected_logged = -UNEXPECTED_LOG_S
         self.socket: zmq.Socket | None = None
         self.handler: Callable[..., Any] | None = None
+        self._local: deque = deque(maxlen=decl.queue if decl.queue > 0 else LOCAL_QUEUE_MAX)
+        self.closed = False
 
     def open(self, ctx: zmq.Context, endpoints: list[str], curve: "CurveKeys | None" = None) -> zmq.Socket:
         """Create the SUB socket (queue depth from the declaration) connected to ``endpoints``
@@ -115,42 +171,81 @@ class InputPort:
                 frames = sock.recv_multipart(_NOBLOCK)
             except zmq.Again:
                 break
-            now = time.time_ns()
-            try:
-                env = decode_envelope(frames)
-            except DecodeError as exc:
-                self.stats.rejected += 1
-                self._reject(exc)
-                continue
-            if env.topic != self.topic:
-                continue
-            edge = self.stats.edge(env.topic, env.sender)
-            if edge is None:
-                self._unexpected(env.sender)
-                continue
-            if not edge.accept(env.seq, env.publish_ns, now):
-                continue
-            if self.decl.raw:
-                self.envelope = env
-                if self.handler is not None:
-                    self.handler(env, frames)
-                continue
-            if self.decl.latest_only:
-                newest = (env, frames)
-                continue
-            self._deliver(env, frames)
+            newest = self._take(frames, newest)
             if loop.stopped:
                 return
         if newest is not None:
             self._deliver(*newest)
 
-    def _deliver(self, env: Envelope, frames: list[bytes]) -> None:
+    def post_local(self, frames: list, msg: Message | None = None) -> None:
+        """Queue a message published by a node of this process (taken on the loop's next turn):
+        its frames (the header at least) and, unless it is to be decoded, the message itself."""
+        if self.closed:
+            return
+        self._local.append((frames, msg))
+        self.node._loop.local_ready[self] = None
+
+    def take_now(self, frames: list, msg: Message | None = None) -> None:
+        """Take a message published by a node of this process now (after any queued before it)."""
+        if self.closed:
+            return
+        self._local.append((frames, msg))
+        self.on_local()
+        if self._local:   # left for the next turn (a node asked to stop)
+            self.node._loop.local_ready[self] = None
+
+    def has_local(self) -> bool:
+        return bool(self._local)
+
+    def on_local(self) -> None:
+        """Take the queued in-process messages, as `on_readable` takes a socket's."""
+        queue = self._local
+        loop = self.node._loop
+        newest: tuple[Envelope, list[bytes]] | None = None
+        while queue:
+            frames, msg = queue.popleft()
+            newest = self._take(frames, newest, msg)
+            if loop.stopped:
+                return
+        if newest is not None:
+            self._deliver(*newest)
+
+    def _take(self, frames: list, newest: tuple | None, msg: Message | None = None) -> tuple | None:
+        """Check, count and hand on one message (``msg``: already decoded, from this process);
+        returns the newest held back (``latest_only``)."""
+        now = time.time_ns()
+        try:
+            env = decode_envelope(frames)
+        except DecodeError as exc:
+            self.stats.rejected += 1
+            self._reject(exc)
+            return newest
+        if env.topic != self.topic:
+            return newest
+        edge = self.stats.edge(env.topic, env.sender)
+        if edge is None:
+            self._unexpected(env.sender)
+            return newest
+        if not edge.accept(env.seq, env.publish_ns, now):
+            return newest
+        if self.decl.raw:
+            self.envelope = env
+            if self.handler is not None:
+                self.handler(env, frames)
+            return newest
+        if self.decl.latest_only:
+            return (env, frames, msg)
+        self._deliver(env, frames, msg)
+        return newest
+
+    def _deliver(self, env: Envelope, frames: list[bytes], msg: Message | None = None) -> None:
         want = self.decl.msg_type
         try:
             cls = lookup(env.type_name) if want is None else want
             if want is not None and env.type_name != want.type_name:
                 raise DecodeError(f"type {env.type_name} where {want.type_name} was expected")
-            msg = decode_payload(cls, env, frames)
+            if msg is None:
+                msg = decode_payload(cls, env, frames)
         except (DecodeError, UnknownTypeError) as exc:
             self.stats.rejected += 1
             self._reject(exc)

@@ -62,11 +62,14 @@ def generate(folder: str | Path, name: str) -> tuple[Path, Path]:
 
 _auth_lock = threading.Lock()
 _authenticators: dict[int, ThreadAuthenticator] = {}
+_users: dict[int, int] = {}   # nodes of this process using each context's handler
 
 
 def start_authenticator(ctx: zmq.Context, keys: CurveKeys) -> None:
-    """One ZAP handler per context: accept clients whose public key is in ``keys.authorized``."""
+    """One ZAP handler per context: accept clients whose public key is in ``keys.authorized``.
+    Each call is one user of it (the nodes of a ``process:`` group share the context)."""
     with _auth_lock:
+        _users[id(ctx)] = _users.get(id(ctx), 0) + 1
         if id(ctx) in _authenticators:
             return
         auth = ThreadAuthenticator(ctx)
@@ -75,11 +78,18 @@ def start_authenticator(ctx: zmq.Context, keys: CurveKeys) -> None:
         _authenticators[id(ctx)] = auth
 
 
-def stop_authenticators() -> None:
+def release_authenticator(ctx: zmq.Context) -> None:
+    """One user fewer; the handler stops with its last (a node that stops alone leaves the others'
+    sockets guarded)."""
     with _auth_lock:
-        for auth in _authenticators.values():
+        left = _users.get(id(ctx), 0) - 1
+        if left > 0:
+            _users[id(ctx)] = left
+            return
+        _users.pop(id(ctx), None)
+        auth = _authenticators.pop(id(ctx), None)
+        if auth is not None:
             auth.stop()
-        _authenticators.clear()
 
 
 def make_server(sock: zmq.Socket, keys: CurveKeys) -> None:

@@ -27,9 +27,7 @@ hand (the bag player CLI), `input_ports`/`output_ports`/`iface`, `edge_records`.
 """
 from __future__ import annotations
 
-import gc
 import logging
-import signal
 import time
 from typing import Any, Callable
 
@@ -38,12 +36,12 @@ import zmq
 from ..messages import Diagnostics, Message
 from ..messages.codec import topic_frame
 from .bound_ports import InputPort, OutputPort
-from .curve import CurveKeys, make_server, start_authenticator, stop_authenticators
+from .curve import CurveKeys, make_server, release_authenticator, start_authenticator
 from .subscriptions import Subscriptions
 from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, EdgeRecord, build_diagnostics,
                           input_edge_records)
 from .loop import EventLoop, Timer
-from .ports import Input, Interface, Output, Param, ParamError
+from .ports import Input, Interface, Output, Param, ParamError, declared_interface
 from .protocol import READY, START, STARTED, STOP, LauncherLink, ParentWatchdog, Wiring
 
 SEND_QUEUE = 1000  # messages per subscriber held by a publisher before it drops (counted downstream)
@@ -79,21 +77,15 @@ class Node:
         self._ready_sent = False
         self._launcher: LauncherLink | None = None
         self._watchdog = ParentWatchdog()
+        self._stop_requested = False
+        #: subscriptions to our topics served inside this process (not counted by the XPUB)
+        self._local_subscribers: dict[bytes, int] = {}
 
     # ----- declarations -------------------------------------------------------------------
     @classmethod
     def interface(cls, params: dict[str, Any]) -> Interface:
         """Declared inputs, outputs and parameters. Override to shape ports from ``params``."""
-        iface = Interface()
-        for klass in reversed(cls.__mro__):
-            for key, value in vars(klass).items():
-                if isinstance(value, Input):
-                    iface.inputs[key] = value
-                elif isinstance(value, Output):
-                    iface.outputs[key] = value
-                elif isinstance(value, Param):
-                    iface.params[key] = value
-        return iface
+        return declared_interface(cls)
 
     @classmethod
     def check_params(cls, given: dict[str, Any], iface: Interface | None = None) -> dict[str, Any]:
@@ -123,15 +115,15 @@ class Node:
 
     def add_timer(self, period_s: float, callback: Callable[[], Any], first_delay_s: float | None = None) -> Timer:
         """Call ``callback`` every ``period_s`` seconds of monotonic time (no drift), once started."""
-        return self._loop.add_timer(period_s, callback, first_delay_s)
+        return self._loop.add_timer(period_s, callback, first_delay_s, owner=self)
 
     def call_later(self, delay_s: float, callback: Callable[[], Any]) -> Timer:
         """Call ``callback`` once, ``delay_s`` seconds from now (timers run once started)."""
-        return self._loop.call_later(delay_s, callback)
+        return self._loop.call_later(delay_s, callback, owner=self)
 
     def add_reader(self, fd: int, callback: Callable[[], Any]) -> None:
         """Call ``callback`` whenever file descriptor ``fd`` (a serial port, a UDP socket) is readable."""
-        self._loop.watch(fd, callback)
+        self._loop.watch(fd, callback, owner=self)
 
     def remove_reader(self, fd: int) -> None:
         """Stop watching ``fd`` (before closing it)."""
@@ -161,10 +153,11 @@ class Node:
 
     @property
     def stopping(self) -> bool:
-        return self._loop.stopped
+        return self._stop_requested
 
     def request_stop(self) -> None:
         """Leave the event loop after the current callback (a finished file source calls this)."""
+        self._stop_requested = True
         self._loop.stopped = True
 
     @property
@@ -190,7 +183,7 @@ class Node:
         else:
             pub.bind("tcp://127.0.0.1:*")
             w.pub_endpoint = pub.getsockopt_string(zmq.LAST_ENDPOINT)
-        self._loop.watch(pub, self._on_subscription)
+        self._loop.watch(pub, self._on_subscription, owner=self)
         for name, decl in self._iface.outputs.items():
             self._ports[name] = OutputPort(self, decl, w.outputs.get(name, {}).get("topic", decl.topic))
         self._ports[_DIAGNOSTICS_PORT] = OutputPort(
@@ -200,10 +193,10 @@ class Node:
             port = InputPort(self, decl, spec.get("topic", decl.topic), spec.get("senders"))
             self._ports[name] = port
             port.handler = self.input_handler(name)
-            self._loop.watch(port.open(self._ctx, spec.get("endpoints", []), self._curve), port.on_readable)
+            self._loop.watch(port.open(self._ctx, spec.get("endpoints", []), self._curve), port.on_readable, owner=self)
         if w.control:
             self._launcher = LauncherLink(self._ctx, w.control, self.name)
-            self._loop.watch(self._launcher.socket, self._on_control)
+            self._loop.watch(self._launcher.socket, self._on_control, owner=self)
         self.add_timer(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
 
     def _expected_subscriptions(self) -> dict[bytes, int]:
@@ -215,6 +208,8 @@ class Node:
         if self.wiring.diagnostics_subscribers:
             key = topic_frame(DIAGNOSTICS_TOPIC)
             want[key] = want.get(key, 0) + self.wiring.diagnostics_subscribers
+        for key, n in self._local_subscribers.items():
+            want[key] = want.get(key, 0) - n
         return want
 
     def _on_subscription(self) -> None:
@@ -276,40 +271,40 @@ class Node:
 
     def run(self) -> int:
         """Set up, serve until stopped, clean up. Returns the process exit code."""
-        self.begin()
-        # Start-up objects (modules, params, models) need no more scanning by the collector:
-        # fewer and shorter pauses on the per-message path.
-        gc.freeze()
+        from .process import serve
+        return serve([self])
+
+    def join_loop(self, loop: EventLoop) -> None:
+        """Serve from ``loop`` (shared by the nodes of one process) instead of our own: call before setup."""
+        loop.adopt(self._loop)
+        self._loop = loop
+
+    def finish(self) -> None:
+        """on_stop, then close our sockets and take our registrations off the loop."""
         try:
-            while not self._loop.stopped:
-                self._loop.spin_once(0.1)
+            self.on_stop()
         finally:
-            try:
-                self.on_stop()
-            finally:
-                self.close()
-        return 0
+            self._loop.forget(self)
+            self.close()
 
     def close(self) -> None:
         for port in self._ports.values():
-            if isinstance(port, InputPort) and port.socket is not None:
-                port.socket.close(0)
+            if isinstance(port, InputPort):
+                port.closed = True
+                if port.socket is not None:
+                    port.socket.close(0)
         if self._launcher is not None:
             self._launcher.close()
         if self._pub is not None:
             self._pub.close()
         if self._curve is not None:
-            stop_authenticators()
+            release_authenticator(self._ctx)
 
 
 def install_signal_handlers(node: Node) -> None:
     """SIGINT/SIGTERM end the loop cleanly (on_stop runs, files are flushed)."""
-
-    def handler(signum: int, frame: Any) -> None:
-        node.request_stop()
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
+    from .process import install_stop_handlers
+    install_stop_handlers([node])
 
 
 __all__ = ["Node", "Input", "Output", "Param", "Wiring", "Timer", "NodeConfigError", "install_signal_handlers",

@@ -156,3 +156,17 @@ class Interface:
     inputs: dict[str, Input] = field(default_factory=dict)
     outputs: dict[str, Output] = field(default_factory=dict)
     params: dict[str, Param] = field(default_factory=dict)
+
+
+def declared_interface(cls: type) -> Interface:
+    """The Input/Output/Param class attributes of a node class and its bases (a subclass's win)."""
+    iface = Interface()
+    for klass in reversed(cls.__mro__):
+        for key, value in vars(klass).items():
+            if isinstance(value, Input):
+                iface.inputs[key] = value
+            elif isinstance(value, Output):
+                iface.outputs[key] = value
+            elif isinstance(value, Param):
+                iface.params[key] = value
+    return iface

@@ -1,8 +1,9 @@
-"""Process entry of one node: ``python -m mocapgraph.bus.runtime WIRING.json``.
+"""Process entry of one node, or of a ``process:`` group: ``python -m mocapgraph.bus.runtime WIRING.json...``.
 
-The launcher writes the wiring file (node name, class, params, endpoints) and starts this
-module as a child process. The child asks the kernel to send it SIGTERM when the launcher dies,
-so no node outlives its launcher, even one killed with SIGKILL.
+The launcher writes one wiring file per node (node name, class, params, endpoints) and starts
+this module as a child process with the files of every node that process runs (`process.serve`).
+The child asks the kernel to send it SIGTERM when the launcher dies, so no node outlives its
+launcher, even one killed with SIGKILL.
 """
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import logging
 import sys
 from typing import Any
 
-from .node import LOG_FORMAT, Node, NodeConfigError, install_signal_handlers
+from .node import LOG_FORMAT, Node, NodeConfigError
+from .process import install_stop_handlers, serve
 from .protocol import Wiring, die_with_parent  # noqa: F401  (die_with_parent: the launcher's preexec hook)
 
 
@@ -27,18 +29,22 @@ def load_class(spec: str) -> type[Node]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
-    with open(argv[0]) as f:
-        spec: dict[str, Any] = json.load(f)
-    wiring = Wiring(**spec["wiring"])
-    cls = load_class(spec["class"])
-    try:
-        node = cls(wiring.node, spec.get("params", {}), wiring)
-    except NodeConfigError as exc:
-        logging.getLogger(wiring.node).error("%s", exc)
-        return 2
-    install_signal_handlers(node)
-    return node.run()
+    # several nodes in one process: each line names its node (the launcher prefixes the process)
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT if len(argv) == 1 else "%(name)s: " + LOG_FORMAT,
+                        stream=sys.stderr)
+    nodes: list[Node] = []
+    for path in argv:
+        with open(path) as f:
+            spec: dict[str, Any] = json.load(f)
+        wiring = Wiring(**spec["wiring"])
+        cls = load_class(spec["class"])
+        try:
+            nodes.append(cls(wiring.node, spec.get("params", {}), wiring))
+        except NodeConfigError as exc:
+            logging.getLogger(wiring.node).error("%s", exc)
+            return 2
+    install_stop_handlers(nodes)
+    return serve(nodes)
 
 
 if __name__ == "__main__":

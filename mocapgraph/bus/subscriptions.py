@@ -72,7 +72,7 @@ class Subscriptions:
             self._pending.discard(key)
             for port in self.by_topic().get(key, []):
                 if port.last_frames is not None:
-                    port._send(port.last_frames)
+                    port.send_zmq(port.last_frames)   # a late joiner over ZeroMQ: not again to this process
                     self.resends += 1
         elif key not in self._pending:
             self._pending.add(key)

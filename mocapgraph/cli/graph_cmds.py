@@ -53,7 +53,7 @@ def to_text(graph: CheckedGraph) -> str:
     types = graph.topic_types()
     lines = [f"graph {graph.spec.file}"]
     for n in graph.nodes:
-        lines.append(f"  {n.name} ({n.spec.type})")
+        lines.append(f"  {n.name} ({n.spec.type})" + (f" in process {n.spec.process}" if n.spec.process else ""))
         for port, topic in n.inputs.items():
             lines.append(f"    <- {topic} [{n.iface.inputs[port].type_name}]")
         for port, topic in n.outputs.items():

@@ -221,6 +221,7 @@ def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None =
         rn.outputs = {p: _remapped(ns, p, d.topic) for p, d in iface.outputs.items()}
         resolved.append(rn)
 
+    _check_processes(resolved)
     types = all_types()
     publishers: dict[str, list[tuple[str, str]]] = {}  # topic -> [(publisher, type)]
     for ext in spec.external:
@@ -264,6 +265,34 @@ def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None =
         raise GraphError(spec.file, None, "machine", f"no node runs on machine {machine!r} "
                          f"(machines: {', '.join(known) or 'none named'})")
     return CheckedGraph(spec, resolved, flow)
+
+
+def _check_processes(resolved: list[ResolvedNode]) -> None:
+    """Nodes sharing a ``process:`` run on one machine and are restarted together (same respawn)."""
+    first: dict[str, NodeSpec] = {}
+    for rn in resolved:
+        ns = rn.spec
+        if not ns.process:
+            continue
+        lead = first.setdefault(ns.process, ns)
+        if lead is ns:
+            continue
+        for key, why in (("machine", "the nodes of one process run on one machine"),
+                         ("respawn", "a process is restarted as a whole"),
+                         ("respawn_delay", "a process is restarted as a whole")):
+            if getattr(ns, key) != getattr(lead, key):
+                raise ns.error(key, f"{getattr(ns, key)!r} differs from {getattr(lead, key)!r} of nodes[{lead.name}] "
+                               f"in process {ns.process!r} ({why})")
+
+
+def process_groups(graph: CheckedGraph) -> dict[str, list[str]]:
+    """The graph's OS processes: a key per process (``process:`` name, else the node's name) -> its
+    nodes in graph order. Keys of groups are prefixed ``process:`` so no node name can clash."""
+    groups: dict[str, list[str]] = {}
+    for rn in graph.nodes:
+        key = f"process:{rn.spec.process}" if rn.spec.process else rn.name
+        groups.setdefault(key, []).append(rn.name)
+    return groups
 
 
 def shutdown_order(graph: CheckedGraph) -> list[str]:

@@ -1,7 +1,10 @@
-"""Running a checked graph: one OS process per node, readiness handshake, logs, respawn, shutdown.
+"""Running a checked graph: one OS process per node (or per ``process:`` group), readiness handshake,
+logs, respawn, shutdown.
 
 - Every node is started as ``python -m mocapgraph.bus.runtime WIRING.json`` in its own session,
-  with the kernel told to SIGTERM it when the launcher dies (no orphans even after SIGKILL).
+  with the kernel told to SIGTERM it when the launcher dies (no orphans even after SIGKILL); the
+  nodes of a ``process:`` group share one such process (``runtime A.json B.json``), which is
+  watched, respawned and stopped as one.
 - Nodes say ``ready`` on the control socket once every subscriber the graph expects has
   subscribed to their outputs; only then does the launcher send ``start`` to all, so sources
   never publish into the void (ZeroMQ's slow-joiner loss).
@@ -25,24 +28,23 @@ import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
 import zmq
 
 from ..bus.diagnostics import DIAGNOSTICS_TOPIC
-from ..bus.protocol import READY, START, STARTED, STOP, Wiring, die_with_parent
-from .check import CheckedGraph, ResolvedNode, shutdown_order
+from ..bus.protocol import BYE, READY, START, STARTED, STOP, die_with_parent
+from .check import CheckedGraph, ResolvedNode, process_groups, shutdown_order
 from ..bus.curve import CurveKeys
 from .liveness import STALL_S, Liveness, diagnostics_socket, drain_senders
+from .processes import Child, Process, group_processes
 from .manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
 from .wiring_plan import plan_wiring
 
 READY_TIMEOUT_S = 30.0
 STOP_TIMEOUT_S = 2.0
 START_ACK_TIMEOUT_S = 5.0
-MAX_BACKOFF_S = 10.0
 
 
 def _free_tcp_port(host: str) -> int:
@@ -51,22 +53,14 @@ def _free_tcp_port(host: str) -> int:
         return s.getsockname()[1]
 
 
-@dataclass
-class Child:
-    """One node's process and its supervision state."""
-
-    node: ResolvedNode
-    wiring: Wiring
-    wiring_file: Path
-    proc: subprocess.Popen | None = None
-    ready: bool = False
-    started: bool = False
-    restarts: int = 0
-    backoff_s: float = 0.5
-    respawn_at: float | None = None
-    started_at: float = 0.0
-    finished: bool = False
-    threads: list[threading.Thread] = field(default_factory=list)
+def _endpoint(rn: ResolvedNode, run_dir: Path) -> str:
+    """Where ``rn`` binds its publisher: its tcp host and port, a free port, or an ipc socket in ``run_dir``."""
+    host = rn.spec.host
+    if host and rn.spec.port:
+        return f"tcp://{host}:{rn.spec.port}"
+    if host and host not in ("localhost",):
+        return f"tcp://{host}:{_free_tcp_port(host)}"
+    return f"ipc://{run_dir / (rn.name + '.pub')}"
 
 
 class LaunchError(RuntimeError):
@@ -89,6 +83,7 @@ class Supervisor:
         self.ctx = zmq.Context.instance()
         self.control_ep = f"ipc://{self.run_dir / 'control'}"
         self.children: dict[str, Child] = {}
+        self.processes: dict[str, Process] = {}
         self._stop_requested = False
         self._exit_code = 0
         self._plan()
@@ -98,16 +93,8 @@ class Supervisor:
         """Whether this launcher runs ``rn`` (with --machine: the nodes of that machine only)."""
         return self.machine is None or rn.spec.machine == self.machine
 
-    def _endpoint(self, rn: ResolvedNode) -> str:
-        host = rn.spec.host
-        if host and rn.spec.port:
-            return f"tcp://{host}:{rn.spec.port}"
-        if host and host not in ("localhost",):
-            return f"tcp://{host}:{_free_tcp_port(host)}"
-        return f"ipc://{self.run_dir / (rn.name + '.pub')}"
-
     def _plan(self) -> None:
-        self.endpoints = {rn.name: self._endpoint(rn) for rn in self.graph.nodes}
+        self.endpoints = {rn.name: _endpoint(rn, self.run_dir) for rn in self.graph.nodes}
         plan = plan_wiring(self.graph, self.endpoints, self.control_ep)
         for rn in self.graph.nodes:
             if not self.local(rn):
@@ -115,7 +102,8 @@ class Supervisor:
             wiring = plan[rn.name]
             wf = self.run_dir / f"{rn.name}.json"
             wf.write_text(json.dumps({"class": rn.class_path, "params": rn.params, "wiring": wiring.__dict__}))
-            self.children[rn.name] = Child(rn, wiring, wf, backoff_s=rn.spec.respawn_delay)
+            self.children[rn.name] = Child(rn, wiring, wf)
+        self.processes = group_processes(self.children, process_groups(self.graph))
 
     def manifest(self) -> Manifest:
         """Nodes, topics, types and endpoints of the running graph."""
@@ -133,19 +121,21 @@ class Supervisor:
         stream.close()
 
     # ----- processes --------------------------------------------------------------------------
-    def _spawn(self, child: Child) -> None:
+    def _spawn(self, p: Process) -> None:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        child.proc = subprocess.Popen(
-            [sys.executable, "-m", "mocapgraph.bus.runtime", str(child.wiring_file)],
+        p.proc = subprocess.Popen(
+            [sys.executable, "-m", "mocapgraph.bus.runtime", *(str(c.wiring_file) for c in p.members)],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             env=env, preexec_fn=die_with_parent, start_new_session=True,
         )
-        child.ready = False
-        child.started = False
-        child.started_at = time.monotonic()
-        t = threading.Thread(target=self._pump, args=(child.node.name, child.proc.stdout), daemon=True)
+        for c in p.members:
+            c.ready = c.started = c.stopped = False
+        p.started_at = time.monotonic()
+        # a group's log lines name their node after the process (the runtime's format for groups)
+        t = threading.Thread(target=self._pump, args=(p.members[0].node.name if p.solo else p.name, p.proc.stdout),
+                             daemon=True)
         t.start()
-        child.threads.append(t)
+        p.threads.append(t)
 
     def _send(self, name: str, *frames: bytes) -> None:
         try:
@@ -169,6 +159,10 @@ class Supervisor:
                 readied.append(name)
             elif frames[0] == STARTED:
                 child.started = True
+            elif frames[0] == BYE:
+                child.stopped = True
+                if not child.process.solo and not self._stop_requested and child.proc.poll() is None:
+                    self.say(f"[launch] node {name} stopped (process {child.process.name} serves its other nodes on)")
 
     def _serve_master(self) -> None:
         self.master_server.serve(self.manifest)
@@ -187,14 +181,14 @@ class Supervisor:
         self.control.bind(self.control_ep)
         self._bind_master()
         t0 = time.monotonic()
-        for child in self.children.values():
-            self._spawn(child)
+        for p in self.processes.values():
+            self._spawn(p)
         while not all(c.ready for c in self.children.values()):
             self._serve_control()
             self._serve_master()
-            for c in self.children.values():
-                if c.proc.poll() is not None:
-                    raise LaunchError(f"node {c.node.name} exited with code {c.proc.returncode} during start-up")
+            for p in self.processes.values():
+                if p.proc.poll() is not None:
+                    raise LaunchError(f"{p.label} exited with code {p.proc.returncode} during start-up")
             if time.monotonic() - t0 > READY_TIMEOUT_S:
                 late = [c.node.name for c in self.children.values() if not c.ready]
                 raise LaunchError(f"nodes not ready after {READY_TIMEOUT_S:.0f} s: {', '.join(late)}")
@@ -214,8 +208,9 @@ class Supervisor:
                 self._serve_master()  # a node's on_start may ask for the manifest (a recorder's metadata)
         self.ready_time_s = time.monotonic() - t0
         self._watch_diagnostics()
+        grouped = len(self.processes) != len(self.children)
         self.say(f"[launch] {len(self.children)} nodes ready in {self.ready_time_s:.2f} s "
-                 f"(manifest at {self.master})")
+                 + (f"in {len(self.processes)} processes " if grouped else "") + f"(manifest at {self.master})")
 
     def _watch_diagnostics(self) -> None:
         """Subscribe to every node's diagnostics: their silence is how a stopped node shows."""
@@ -233,7 +228,7 @@ class Supervisor:
             silent = self.liveness.heard(sender, now) if sender in self.children else None
             if silent is not None:
                 self.say(f"[launch] node {sender} is responding again after {silent:.1f} s of silence")
-        running = [n for n, c in self.children.items() if c.proc is not None and c.proc.poll() is None]
+        running = [n for n, c in self.children.items() if c.proc is not None and c.proc.poll() is None and not c.stopped]
         for name, silent in self.liveness.newly_stalled(now, running):
             self.say(f"[launch] node {name} stalled: no diagnostics for {silent:.1f} s "
                      f"(pid {self.children[name].proc.pid}; stopped, or stuck in a handler?)")
@@ -243,28 +238,20 @@ class Supervisor:
         self._check_liveness(now)
         for name in self._serve_control():
             self._send(name, START)  # a respawned node joins the running graph
-        for c in self.children.values():
-            if c.finished or c.proc is None:
-                if c.respawn_at is not None and now >= c.respawn_at:
-                    c.respawn_at = None
-                    c.finished = False
-                    c.restarts += 1
-                    self.say(f"[launch] respawning {c.node.name} (restart {c.restarts})")
-                    self._spawn(c)
+        for p in self.processes.values():
+            if p.respawn_due(now):
+                self.say(f"[launch] respawning {p.label.removeprefix('node ')} (restart {p.restarts})")
+                self._spawn(p)
+                for c in p.members:
                     self.liveness.watch(c.node.name, now + STALL_S)  # start-up time is not silence
                 continue
-            code = c.proc.poll()
+            code = p.poll_exit(now, self._stop_requested)
             if code is None:
-                if now - c.started_at > MAX_BACKOFF_S:
-                    c.backoff_s = c.node.spec.respawn_delay  # healthy for a while: reset back-off
                 continue
-            c.finished = True
-            self.say(f"[launch] node {c.node.name} exited with code {code}")
-            if c.node.spec.respawn and not self._stop_requested:
-                c.respawn_at = now + c.backoff_s
-                c.backoff_s = min(MAX_BACKOFF_S, c.backoff_s * 2)
-            elif c.node.spec.required:
-                self.say(f"[launch] required node {c.node.name} died: stopping the graph")
+            self.say(f"[launch] {p.label} exited with code {code}")
+            if p.respawn_at is None and p.required:
+                self.say(f"[launch] required node {', '.join(c.node.name for c in p.members if c.node.spec.required)} "
+                         f"died{'' if p.solo else ' (with its process)'}: stopping the graph")
                 self._exit_code = 1
                 self._stop_requested = True
 
@@ -273,7 +260,7 @@ class Supervisor:
         while not self._stop_requested:
             self._watch()
             self._serve_master()
-            if all(c.finished and c.respawn_at is None for c in self.children.values()):
+            if all(p.finished and p.respawn_at is None for p in self.processes.values()):
                 self.say("[launch] every node has finished")
                 break
             zmq.select([self.control, self.master_sock] + ([self.diag] if self.diag is not None else []), [], [], 0.05)
@@ -285,19 +272,25 @@ class Supervisor:
     def shutdown(self) -> None:
         """Stop nodes upstream first; escalate to SIGTERM then SIGKILL for stragglers."""
         t0 = time.monotonic()
+        for p in self.processes.values():
+            p.respawn_at = None
         for name in [n for n in shutdown_order(self.graph) if n in self.children]:
             c = self.children[name]
-            c.respawn_at = None
+            p = c.process
             if c.proc is None or c.proc.poll() is not None:
                 continue
             self._send(name, STOP)
+            if any(m.proc is not None and not m.stopped and m is not c for m in p.members):
+                # others of its process still serve: wait for this node's BYE only (they drain on)
+                self._await_bye(c, STOP_TIMEOUT_S / 2)
+                continue
             if not _wait(c.proc, STOP_TIMEOUT_S / 2):
                 c.proc.terminate()
                 if not _wait(c.proc, STOP_TIMEOUT_S / 2):
                     c.proc.kill()
                     c.proc.wait()
-        for c in self.children.values():
-            for t in c.threads:
+        for p in self.processes.values():
+            for t in p.threads:
                 t.join(timeout=1.0)
         self.stop_time_s = time.monotonic() - t0
         self.say(f"[launch] stopped in {self.stop_time_s:.2f} s")
@@ -309,10 +302,17 @@ class Supervisor:
             self.master_server.close()
         shutil.rmtree(self.run_dir, ignore_errors=True)
 
+    def _await_bye(self, c: Child, timeout_s: float) -> None:
+        """Until ``c`` said BYE (it left its loop), its process ended, or ``timeout_s`` passed."""
+        t_end = time.monotonic() + timeout_s
+        while not c.stopped and c.proc.poll() is None and time.monotonic() < t_end:
+            zmq.select([self.control], [], [], 0.005)
+            self._serve_control()
+
     def kill_all(self) -> None:
-        for c in self.children.values():
-            if c.proc is not None and c.proc.poll() is None:
-                c.proc.kill()
+        for p in self.processes.values():
+            if p.proc is not None and p.proc.poll() is None:
+                p.proc.kill()
 
 
 

@@ -122,6 +122,7 @@ class _Plan:
         self.text_in: dict[bytes, dict] = {}
         self.last_dims: tuple | None = None
         self.last_layout: list = []
+        self.local_shapes: list | None = None   # the array shapes `local_copy` checked last
 
 
 _CODES = {"int": "q", "float": "d", "bool": "?"}
@@ -296,7 +297,35 @@ def decode_payload(cls: type[Message], env: Envelope, frames: Sequence[bytes | m
     return msg
 
 
-def _decode_array(tname: str, spec, dtype: np.dtype, shape: tuple, buf, symbols: dict[str, int]) -> np.ndarray:
+def local_copy(msg: Message) -> Message:
+    """``msg`` as a subscriber in the publisher's own process receives it, without the bytes:
+    read-only copies of its arrays (as decoded ones are; the publisher may reuse its own), fresh
+    string lists, the shapes checked as `decode_payload` checks them (DecodeError otherwise)."""
+    info = msg._info
+    plan = _plan(info)
+    d = msg.__dict__
+    arrays = [d[a] for a in plan.array_names]
+    shapes = [arr.shape for arr in arrays]
+    if shapes != plan.local_shapes:   # a stream keeps its shapes: checked once per change
+        symbols: dict[str, int] = {}
+        for (spec, _), shape in zip(plan.arrays, shapes):
+            _check_shape(info.name, spec, shape, symbols)
+        plan.local_shapes = shapes
+    cls = type(msg)
+    out = cls.__new__(cls)
+    od = out.__dict__
+    od.update(d)
+    for name, arr in zip(plan.array_names, arrays):
+        c = arr.copy()
+        c.flags.writeable = False
+        od[name] = c
+    for f in info.strings:
+        od[f.name] = list(od[f.name])
+    return out
+
+
+def _check_shape(tname: str, spec, shape: tuple, symbols: dict[str, int]) -> None:
+    """Sizes against the declared shape of ``spec``; symbols (N, J) must agree across fields."""
     for size, want in zip(shape, spec.shape):
         if type(want) is int:
             if size != want:
@@ -305,6 +334,10 @@ def _decode_array(tname: str, spec, dtype: np.dtype, shape: tuple, buf, symbols:
             raise DecodeError(
                 f"{tname}.{spec.name}: {want}={size} disagrees with {want}={symbols[want]} elsewhere"
             )
+
+
+def _decode_array(tname: str, spec, dtype: np.dtype, shape: tuple, buf, symbols: dict[str, int]) -> np.ndarray:
+    _check_shape(tname, spec, shape, symbols)
     count = math.prod(shape)
     nbytes = len(buf) if isinstance(buf, bytes) else memoryview(buf).nbytes
     if nbytes != count * dtype.itemsize:

@@ -104,10 +104,6 @@ class SourceNode(Node):
             self.log.warning(message + suffix, *args)
             rec[1] = now
 
-    def run(self) -> int:
-        code = super().run()
-        return self.exit_code or code
-
     # ----- diagnostics ------------------------------------------------------------------------
     def device_edges(self) -> list[dict[str, Any]]:
         """Incoming device streams as edges: dicts with topic, sender, rate_hz, received, gaps, rejected."""

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 import zmq
 
-from graph_helpers import node_pids, pid_alive, read_jsonl, run_concurrently, wait_until
+from graph_helpers import (assert_pattern_frame, node_pids, pid_alive, read_jsonl, run_concurrently,
+                           wait_until)
 from mocapgraph.messages import MarkerFrame, encode
 from mocapgraph.messages.codec import topic_frame
-from mocapgraph.testing.marker_pattern import pattern_positions
 
 
 PIPELINE = """\
@@ -55,14 +55,7 @@ nodes:
         # The start-up handshake means not one of the first frames is lost (slow joiner).
         assert [r["seq"] for r in recs] == list(range(1, 151))
         for r in recs[::17]:
-            assert r["type"] == "MarkerFrame" and r["sender"] == "pattern"
-            frame = r["msg"]["frame_number"]
-            pos = np.array(r["msg"]["positions"], dtype=float)
-            want = pattern_positions(frame, 6, 200.0)
-            if frame % 5 == 0:
-                assert np.isnan(pos[0]).all() and r["msg"]["valid"][0] is False
-                pos, want = pos[1:], want[1:]
-            np.testing.assert_array_equal(pos, want)
+            assert_pattern_frame(r, 6, 200.0, missing_every=5)
     layout = [r for r in read_jsonl(tmp_path / "log.jsonl") if r["topic"] == "marker_layout"]
     assert len(layout) == 1 and layout[0]["msg"]["labels"] == [f"P{i}" for i in range(6)]
 

@@ -11,7 +11,7 @@ from mocapgraph.messages import (
     DecodeError, MarkerFrame, MarkerLayout, Message, MessageError, NodeCommand,
     all_types, decode, decode_envelope, encode,
 )
-from mocapgraph.messages.codec import HEADER
+from mocapgraph.messages.codec import HEADER, local_copy
 from mocapgraph.messages.schema import Array, Scalar, Strings
 
 
@@ -116,3 +116,33 @@ def test_text_fields_travel_as_json_and_bad_text_is_rejected() -> None:
     assert decode(frames)[1] == msg
     with pytest.raises(DecodeError, match="text fields"):
         decode([*frames[:2], frames[2][:-3], *frames[3:]])
+
+
+@pytest.mark.parametrize("type_name", sorted(all_types()))
+def test_a_local_copy_is_what_decoding_gives_and_owns_its_arrays(type_name: str) -> None:
+    """In-process delivery hands a copy over instead of bytes: equal to the decoded message, the same
+    dtypes and read-only flags (so compiled kernels see the same types), sharing nothing."""
+    cls = all_types()[type_name]
+    msg = sample(cls, np.random.default_rng(2))
+    _, decoded = decode([bytes(f) for f in encode("t", msg, seq=1, capture_ns=0, sender="n")])
+    copy = local_copy(msg)
+    assert copy == decoded and type(copy) is cls
+    for name, spec in cls.fields().items():
+        mine, theirs = getattr(copy, name), getattr(decoded, name)
+        if isinstance(spec, Array):
+            assert mine.dtype == theirs.dtype and mine.flags.writeable == theirs.flags.writeable is False
+            assert mine.flags.c_contiguous and not np.shares_memory(mine, getattr(msg, name))
+        elif isinstance(spec, Strings):
+            assert mine == getattr(msg, name) and mine is not getattr(msg, name)
+
+
+def test_a_local_copy_refuses_shapes_decoding_refuses() -> None:
+    bad = MarkerFrame(frame_number=1, positions=np.zeros((4, 3)), valid=np.ones(4, bool), residual=np.zeros(3))
+    with pytest.raises(DecodeError, match="N=3 disagrees with N=4"):
+        decode([bytes(f) for f in encode("t", bad, seq=1, capture_ns=0)])
+    with pytest.raises(DecodeError, match="N=3 disagrees with N=4"):
+        local_copy(bad)
+    good = MarkerFrame(frame_number=1, positions=np.zeros((3, 3)), valid=np.ones(3, bool), residual=np.zeros(3))
+    assert local_copy(good) == good
+    with pytest.raises(DecodeError):   # after a good frame of other shapes, the check is made again
+        local_copy(bad)
