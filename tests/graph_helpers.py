@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -9,20 +10,60 @@ from typing import Any, Callable
 from mocapgraph.launch.manifest import fetch_manifest
 
 
+class _ParsedLog:
+    """The complete lines of one JSON-lines file parsed so far (the file only grows: the logger
+    appends), and where the parsing stopped."""
+
+    def __init__(self, ident: tuple[int, int], head: bytes) -> None:
+        self.ident, self.head = ident, head
+        self.offset = 0
+        self.records: list[dict] = []
+
+
+_PARSED: dict[str, _ParsedLog] = {}   # path -> what was parsed of it, the few newest files only
+_HEAD = 256                           # bytes that tell a file from another at the same path
+
+
 def read_jsonl(path: Path, topic: str | None = None) -> list[dict]:
-    """Records of a topic_logger file, optionally of one topic (a half-written last line is skipped)."""
+    """Records of a topic_logger file, optionally of one topic (a half-written last line is skipped).
+
+    Tests poll growing logs many times a second while the graph runs on the same two cores, and a
+    log of a whole capture is megabytes: each call parses only the lines appended since the last
+    (the same records as parsing the whole file; a file replaced or cut short is parsed again)."""
     path = Path(path)
-    if not path.exists():
+    try:
+        f = open(path, "rb")
+    except FileNotFoundError:
+        _PARSED.pop(str(path), None)
         return []
-    out = []
-    for line in path.read_text().splitlines():
+    with f:
+        st = os.fstat(f.fileno())
+        head = f.read(_HEAD)
+        log = _PARSED.get(str(path))
+        if (log is None or log.ident != (st.st_dev, st.st_ino) or st.st_size < log.offset
+                or head[:len(log.head)] != log.head):
+            log = _ParsedLog((st.st_dev, st.st_ino), head)
+        f.seek(log.offset)
+        new = f.read()
+    end = new.rfind(b"\n") + 1                # whole lines only: the last may be half-written
+    for line in new[:end].decode(errors="replace").splitlines():
         try:
-            rec = json.loads(line)
+            log.records.append(json.loads(line))
         except json.JSONDecodeError:
             continue
-        if topic is None or rec.get("topic") == topic:
-            out.append(rec)
-    return out
+    log.offset += end
+    if len(log.head) < _HEAD:
+        log.head = head
+    _PARSED.pop(str(path), None)
+    _PARSED[str(path)] = log
+    while len(_PARSED) > 8:
+        del _PARSED[next(iter(_PARSED))]
+    recs = log.records
+    try:                                       # a last line complete but for its newline counts too
+        tail = [json.loads(new[end:])] if new[end:].strip() else []
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        tail = []
+    return [r for r in (recs + tail) if topic is None or r.get("topic") == topic]
 
 
 def wait_until(cond: Callable[[], Any], timeout: float = 15.0, what: str = "condition", graph=None) -> Any:
