@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import zmq
 
 from ..messages import DecodeError, Envelope, Message, decode_envelope, decode_payload, encode
-from ..messages.codec import local_copy, topic_frame
+from ..messages.codec import local_copy, local_envelope, topic_frame
 from ..messages.registry import UnknownTypeError, lookup
 from .curve import CurveKeys, make_client
 from .ports import Input, Output
@@ -100,6 +100,7 @@ class OutputPort:
         Each gets its own copy (`local_copy`: read-only arrays, shapes checked) beside the header
         frames; raw subscribers (recorders) and messages that fail the check get the bytes."""
         owned: list | None = None
+        env = None if msg is None else local_envelope(self.topic, msg._info.name, self.node.name, frames[1])
         items = []
         for port in self.local:
             copy = None
@@ -115,12 +116,12 @@ class OutputPort:
         loop = self.node._loop
         if loop.delivering:
             for port, fr, copy in items:
-                port.post_local(fr, copy)
+                port.post_local(fr, copy, env)
             return
         loop.delivering = True
         try:
             for port, fr, copy in items:
-                port.take_now(fr, copy)
+                port.take_now(fr, copy, env)
         finally:
             loop.delivering = False
 
@@ -177,19 +178,20 @@ class InputPort:
         if newest is not None:
             self._deliver(*newest)
 
-    def post_local(self, frames: list, msg: Message | None = None) -> None:
+    def post_local(self, frames: list, msg: Message | None = None, env: Envelope | None = None) -> None:
         """Queue a message published by a node of this process (taken on the loop's next turn):
-        its frames (the header at least) and, unless it is to be decoded, the message itself."""
+        its frames (the header at least) and, unless they are to be decoded, the message itself and
+        its envelope."""
         if self.closed:
             return
-        self._local.append((frames, msg))
+        self._local.append((frames, msg, env))
         self.node._loop.local_ready[self] = None
 
-    def take_now(self, frames: list, msg: Message | None = None) -> None:
+    def take_now(self, frames: list, msg: Message | None = None, env: Envelope | None = None) -> None:
         """Take a message published by a node of this process now (after any queued before it)."""
         if self.closed:
             return
-        self._local.append((frames, msg))
+        self._local.append((frames, msg, env))
         self.on_local()
         if self._local:   # left for the next turn (a node asked to stop)
             self.node._loop.local_ready[self] = None
@@ -203,23 +205,25 @@ class InputPort:
         loop = self.node._loop
         newest: tuple[Envelope, list[bytes]] | None = None
         while queue:
-            frames, msg = queue.popleft()
-            newest = self._take(frames, newest, msg)
+            frames, msg, env = queue.popleft()
+            newest = self._take(frames, newest, msg, env)
             if loop.stopped:
                 return
         if newest is not None:
             self._deliver(*newest)
 
-    def _take(self, frames: list, newest: tuple | None, msg: Message | None = None) -> tuple | None:
-        """Check, count and hand on one message (``msg``: already decoded, from this process);
-        returns the newest held back (``latest_only``)."""
+    def _take(self, frames: list, newest: tuple | None, msg: Message | None = None,
+              env: Envelope | None = None) -> tuple | None:
+        """Check, count and hand on one message (``msg``, ``env``: already decoded, from this
+        process); returns the newest held back (``latest_only``)."""
         now = time.time_ns()
-        try:
-            env = decode_envelope(frames)
-        except DecodeError as exc:
-            self.stats.rejected += 1
-            self._reject(exc)
-            return newest
+        if env is None:
+            try:
+                env = decode_envelope(frames)
+            except DecodeError as exc:
+                self.stats.rejected += 1
+                self._reject(exc)
+                return newest
         if env.topic != self.topic:
             return newest
         edge = self.stats.edge(env.topic, env.sender)

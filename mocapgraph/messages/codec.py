@@ -227,6 +227,12 @@ def decode_envelope(frames: Sequence[bytes | memoryview]) -> Envelope:
     return Envelope(topic, tname, version, seq, cap, pub, sname, bool(flags & FLAG_LATCHED))
 
 
+def local_envelope(topic: str, type_name: str, sender: str, head: bytes) -> Envelope:
+    """The envelope of a header this process has just encoded: the names are known, nothing to check."""
+    _, _, flags, version, _, _, seq, cap, pub = HEADER.unpack_from(head)
+    return Envelope(topic, type_name, version, seq, cap, pub, sender, bool(flags & FLAG_LATCHED))
+
+
 def decode(frames: Sequence[bytes | memoryview]) -> tuple[Envelope, Message]:
     """Envelope and message of a frame set; raises DecodeError on anything malformed."""
     env = decode_envelope(frames)

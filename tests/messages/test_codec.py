@@ -11,7 +11,7 @@ from mocapgraph.messages import (
     DecodeError, MarkerFrame, MarkerLayout, Message, MessageError, NodeCommand,
     all_types, decode, decode_envelope, encode,
 )
-from mocapgraph.messages.codec import HEADER, local_copy
+from mocapgraph.messages.codec import HEADER, local_copy, local_envelope
 from mocapgraph.messages.schema import Array, Scalar, Strings
 
 
@@ -124,9 +124,11 @@ def test_a_local_copy_is_what_decoding_gives_and_owns_its_arrays(type_name: str)
     dtypes and read-only flags (so compiled kernels see the same types), sharing nothing."""
     cls = all_types()[type_name]
     msg = sample(cls, np.random.default_rng(2))
-    _, decoded = decode([bytes(f) for f in encode("t", msg, seq=1, capture_ns=0, sender="n")])
+    frames = [bytes(f) for f in encode("t", msg, seq=7, capture_ns=99, sender="n", latched=True)]
+    env, decoded = decode(frames)
     copy = local_copy(msg)
     assert copy == decoded and type(copy) is cls
+    assert local_envelope("t", type_name, "n", frames[1]) == env
     for name, spec in cls.fields().items():
         mine, theirs = getattr(copy, name), getattr(decoded, name)
         if isinstance(spec, Array):
