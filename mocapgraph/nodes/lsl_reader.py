@@ -242,3 +242,6 @@ class LSLReader(MarkerSourceNode):
     def on_stop(self) -> None:
         if self.inlet is not None:
             self.inlet.close_stream()
+            # liblsl's own threads go with the inlet: none left retrying a vanished outlet in a
+            # process that goes on (a node run in a thread, a composed process)
+            self.inlet = None

@@ -117,6 +117,7 @@ def test_lsl_reader_with_up_axis_reads_the_simulated_y_up_outlet(run_node, devic
         # a generous wait: the simulator is a fresh process importing pylsl on a loaded machine
         recs = n.wait_for(lambda: n.records("markers") if len(n.records("markers")) >= 20 else None,
                           timeout=25, what="frames from the outlet")
+        n.stop()   # the inlet closes while its outlet still exists: no liblsl thread left retrying in pytest
     finally:
         sim.kill()
         sim.wait()
