@@ -161,7 +161,7 @@ class InputPort:
     def on_readable(self) -> None:
         """Take up to BATCH messages: count each on its edge, decode, hand to the handler."""
         sock = self.socket
-        loop = self.node._loop
+        node = self.node
         newest: tuple[Envelope, list[bytes]] | None = None
         for i in range(BATCH):
             # Poll said readable for the first; ask before the others: a raised zmq.Again costs
@@ -173,7 +173,7 @@ class InputPort:
             except zmq.Again:
                 break
             newest = self._take(frames, newest)
-            if loop.stopped:
+            if node.stopping:   # (this node: another of its process stopping does not cut the batch)
                 return
         if newest is not None:
             self._deliver(*newest)
@@ -182,19 +182,17 @@ class InputPort:
         """Queue a message published by a node of this process (taken on the loop's next turn):
         its frames (the header at least) and, unless they are to be decoded, the message itself and
         its envelope."""
-        if self.closed:
+        if self.closed or self.node.stopping:   # leaving: as its socket's queue would, it takes no more
             return
         self._local.append((frames, msg, env))
         self.node._loop.local_ready[self] = None
 
     def take_now(self, frames: list, msg: Message | None = None, env: Envelope | None = None) -> None:
         """Take a message published by a node of this process now (after any queued before it)."""
-        if self.closed:
+        if self.closed or self.node.stopping:
             return
         self._local.append((frames, msg, env))
         self.on_local()
-        if self._local:   # left for the next turn (a node asked to stop)
-            self.node._loop.local_ready[self] = None
 
     def has_local(self) -> bool:
         return bool(self._local)
@@ -202,12 +200,12 @@ class InputPort:
     def on_local(self) -> None:
         """Take the queued in-process messages, as `on_readable` takes a socket's."""
         queue = self._local
-        loop = self.node._loop
+        node = self.node
         newest: tuple[Envelope, list[bytes]] | None = None
         while queue:
             frames, msg, env = queue.popleft()
             newest = self._take(frames, newest, msg, env)
-            if loop.stopped:
+            if node.stopping:
                 return
         if newest is not None:
             self._deliver(*newest)

@@ -118,9 +118,9 @@ class EventLoop:
             for port in ready:
                 port.on_local()   # at the loop's level: what it publishes goes straight on
                 if self.stopped:
-                    # the rest waits for the next turn (the node that asked to stop is served first)
+                    # the rest waits for the next turn (the node that asked to stop is finished first)
                     for p in ready:
-                        if p.has_local():
+                        if p.has_local() and not p.node.stopping:
                             self.local_ready[p] = None
                     return
 
