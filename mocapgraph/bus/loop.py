@@ -3,9 +3,9 @@
 One loop serves one process: a single node, or the nodes of a launch graph's ``process:`` group,
 which share it. Every socket, descriptor and timer is registered with its owner (a node), so a
 node that stops alone can take its own registrations away (`forget`). Messages between nodes of
-one process skip ZeroMQ (`bound_ports.OutputPort._send_local`): delivered inside ``publish``, or
-queued here (`local_ready`) when that would re-enter a handler, and delivered right after the
-handler that published them returns.
+one process skip ZeroMQ (`bound_ports.OutputPort._send_local`): delivered inside ``publish``, or,
+when the publishing handler is itself being fed in process, queued here (`local_ready`) and
+delivered right after the outer handler returns (so no handler is ever re-entered).
 """
 from __future__ import annotations
 

@@ -301,11 +301,5 @@ class Node:
             release_authenticator(self._ctx)
 
 
-def install_signal_handlers(node: Node) -> None:
-    """SIGINT/SIGTERM end the loop cleanly (on_stop runs, files are flushed)."""
-    from .process import install_stop_handlers
-    install_stop_handlers([node])
-
-
-__all__ = ["Node", "Input", "Output", "Param", "Wiring", "Timer", "NodeConfigError", "install_signal_handlers",
+__all__ = ["Node", "Input", "Output", "Param", "Wiring", "Timer", "NodeConfigError",
            "InputPort", "OutputPort", "DIAGNOSTICS_TOPIC"]
