@@ -210,7 +210,7 @@ def live_cost(frames: int) -> None:
               f"load average {os.getloadavg()[0]:.2f}")
     # the bone check alone: the compiled one-frame kernel beside the numpy reference on one frame
     from mocapgraph.kinematics.bone_follow import unfollowed
-    from mocapgraph.kinematics.bone_follow_kernels import flag_unfollowed
+    from mocapgraph.kinematics.retarget_kernels import flag_unfollowed
     rt, ch = _retargeter(t, True, 10.0)
     c = rt._checks
     res = rt.process(pts, ok)

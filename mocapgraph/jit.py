@@ -34,7 +34,6 @@ F = TypeVar("F", bound=Callable)
 
 # Modules whose `warm()` calls each of their kernels once with small inputs (compiles and caches).
 KERNEL_MODULES: tuple[str, ...] = (
-    "mocapgraph.kinematics.bone_follow_kernels",
     "mocapgraph.kinematics.global_fit_kernels",
     "mocapgraph.kinematics.joint_kernels",
     "mocapgraph.kinematics.retarget_source_kernels",

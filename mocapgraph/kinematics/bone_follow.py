@@ -7,7 +7,7 @@ from it; CMU's pelvis V onto Mixamo's keeps 20 deg); a frame whose angle exceeds
 tolerance (deg) is one the joint could not follow (a rigid girdle under an asymmetric shrug): the
 retargeter flags the joint estimated (1) there, never good. The joint alone: its descendants' own
 bones still follow theirs. Numpy reference here (batched over frames); the retargeter's one-frame
-path runs :mod:`bone_follow_kernels` (the same arithmetic compiled).
+path runs retarget_kernels.flag_unfollowed (the same arithmetic compiled).
 """
 from __future__ import annotations
 

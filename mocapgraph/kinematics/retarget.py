@@ -22,14 +22,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bone_follow import plan_bone_checks, unfollowed
-from .bone_follow_kernels import flag_unfollowed
+from .retarget_kernels import flag_unfollowed
 from .character import Character
 from .foot_planting import PlantState, plant_targets, two_bone_ik
 from .quaternion import (matrix_between, matrix_to_quat, norm, quat_conjugate, quat_multiply, quat_power,
                          quat_rotate, quat_to_matrix, swing_twist, twist_angle)
 from .retarget_live import LiveKernel
 from .retarget_mapping import Mapping, MappingError, check_mapping
-from .retarget_source import SourceSkeleton, plan_point_rotations, rotations_from_points
+from .retarget_source import OpticalFrames, SourceSkeleton, plan_point_rotations, rotations_from_points
 
 QUALITY_MISSING, QUALITY_ESTIMATED, QUALITY_GOOD = 0, 1, 2
 _EYE3 = np.eye(3)
@@ -315,6 +315,7 @@ class Retargeter:
         self._checks = plan_bone_checks(ch, m, src, opt.follow_tolerance_deg)
         self.reset()
         self._live = None
+        self._optical: OpticalFrames | None = None   # process_actor's point layout when not compiled
         # the one-frame path's folded gathers multiply every (held, so finite) point by its weights
         self._live = LiveKernel(self, compiled) if live and np.isfinite(src.rest_points).all() else None
 
@@ -429,11 +430,27 @@ class Retargeter:
                             None if rotations is None else rotations[None],
                             None if rotation_ok is None else rotation_ok[None], float(time_s))
 
+    def process_actor(self, joint_positions: np.ndarray, joint_quality: np.ndarray, limb_rotations: np.ndarray,
+                      limb_quality: np.ndarray, time_s: float) -> RetargetResult:
+        """One live frame of a solved actor (an optical source; ActorPose's arrays: joints [J, 3] m,
+        their quality [J], limb rotations [R, 4] wxyz, their quality [R]): :meth:`process_one` of the
+        joints with the pelvis point (OpticalFrames) and the limbs of quality >= 1; one compiled call
+        when the live path is compiled (the node's hot path: no point layout or mask in Python)."""
+        live = self._live
+        if live is not None and live.compiled is not None and live.compiled.hips is not None:
+            return live.compiled.run_actor(joint_positions, joint_quality, limb_rotations, limb_quality, float(time_s))
+        if self.source.kind != "optical":
+            raise ValueError(f"an actor frame wants an optical source, this one is {self.source.kind}")
+        if self._optical is None:
+            self._optical = OpticalFrames(self.source.point_names[:-1])
+        pts, ok = self._optical.frame(joint_positions, joint_quality)
+        return self.process_one(pts[0], ok[0], limb_rotations, np.asarray(limb_quality) >= 1, time_s)
+
     def _live_frame(self, pts, pok, rot, rok, t) -> RetargetResult:
         """The one-frame path, then the bone-follow check on the held points the frame used."""
         res = self._live.run(pts, pok, rot, rok, t)
         c = self._checks
-        if c.joint.size:    # bone_follow_kernels: one compiled call
+        if c.joint.size:    # retarget_kernels.flag_unfollowed: one compiled call
             flag_unfollowed(res.joint_positions[0], self._state.pts, c.joint, c.child, c.a, c.b, c.A, c.cos_limit,
                             res.joint_quality[0])
         return res

@@ -443,6 +443,27 @@ def plant_frame(pos, W, parents, order, offsets, rl_inv, root, local, tmp,
 
 
 @kernel
+def flag_unfollowed(pos, pts, joint, child, a, b, A, cos_limit, quality):
+    """:func:`bone_follow.unfollowed` for one frame: joint positions [J, 3] and source points [P, 3]
+    (m); per checked bone [B] the owner and child joints, source points a -> b, A [B, 3, 3] and
+    cos_limit (see bone_follow.BoneChecks). Lowers quality [J] (int8, in place) to 1 (estimated)
+    for a joint with a bone beyond its limit; returns how many joints it lowered."""
+    lowered = 0
+    for i in range(joint.shape[0]):
+        j, k = joint[i], child[i]
+        c0, c1, c2 = pos[k, 0] - pos[j, 0], pos[k, 1] - pos[j, 1], pos[k, 2] - pos[j, 2]
+        d0, d1, d2 = pts[b[i], 0] - pts[a[i], 0], pts[b[i], 1] - pts[a[i], 1], pts[b[i], 2] - pts[a[i], 2]
+        s0 = A[i, 0, 0] * d0 + A[i, 0, 1] * d1 + A[i, 0, 2] * d2
+        s1 = A[i, 1, 0] * d0 + A[i, 1, 1] * d1 + A[i, 1, 2] * d2
+        s2 = A[i, 2, 0] * d0 + A[i, 2, 1] * d1 + A[i, 2, 2] * d2
+        n = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2) * np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        if n > 0.0 and c0 * s0 + c1 * s1 + c2 * s2 < cos_limit[i] * n and quality[j] > 1:
+            quality[j] = 1
+            lowered += 1
+    return lowered
+
+
+@kernel
 def optical_frame(joint_positions, joint_quality, hips, pts, ok):
     """retarget_source.OpticalFrames.frame: points [J + 1, 3] (the joints, then the pelvis, the mean
     of the hips) and masks [J + 1] (quality >= 1; the pelvis when every hip is)."""
@@ -468,17 +489,18 @@ def optical_frame(joint_positions, joint_quality, hips, pts, ok):
 # Slot numbers are passed as np.int64(...): a plain int constant would compile the accessor once per value.
 INT_SLOTS = ("rot_src", "dep_idx", "rot_joint", "f_m", "f_a", "f_b", "c_start", "c_end", "c_jptr", "c_joints",
              "c_iters", "c_correct", "c_end_src", "c_pivot_src", "c_pptr", "c_path", "a_joint", "a_pre", "a_frm",
-             "a_to", "src_ext", "parents", "order", "scalars", "hip", "knee", "ankle", "toe", "aff", "which")
+             "a_to", "src_ext", "parents", "order", "scalars", "hip", "knee", "ankle", "toe", "aff", "which",
+             "hips", "b_joint", "b_child", "b_a", "b_b")
 FLOAT_SLOTS = ("K", "f_bone", "f_A", "c_frac", "c_A", "c_off", "a_bone", "a_A", "rw_q", "offsets", "rl_inv",
-               "root_M", "root_c", "root_s", "l1", "l2", "rest_h", "toe_h", "plant")
-WORK_SLOTS = ("qn", "qk", "dq", "ap", "D", "W", "tmp", "ank", "toe_z", "target", "speed", "turns")
+               "root_M", "root_c", "root_s", "l1", "l2", "rest_h", "toe_h", "plant", "b_A", "b_cos")
+WORK_SLOTS = ("qn", "qk", "dq", "ap", "D", "W", "tmp", "ank", "toe_z", "target", "speed", "turns", "pin")
 _NI, _NF = len(INT_SLOTS), len(FLOAT_SLOTS)
 (I_ROT_SRC, I_DEP, I_ROT_JOINT, I_FM, I_FA, I_FB, I_CS, I_CE, I_CJPTR, I_CJ, I_CIT, I_CCOR, I_CES, I_CPS, I_CPPTR,
  I_CPATH, I_AJ, I_APRE, I_AFRM, I_ATO, I_SRC_EXT, I_PAR, I_ORDER, I_SCAL, I_HIP, I_KNEE, I_ANKLE, I_TOE, I_AFF,
- I_WHICH) = range(_NI)
+ I_WHICH, I_HIPS, I_BJ, I_BC, I_BA, I_BB) = range(_NI)
 (F_K, F_FBONE, F_FA, F_CFRAC, F_CA, F_COFF, F_ABONE, F_AA, F_RWQ, F_OFF, F_RLINV, F_RM, F_RC, F_RS, F_L1, F_L2,
- F_RH, F_TH, F_PLANT) = range(_NF)
-(W_QN, W_QK, W_DQ, W_AP, W_D, W_W, W_TMP, W_ANK, W_TOEZ, W_TARGET, W_SPEED, W_TURNS) = range(len(WORK_SLOTS))
+ F_RH, F_TH, F_PLANT, F_BA, F_BCOS) = range(_NF)
+(W_QN, W_QK, W_DQ, W_AP, W_D, W_W, W_TMP, W_ANK, W_TOEZ, W_TARGET, W_SPEED, W_TURNS, W_PIN) = range(len(WORK_SLOTS))
 
 
 @kernel
@@ -555,6 +577,34 @@ def retarget_frame(pts, pok, rot, rok, t, st_pts, st_rot, pts_seen, rot_seen, pq
     return good
 
 
+@kernel
+def retarget_actor_frame(jp, jq, rot, lq, t, st_pts, st_rot, pts_seen, rot_seen, pq, rq, ps, ht, hxy, hn,
+                         ci, cf, wk, bk, root, pos, local, contact, quality):
+    """A solved actor's frame (ActorPose's arrays: joints jp [J, 3] m, their quality jq [J], limb
+    rotations rot [R, 4] wxyz, their quality lq [R], int8) in one call: optical_frame's points and
+    masks (the pelvis last, into scratch), the limbs of quality >= 1, :func:`retarget_frame`, and
+    when every input was good the joint quality [1, J] (good, bones the character could not follow
+    flagged by :func:`flag_unfollowed`). Outputs [1, ...] as RetargetResult holds them; ``bk``: bool
+    scratch [J + 1 + R]. Returns whether every input was good (if not, ``quality`` is left for the
+    caller, which derives it from ``pq`` and ``rq``)."""
+    J, R = jp.shape[0], rot.shape[0]
+    pts = _wv(ci, wk, np.int64(W_PIN), 3)
+    pok, rok = bk[:J + 1], bk[J + 1:J + 1 + R]
+    optical_frame(jp, jq, _iv(ci, np.int64(I_HIPS)), pts, pok)
+    for r in range(R):
+        rok[r] = lq[r] >= 1
+    good = retarget_frame(pts, pok, rot, rok, t, st_pts, st_rot, pts_seen, rot_seen, pq, rq, ps, ht, hxy, hn,
+                          ci, cf, wk, root[0], pos[0], local[0], contact[0])
+    if good:
+        q = quality[0]
+        q[:] = QUALITY_GOOD
+        nb = _iv(ci, np.int64(I_BJ)).shape[0]
+        flag_unfollowed(pos[0], st_pts, _iv(ci, np.int64(I_BJ)), _iv(ci, np.int64(I_BC)), _iv(ci, np.int64(I_BA)),
+                        _iv(ci, np.int64(I_BB)), _fv(ci, cf, np.int64(F_BA)).reshape((nb, 3, 3)),
+                        _fv(ci, cf, np.int64(F_BCOS)), q)
+    return good
+
+
 def pack(ints: dict, floats: dict, work: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ci, cf, wk) from the named slots (INT_SLOTS, FLOAT_SLOTS: arrays, any shape; WORK_SLOTS:
     sizes in float64 elements), in the layout :func:`retarget_frame` reads."""
@@ -583,14 +633,18 @@ def load() -> None:
     """Load the cached machine code of the frame kernels for the live path's argument types (a node
     calls it before it reports ready, so that its first frame does not wait ~0.4 s for it)."""
     import numba
+    ty = lambda *xs: tuple(numba.typeof(x) for x in xs)   # noqa: E731
     f2, f1, b1 = np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.bool_)
+    f3, b2, i8_2 = np.zeros((1, 1, 3)), np.zeros((1, 1), np.bool_), np.zeros((1, 1), np.int8)
     i8, i64 = np.zeros(1, np.int8), np.zeros(1, np.int64)
-    retarget_frame.compile(tuple(numba.typeof(x) for x in (f2, b1, f2, b1, 0.0, f2, f2, b1, b1, i8, i8, f1, f1, f2,
-                                                           i64, i64, f1, f1, f1, f2, f2, b1)))
+    retarget_frame.compile(ty(f2, b1, f2, b1, 0.0, f2, f2, b1, b1, i8, i8, f1, f1, f2, i64, i64, f1, f1, f1, f2, f2, b1))
+    flag_unfollowed.compile(ty(f2, f2, i64, i64, i64, i64, f3, f1, i8))
     ro2, ro8 = f2.copy(), i8.copy()
     ro2.flags.writeable = ro8.flags.writeable = False
     for jp, jq in ((ro2, ro8), (f2, i8)):   # decoded (read-only) frames and plain arrays
-        optical_frame.compile(tuple(numba.typeof(x) for x in (jp, jq, i64, f2, b1)))
+        optical_frame.compile(ty(jp, jq, i64, f2, b1))
+        retarget_actor_frame.compile(ty(jp, jq, jp, jq, 0.0, f2, f2, b1, b1, i8, i8, f1, f1, f2, i64, i64, f1, f1, b1,
+                                        f2, f3, f3, b2, i8_2))
 
 
 def warm() -> None:
@@ -607,6 +661,7 @@ def warm() -> None:
         q = np.tile([1.0, 0.0, 0.0, 0.0], (1, ch.n_joints, 1))
         for f in range(3):
             rt.process(pos[None], None, q, None, f / 240.0)
+    load()   # the actor frame (compiled by signature) and the bone-follow flag
     # the node's point layout, on arrays as decoded from a message (read-only views)
     jp, jq = np.zeros((3, 3)), np.full(3, 2, np.int8)
     jp.flags.writeable = False

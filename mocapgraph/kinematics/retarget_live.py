@@ -26,7 +26,7 @@ import numpy as np
 
 from .quaternion import matrix_to_quat, quat_multiply, quat_to_matrix
 from .foot_planting import plant_one
-from .retarget_source import rotations_from_points_frame
+from .retarget_source import pelvis_hips, rotations_from_points_frame
 
 if TYPE_CHECKING:
     from .retarget import Retargeter
@@ -543,6 +543,13 @@ class CompiledFrame:
         # source qualities of the last frame (read when a frame was not all good); float scratch: self.wk
         self.pq, self.rq = np.empty(P, np.int8), np.empty(R, np.int8)
         self.jq_good = lk.jq_good
+        # an optical actor's joints (the source's points but the pelvis, last) and the hips whose
+        # mean the pelvis is: the actor frame lays them out in the kernel (run_actor)
+        self.hips = None
+        if rt.source.kind == "optical":
+            self.hips = i64(pelvis_hips(rt.source.point_names[:-1]))
+        self.actor_shapes = ((P - 1, 3), (P - 1,), (R, 4), (R,))
+        chk = rt._checks
         self.Result = lk.Result
         self.legs = None
         if lk.legs is not None:
@@ -566,15 +573,18 @@ class CompiledFrame:
                     a_pre=self.a_pre, a_frm=self.a_frm, a_to=self.a_to, src_ext=self.src_ext, parents=self.parents,
                     order=self.order, scalars=[self.root_src, self.legs is not None, bool(lg[4]), self.check_norm,
                                                      lk.root_j],
-                    hip=lg[0], knee=lg[1], ankle=lg[2], toe=lg[3], aff=lg[9], which=lg[10])
+                    hip=lg[0], knee=lg[1], ankle=lg[2], toe=lg[3], aff=lg[9], which=lg[10],
+                    hips=self.hips if self.hips is not None else np.zeros(0, np.int64), b_joint=chk.joint,
+                    b_child=chk.child, b_a=chk.a, b_b=chk.b)
         floats = dict(K=self.K, f_bone=self.f_bone, f_A=self.f_A, c_frac=self.c_frac, c_A=self.c_A, c_off=self.c_off,
                       a_bone=self.a_bone, a_A=self.a_A, rw_q=self.rw_q, offsets=self.offsets, rl_inv=self.rl_inv,
                       root_M=self.root_M, root_c=self.root_c,
                       root_s=np.zeros(3) if rt._root_s is None else rt._root_s, l1=lg[5], l2=lg[6], rest_h=lg[7], toe_h=lg[8],
-                      plant=self.plant_params if self.legs is not None else np.zeros(5))
+                      plant=self.plant_params if self.legs is not None else np.zeros(5), b_A=chk.A, b_cos=chk.cos_limit)
         work = dict(qn=4 * R, qk=4 * max(n, 1), dq=4 * max(n, 1), ap=4 * max(na, 1), D=4 * (J + 1), W=4 * J, tmp=8,
-                    ank=6, toe_z=2, target=6, speed=2, turns=16)
+                    ank=6, toe_z=2, target=6, speed=2, turns=16, pin=3 * P)
         self.ci, self.cf, self.wk = rk.pack(ints, floats, work)
+        self.bk = np.zeros(P + R, np.bool_)   # the actor frame's point and rotation masks
 
     def release_state(self) -> None:
         """Hand the plants back to the state's PlantState (the batched path is about to read it)."""
@@ -582,6 +592,42 @@ class CompiledFrame:
         if st is not None:
             _unpack_plant(st.plant, self.ps, self.ht, self.hxy, self.hn)
             self._plant_for = None
+
+    def _plants_ready(self, st, t) -> float:
+        """The plant arrays in step with the state ``st`` (a fresh one after reset, or one the batched
+        path moved on), the speed window room for one more frame; returns the time as a float."""
+        if self.legs is None:
+            return 0.0
+        if self._plant_for is not st:
+            self.ht, self.hxy, self.hn = _pack_plant(st.plant, self.ps, len(self.ht))
+            self._plant_for = st
+        if self.hn[0] + 1 >= len(self.ht):  # a faster stream than the window held so far
+            self.ht = np.concatenate([self.ht, np.zeros(len(self.ht))])
+            self.hxy = np.concatenate([self.hxy, np.zeros((len(self.hxy), 4))])
+        return 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0]))
+
+    def run_actor(self, jp, jq, rot, lq, t):
+        """One solved-actor frame (optical source): joints [J, 3], quality [J], limb rotations [R, 4],
+        quality [R] (int8), C-contiguous as a message holds them, all read-only (decoded) or all
+        writable (the two compiled variants); :meth:`run` of OpticalFrames' points and the limbs of
+        quality >= 1, with the bone-follow flags, in one kernel call."""
+        if (jp.shape, jq.shape, rot.shape, lq.shape) != self.actor_shapes:   # the kernel does not check bounds
+            raise ValueError(f"an actor frame of this source wants joints {self.actor_shapes[0]}, quality "
+                             f"{self.actor_shapes[1]}, limbs {self.actor_shapes[2]}, {self.actor_shapes[3]}")
+        k, rt = self.k, self.rt
+        st = rt._state
+        tf = self._plants_ready(st, t)
+        J = self.J
+        root, pos, local = np.empty((1, 3)), np.empty((1, J, 3)), np.empty((1, J, 4))
+        contact, jq_out = np.empty((1, 2), np.bool_), np.empty((1, J), np.int8)
+        if not k.retarget_actor_frame(jp, jq, rot, lq, tf, st.pts, st.rot, st.pts_seen, st.rot_seen, self.pq, self.rq,
+                                      self.ps, self.ht, self.hxy, self.hn, self.ci, self.cf, self.wk, self.bk,
+                                      root, pos, local, contact, jq_out):
+            jq_out = rt._quality(self.rq[None], self.pq[None])   # something missing: held, flagged below
+            c = rt._checks
+            if c.joint.size:
+                k.flag_unfollowed(pos[0], st.pts, c.joint, c.child, c.a, c.b, c.A, c.cos_limit, jq_out[0])
+        return self.Result(local, root, pos, jq_out, contact)
 
     def run(self, pts, pok, rot, rok, t):
         """One frame, as LiveKernel.run: points [P, 3], rotations [R, 4] or None, masks or None."""
@@ -607,15 +653,7 @@ class CompiledFrame:
             rok = self.ones_r
         elif not (rok.flags.c_contiguous and rok.flags.writeable):
             rok = np.array(rok, order="C")
-        tf = 0.0
-        if self.legs is not None:
-            if self._plant_for is not st:       # a fresh state (reset) or one the batched path moved on
-                self.ht, self.hxy, self.hn = _pack_plant(st.plant, self.ps, len(self.ht))
-                self._plant_for = st
-            if self.hn[0] + 1 >= len(self.ht):  # a faster stream than the window held so far
-                self.ht = np.concatenate([self.ht, np.zeros(len(self.ht))])
-                self.hxy = np.concatenate([self.hxy, np.zeros((len(self.hxy), 4))])
-            tf = 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0]))
+        tf = self._plants_ready(st, t)
         J = self.J
         root = np.empty((1, 3))
         pos = np.empty((1, J, 3))

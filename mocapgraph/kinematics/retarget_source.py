@@ -72,12 +72,16 @@ def skeleton_source(names, parents, rest_offsets, *, has_orientations: bool, kin
                           derived_rotations=not has_orientations, kinect_like=kind_hint)
 
 
+def pelvis_hips(joint_names) -> list[int]:
+    """The joints whose mean is an optical actor's ``pelvis`` point: the hips (``hip*``), else the first."""
+    return [i for i, n in enumerate(joint_names) if n.startswith("hip")] or [0]
+
+
 def optical_source(joint_names, joint_parent, joint_limbs, limb_names, base_joints, layout: str = "") -> SourceSkeleton:
     """An optical actor (SkeletonModel): joint points plus ``pelvis``; limb rotations (identity at base)."""
     names = tuple(joint_names) + ("pelvis",)
     base = np.asarray(base_joints, dtype=np.float64)
-    hips = [i for i, n in enumerate(joint_names) if n.startswith("hip")]
-    pelvis = base[hips].mean(axis=0) if hips else base[0]
+    pelvis = base[pelvis_hips(joint_names)].mean(axis=0)
     parents = np.append(np.asarray(joint_parent, dtype=np.int64), -1)
     return SourceSkeleton("optical", names, parents, np.vstack([base, pelvis]), tuple(limb_names),
                           np.tile(IDENTITY, (len(limb_names), 1)), kinect_like=f"optical:{layout}")
@@ -85,9 +89,8 @@ def optical_source(joint_names, joint_parent, joint_limbs, limb_names, base_join
 
 def optical_points(joint_positions: np.ndarray, joint_names) -> np.ndarray:
     """[F, J+1, 3]: the solved joints plus the pelvis point (mean of the hip joints)."""
-    hips = [i for i, n in enumerate(joint_names) if n.startswith("hip")]
     p = np.asarray(joint_positions, dtype=np.float64)
-    pelvis = p[..., hips, :].mean(axis=-2, keepdims=True) if hips else p[..., :1, :]
+    pelvis = p[..., pelvis_hips(joint_names), :].mean(axis=-2, keepdims=True)
     return np.concatenate([p, pelvis], axis=-2)
 
 
@@ -95,7 +98,7 @@ class OpticalFrames:
     """:func:`optical_points` and the point masks for one live frame, the hip indices found once."""
 
     def __init__(self, joint_names) -> None:
-        self.hips = np.array([i for i, n in enumerate(joint_names) if n.startswith("hip")] or [0], dtype=np.int64)
+        self.hips = np.array(pelvis_hips(joint_names), dtype=np.int64)
         self.J = len(joint_names)
 
     def frame(self, joint_positions: np.ndarray, joint_quality: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

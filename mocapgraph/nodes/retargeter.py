@@ -24,7 +24,6 @@ from ..formats.character_file import CharacterFileError
 from ..formats.retarget_setup import build, source_from_model, source_from_skeleton_info
 from ..kinematics.retarget import RetargetOptions
 from ..kinematics.retarget_mapping import MappingError
-from ..kinematics.retarget_source import OpticalFrames
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, NodeCommand, NodeStatus, SkeletonInfo,
                         SkeletonModel, SkeletonPose)
 from ..formats.mapping_file import write_mapping
@@ -91,11 +90,9 @@ class RetargeterNode(Node):
         self._rg_bad_frames = 0
         self._rg_t0: int | None = None
         self._rg_frames = 0
-        self._rg_optical: OpticalFrames | None = None   # per-frame point layout of the latched model
-        from ..kinematics import bone_follow_kernels, retarget_kernels, retarget_source_kernels
+        from ..kinematics import retarget_kernels, retarget_source_kernels
         # the compiled kernels now, not at the first frame (which would queue ~0.4 s of frames behind it)
         retarget_kernels.load()
-        bone_follow_kernels.warm()
         if self.source == "skeleton":   # rotations from a positions-only stream (Kinect)
             retarget_source_kernels.warm()
 
@@ -179,11 +176,8 @@ class RetargeterNode(Node):
         if msg.joint_positions.shape[0] != J or msg.limb_orientations.shape[0] != L:
             self._wrong(msg.frame_number, msg.joint_positions.shape[0], J)
             return
-        if self._rg_optical is None or self._rg_optical.J != J:
-            self._rg_optical = OpticalFrames(model.joint_names)
-        pts, pok = self._rg_optical.frame(msg.joint_positions, msg.joint_quality)
-        res = self.rig.retargeter.process_one(pts[0], pok[0], msg.limb_orientations, msg.limb_quality >= 1,
-                                              self._times(self.actor_pose.envelope.capture_ns))
+        res = self.rig.retargeter.process_actor(msg.joint_positions, msg.joint_quality, msg.limb_orientations,
+                                                msg.limb_quality, self._times(self.actor_pose.envelope.capture_ns))
         self._publish(res, msg.frame_number, self.actor_pose.envelope.capture_ns)
 
     def _wrong(self, frame: int, got: int, want: int) -> None:

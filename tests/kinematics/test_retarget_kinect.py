@@ -189,10 +189,10 @@ def test_bones_the_girdle_cannot_follow_flag_their_joint_estimated(shared_data):
 
 
 def test_the_compiled_bone_check_matches_the_numpy_one(shared_data):
-    """bone_follow_kernels.flag_unfollowed (the live path's) against bone_follow.unfollowed (numpy) on
+    """retarget_kernels.flag_unfollowed (the live path's) against bone_follow.unfollowed (numpy) on
     every frame of a real recording, at three tolerances."""
     from mocapgraph.kinematics.bone_follow import plan_bone_checks, unfollowed
-    from mocapgraph.kinematics.bone_follow_kernels import flag_unfollowed
+    from mocapgraph.kinematics.retarget_kernels import flag_unfollowed
     trial, src, ch, mapping, res = _run(shared_data / "kinect2" / "Ges01_wavehand.csv")
     pts = np.where(np.isfinite(trial.positions), trial.positions, 0.0)
     for tol in (2.0, 10.0, 20.0):

@@ -140,3 +140,41 @@ def test_the_nodes_point_layout_is_optical_points():
     np.testing.assert_array_equal(np.isnan(pts), np.isnan(want))
     np.testing.assert_allclose(pts[np.isfinite(want)], want[np.isfinite(want)], rtol=0, atol=0)
     assert ok.tolist() == [[True, True, True, False, True, False]]
+
+
+def test_the_actor_frame_is_the_layout_then_one_frame():
+    """process_actor (the node's one compiled call: point layout, limb masks, retargeting, bone-follow
+    flags) gives what the batched path gives on optical_points of the same frames, with joints lost,
+    limbs of quality 0 and a NaN joint; read-only inputs (decoded messages) and writable ones alike;
+    the numpy path's process_actor too."""
+    cap, model, res = solved_synthetic_actor()
+    src = optical_source(model.joint_names, model.joint_parent, model.joint_limbs, model.limb_names, model.joint_base)
+    n = 300
+    jp, jq = res.joints[:n].copy(), res.joint_quality[:n].astype(np.int8)
+    lr, lq = res.limb_rotation[:n].copy(), res.limb_quality[:n].astype(np.int8)
+    jq[40:70, 5] = 0
+    jp[80:90, 2] = np.nan
+    lq[100:130, 3] = 0
+    t = cap.times[cap.phase_slice("performance")][:n]
+    ch = standard_20(1.75)
+    m = derive_mapping(ch, src)
+    opts = RetargetOptions(foot_planting=True)
+    pts = optical_points(np.where(jq[..., None] >= 1, jp, np.nan), model.joint_names)
+    batch = Retargeter(ch, m, src, opts, live=False).process(pts, None, lr, lq >= 1, t)
+    assert (batch.joint_quality < 2).any() and batch.contact.any()
+    for compiled, read_only in ((True, True), (True, False), (False, True)):
+        rt = Retargeter(ch, m, src, opts, compiled=compiled)
+        assert (rt._live.compiled is not None) == compiled
+        frames = []
+        for f in range(n):
+            arrays = [a[f].copy() for a in (jp, jq, lr, lq)]
+            for a in arrays:
+                a.flags.writeable = not read_only
+            frames.append(rt.process_actor(*arrays, t[f]))
+        for k in FIELDS:
+            got = np.concatenate([getattr(r, k) for r in frames]).astype(float)
+            worst = float(np.abs(got - getattr(batch, k).astype(float)).max())
+            print(f"\nactor frame (compiled {compiled}, read-only {read_only}) - batch max {k}: {worst:.1e}")
+            assert worst < 1e-12 if k not in ("joint_quality", "contact") else worst == 0, (compiled, read_only, k)
+    with pytest.raises(ValueError, match="actor frame"):
+        Retargeter(ch, m, src, opts).process_actor(jp[0, :-1], jq[0, :-1], lr[0], lq[0], 0.0)
