@@ -6,7 +6,8 @@ gym, walk / reach / turn / kick performance). The whole session is computed befo
 starts when it fits in ``precompute_mb`` (the default one-pass session does at any usual rate);
 longer sessions are computed ahead in chunks on a worker thread. Either way the timer that
 publishes frames only looks rows up. The session ends in the base pose where it began, so
-``loop`` restarts seamlessly; frame numbers and stamps keep counting.
+``loop`` restarts seamlessly; frame numbers and stamps keep counting. ``start_s`` begins the
+first pass later in the session (e.g. at the performance) with the session's own frame numbers.
 """
 from __future__ import annotations
 
@@ -70,6 +71,9 @@ class SyntheticActorNode(MarkerSourceNode):
     duration_s = Param(0.0, "session length, s; 0 = one pass (1 s base pose, 16 s gym, 20.5 s performance); "
                             "longer sessions repeat the performance", minimum=0.0)
     loop = Param(True, "start the session again when it ends (seamless: it ends in the base pose)")
+    start_s = Param(0.0, "where the first pass begins, s into the session (17 = the performance with the default "
+                         "script); frame numbers are the session's (start_s x rate_hz first); loops restart at 0 s",
+                    minimum=0.0)
     noise_mm = Param(0.0, "Gaussian marker noise, standard deviation per axis, mm", minimum=0.0)
     wobble_mm = Param(0.0, "soft-tissue wobble, RMS per axis in the limb frame, mm", minimum=0.0)
     dropout_rate_hz = Param(0.0, "random single-marker dropouts per marker per second", minimum=0.0)
@@ -111,6 +115,12 @@ class SyntheticActorNode(MarkerSourceNode):
             return
         sk = self.actor_model.skeleton
         self.n_frames = self.actor_model.n_frames
+        self.start_frame = int(round(self.start_s * self.rate_hz))
+        if self.start_frame >= self.n_frames:
+            self.load_error = (f"synthetic actor: start_s {self.start_s:g} s is not inside the session "
+                               f"({self.n_frames / self.rate_hz:g} s)")
+            return
+        self._row = self.start_frame   # the first pass's first row (of the whole session, or of the first chunk)
         self._onehot = np.zeros((sk.n_markers, sk.n_limbs), np.int16)
         self._onehot[np.arange(sk.n_markers), np.asarray(sk.marker_limb)] = 1
         self.chunk_frames = max(8, int(round(CHUNK_S * self.rate_hz)))
@@ -123,8 +133,10 @@ class SyntheticActorNode(MarkerSourceNode):
                                       for f in ("markers", "valid", "joints", "limb_quat", "visible")))
             self._first = self.actor_model.capture(0, min(1, self.n_frames))
         else:
-            self._first = self.actor_model.capture(0, min(self.chunk_frames, self.n_frames))
+            self._first = self.actor_model.capture(self.start_frame,
+                                                   min(self.start_frame + self.chunk_frames, self.n_frames))
             self._queue.put(self._pack(self._first))
+            self._row = 0
 
     # ----- producing frames (worker thread) ------------------------------------------------
     def _pack(self, cap: SyntheticCapture) -> _Chunk:
@@ -139,7 +151,7 @@ class SyntheticActorNode(MarkerSourceNode):
             self.worker_error = f"synthetic actor: frame generation failed: {exc!r}"
 
     def _produce_chunks(self) -> None:
-        start = self._first.n_frames
+        start = self.start_frame + self._first.n_frames
         while not self._quit.is_set():
             if start >= self.n_frames:
                 if not self.loop:
@@ -175,7 +187,8 @@ class SyntheticActorNode(MarkerSourceNode):
             self._worker.start()
         self.mono0, self.wall0 = time.monotonic(), time.time_ns()
         period = 0.0 if self.rate_scale == 0 else 1.0 / (self.rate_hz * self.rate_scale)
-        self.set_state("streaming", f"{sk.name}, {self.rate_hz:g} Hz, session {self.n_frames / self.rate_hz:g} s")
+        begin = f", from {self.start_frame / self.rate_hz:g} s" if self.start_frame else ""
+        self.set_state("streaming", f"{sk.name}, {self.rate_hz:g} Hz, session {self.n_frames / self.rate_hz:g} s{begin}")
         self.add_timer(period, self._tick, first_delay_s=0.0)
 
     def _next_chunk(self) -> _Chunk | None:
@@ -208,8 +221,10 @@ class SyntheticActorNode(MarkerSourceNode):
         while self.frames_sent < due:
             c = self._chunk
             if c is None or self._row >= c.markers.shape[0]:
+                # (the first chunk begins at the row __init__ set: start_s into the session)
+                first = c is None and not self.frames_sent
                 c = self._chunk = self._next_chunk()
-                self._row = 0
+                self._row = self._row if first else 0
                 if c is None:
                     if self.worker_error:
                         self.fail(self.worker_error)
@@ -218,8 +233,8 @@ class SyntheticActorNode(MarkerSourceNode):
                     self.request_stop()
                     return
             i = self._row
-            k = self.frames_sent
-            cap_ns = self.wall0 + round(k * 1e9 / self.rate_hz)
+            k = self.start_frame + self.frames_sent
+            cap_ns = self.wall0 + round(self.frames_sent * 1e9 / self.rate_hz)
             self.publish_frame(k, self.rate_hz, c.markers[i], cap_ns, valid=c.valid[i])
             self.ground_truth.publish(ActorPose(
                 actor=self.actor, frame_number=k, joint_positions=c.joints[i],

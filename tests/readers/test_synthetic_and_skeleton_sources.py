@@ -78,6 +78,30 @@ def test_synthetic_actor_loops_seamlessly_with_continuing_numbers(run_node, prec
     assert step.max() > 0.02 and step[seam] <= 1.5 * step[seam - 4:seam].max() + 1e-6
 
 
+@pytest.mark.parametrize("precompute_mb", [64.0, 0.0])
+def test_synthetic_actor_starts_later_in_the_session_and_loops_from_its_beginning(run_node, precompute_mb) -> None:
+    rate, start_s = 40.0, 17.0   # the default script's performance
+    n = run_node("synthetic_actor", {"layout": "one_arm", "rate_hz": rate, "rate_scale": 0.0, "loop": True,
+                                     "start_s": start_s, "precompute_mb": precompute_mb})
+    ref = SyntheticActor("one_arm", rate=rate).capture()
+    start = int(start_s * rate)
+    assert ref.phases["performance"][0] == start
+    rest = ref.n_frames - start
+    recs = n.wait_for(lambda: n.records("markers")[: rest + 40] if len(n.records("markers")) >= rest + 40
+                      else None, what="the rest of a pass and a bit")
+    # the session's own frame numbers from the start on, counting on through the loop
+    assert [r.msg.frame_number for r in recs] == list(range(start, start + rest + 40))
+    pos = np.array([r.msg.positions for r in recs])
+    np.testing.assert_array_equal(pos[:rest], ref.markers[start:])
+    np.testing.assert_array_equal(pos[rest:], ref.markers[:40])                 # the loop starts at 0 s
+    truth = n.wait_for(lambda: n.messages("ground_truth")[: rest + 40]
+                       if len(n.messages("ground_truth")) >= rest + 40 else None, what="ground truth")
+    assert [t.frame_number for t in truth] == list(range(start, start + rest + 40))
+    np.testing.assert_array_equal(np.array([t.joint_positions for t in truth[:rest]]), ref.joint_centres[start:])
+    np.testing.assert_allclose(np.diff([r.env.capture_ns for r in recs]), 1e9 / rate, atol=1)
+    assert "from 17 s" in n.messages("reader_status")[-1].detail
+
+
 def test_synthetic_actor_script_timing(run_node) -> None:
     n = run_node("synthetic_actor", {"layout": "one_arm", "rate_hz": 50.0, "rate_scale": 0.0, "loop": False,
                                      "script": {"base_s": 0.5, "gym_block_s": 1.0, "walk_s": 1.0, "reach_s": 0.5,
@@ -87,7 +111,8 @@ def test_synthetic_actor_script_timing(run_node) -> None:
 
 
 @pytest.mark.parametrize("params, fault", [({"layout": "no_such_layout"}, "no_such_layout"),
-                                           ({"script": {"walk_speedd": 2}}, "walk_speedd")])
+                                           ({"script": {"walk_speedd": 2}}, "walk_speedd"),
+                                           ({"start_s": 40.0}, "start_s 40 s is not inside the session")])
 def test_synthetic_actor_bad_settings_are_clear_errors(run_node, params, fault) -> None:
     n = run_node("synthetic_actor", params)
     assert n.wait_exit(10) == 1
