@@ -6,8 +6,9 @@ Prints:
   kernel (retarget_kernels), the numpy one-frame path and the batched path, beside a baseline
   measured in the same run: one Character.forward_kinematics call per frame. Target: at least
   10 000 frames/s (under 0.1 ms a frame) on one core.
-- node path: what the retargeter node does per ActorPose (decode, point layout, retarget, CharacterPose,
-  encode) in this process, CPU us/frame and wall p50/p99 (the node's own added latency, no transport).
+- node path: what the retargeter node does per ActorPose (decode, Retargeter.process_actor: the point
+  layout, masks, retargeting and bone-follow flags in one compiled call, CharacterPose, encode) in this
+  process, CPU us/frame and wall p50/p99 (the node's own added latency, no transport).
 - batch: whole trials in one call (the `mocapgraph retarget` path): the synthetic performance onto
   standard_20, CMU 131_01 onto Mixamo (70 joints, fingers), frames/s.
 - hop reference: one frame between two Python processes at 240 Hz, raw pyzmq and mocapgraph nodes
@@ -54,15 +55,17 @@ def _solved_actor():
     perf = cap.phase_slice("performance")
     res = FrameSolver(model, rate_hz=cap.rate).solve(cap.markers[perf])
     src = optical_source(model.joint_names, model.joint_parent, model.joint_limbs, model.limb_names, model.joint_base)
+    actor = tuple(np.ascontiguousarray(a) for a in (res.joints, res.joint_quality.astype(np.int8), res.limb_rotation,
+                                                     res.limb_quality.astype(np.int8)))
     return cap, model, src, optical_points(res.joints, model.joint_names), res.limb_rotation, res.limb_quality > 0, \
-        cap.times[perf]
+        cap.times[perf], actor
 
 
 def bench_live(n: int) -> None:
     from mocapgraph.kinematics.character import standard_20
     from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
     from mocapgraph.kinematics.retarget_mapping import derive_mapping
-    cap, model, src, pts, rot, rok, t = _solved_actor()
+    cap, model, src, pts, rot, rok, t, actor = _solved_actor()
     ch = standard_20(1.75)
     m = derive_mapping(ch, src)
     n = min(n, len(pts))
@@ -94,20 +97,31 @@ def bench_live(n: int) -> None:
                 f", {per[k] / dt:.1f}x faster than the {k.strip()}" for k in per if k != what)
             print(f"  {what} planting {'on ' if planting else 'off'}: {1e6 * dt:8.1f} us/frame CPU ({1e6 * dw:7.1f} wall)  "
                   f"{1 / dt:9.0f} frames/s  ({ratios})")
+        # the node's call: the actor's own arrays, point layout and masks in the same compiled call
+        rt = Retargeter(ch, m, src, RetargetOptions(foot_planting=planting))
+        jp, jq, lr, lq = actor
+        for f in range(50):
+            rt.process_actor(jp[f], jq[f], lr[f], lq[f], t[f])
+        rt.reset()
+        t0, w0 = time.process_time(), time.perf_counter()
+        for f in range(n):
+            rt.process_actor(jp[f], jq[f], lr[f], lq[f], t[f])
+        dt, dw = (time.process_time() - t0) / n, (time.perf_counter() - w0) / n
+        print(f"  actor frame (the node's call) planting {'on ' if planting else 'off'}: {1e6 * dt:8.1f} us/frame CPU "
+              f"({1e6 * dw:7.1f} wall)  {1 / dt:9.0f} frames/s  ({dt / base:.2f}x the baseline)")
         print(f"  (target >= 10000 frames/s, < 100 us a frame; load average {' '.join(f'{x:.1f}' for x in os.getloadavg())})")
 
 
 def bench_node_path(n: int) -> None:
     """What the retargeter node does per ActorPose, in this process: decode the frames off the
-    wire format, the node's point layout, the retargeter's one-frame path, the CharacterPose, encode.
+    wire format, the node's one call (Retargeter.process_actor), the CharacterPose, encode.
     (The launched graph below adds transport and scheduling on a loaded machine.)"""
     from mocapgraph.formats.retarget_setup import build, source_from_model
     from mocapgraph.kinematics.retarget import RetargetOptions
-    from mocapgraph.kinematics.retarget_source import OpticalFrames
     from mocapgraph.kinematics.solver import FrameSolver
     from mocapgraph.messages import ActorPose, CharacterPose
     from mocapgraph.messages.codec import decode_envelope, decode_payload, encode, header_capture_ns
-    cap, model, src, pts, rot, rok, t = _solved_actor()
+    cap, model, src, pts, rot, rok, t, actor = _solved_actor()
     perf = cap.phase_slice("performance")
     res = FrameSolver(model, rate_hz=cap.rate).solve(cap.markers[perf])
     n = min(n, len(pts))
@@ -117,12 +131,12 @@ def bench_node_path(n: int) -> None:
                         limb_orientations=res.limb_rotation[f], limb_quality=res.limb_quality[f],
                         limb_visible_markers=np.zeros(len(model.limb_names), np.int16))
         wire.append([bytes(x) for x in encode("actor_pose", msg, f, int(t[f] * 1e9), "solver")])
-    print(f"node path in this process ({n} ActorPose frames: decode, points, retarget, CharacterPose, encode):")
+    print(f"node path in this process ({n} ActorPose frames: decode, process_actor, CharacterPose, encode):")
     for planting in (False, True):
         setup = build("standard_20", None, source_from_model(model.joint_names, model.joint_parent, model.joint_limbs,
                                                               model.limb_names, model.joint_base),
                       RetargetOptions(foot_planting=planting))
-        rt, layout = setup.retargeter, OpticalFrames(model.joint_names)
+        rt = setup.retargeter
         lat = np.empty(n)
         gc.collect()
         gc.freeze()   # as Node.run does before serving: start-up objects are not scanned per message
@@ -132,8 +146,8 @@ def bench_node_path(n: int) -> None:
             w0 = time.perf_counter_ns()
             env = decode_envelope(frames)
             msg = decode_payload(ActorPose, env, frames)
-            p, ok = layout.frame(msg.joint_positions, msg.joint_quality)
-            r = rt.process_one(p[0], ok[0], msg.limb_orientations, msg.limb_quality >= 1, (env.capture_ns - t0) * 1e-9)
+            r = rt.process_actor(msg.joint_positions, msg.joint_quality, msg.limb_orientations, msg.limb_quality,
+                                 (env.capture_ns - t0) * 1e-9)
             out = CharacterPose(character="standard_20", frame_number=msg.frame_number, root_position=r.root_positions[0],
                                 local_rotations=r.local_rotations[0], joint_positions=r.joint_positions[0],
                                 joint_quality=r.joint_quality[0])
@@ -153,7 +167,7 @@ def bench_batch() -> None:
     from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
     from mocapgraph.kinematics.retarget_mapping import derive_mapping
     from mocapgraph.kinematics.retarget_source import skeleton_source
-    cap, model, src, pts, rot, rok, t = _solved_actor()
+    cap, model, src, pts, rot, rok, t, actor = _solved_actor()
     print("batch, a whole trial in one call:")
     for planting in (False, True):
         ch = standard_20(1.75)

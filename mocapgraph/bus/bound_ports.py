@@ -191,8 +191,13 @@ class InputPort:
         """Take a message published by a node of this process now (after any queued before it)."""
         if self.closed or self.node.stopping:
             return
-        self._local.append((frames, msg, env))
-        self.on_local()
+        if self._local:   # earlier ones wait: in order
+            self._local.append((frames, msg, env))
+            self.on_local()
+            return
+        newest = self._take(frames, None, msg, env)   # (on_local of this one message, without the queue)
+        if newest is not None and not self.node.stopping:
+            self._deliver(*newest)
 
     def has_local(self) -> bool:
         return bool(self._local)

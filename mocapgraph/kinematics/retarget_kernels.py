@@ -585,8 +585,9 @@ def retarget_actor_frame(jp, jq, rot, lq, t, st_pts, st_rot, pts_seen, rot_seen,
     masks (the pelvis last, into scratch), the limbs of quality >= 1, :func:`retarget_frame`, and
     when every input was good the joint quality [1, J] (good, bones the character could not follow
     flagged by :func:`flag_unfollowed`). Outputs [1, ...] as RetargetResult holds them; ``bk``: bool
-    scratch [J + 1 + R]. Returns whether every input was good (if not, ``quality`` is left for the
-    caller, which derives it from ``pq`` and ``rq``)."""
+    scratch [J + 1 + R]. Returns 1 when every input was good (else 0: ``quality`` is left for the
+    caller, which derives it from ``pq`` and ``rq``), plus 2 when the speed window has room for one
+    more frame only (the caller grows it before the next: numpy scalars would cost it more there)."""
     J, R = jp.shape[0], rot.shape[0]
     pts = _wv(ci, wk, np.int64(W_PIN), 3)
     pok, rok = bk[:J + 1], bk[J + 1:J + 1 + R]
@@ -602,7 +603,7 @@ def retarget_actor_frame(jp, jq, rot, lq, t, st_pts, st_rot, pts_seen, rot_seen,
         flag_unfollowed(pos[0], st_pts, _iv(ci, np.int64(I_BJ)), _iv(ci, np.int64(I_BC)), _iv(ci, np.int64(I_BA)),
                         _iv(ci, np.int64(I_BB)), _fv(ci, cf, np.int64(F_BA)).reshape((nb, 3, 3)),
                         _fv(ci, cf, np.int64(F_BCOS)), q)
-    return good
+    return (1 if good else 0) + (2 if hn[0] + 2 >= ht.shape[0] else 0)
 
 
 def pack(ints: dict, floats: dict, work: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

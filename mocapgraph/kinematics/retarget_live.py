@@ -607,8 +607,8 @@ class CompiledFrame:
         return 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0]))
 
     def run_actor(self, jp, jq, rot, lq, t):
-        """One solved-actor frame (optical source): joints [J, 3], quality [J], limb rotations [R, 4],
-        quality [R] (int8), C-contiguous as a message holds them, all read-only (decoded) or all
+        """One solved-actor frame (optical source) at time ``t`` (s, a float): joints [J, 3], quality [J],
+        limb rotations [R, 4], quality [R] (int8), C-contiguous as a message holds them, all read-only (decoded) or all
         writable (the two compiled variants); :meth:`run` of OpticalFrames' points and the limbs of
         quality >= 1, with the bone-follow flags, in one kernel call."""
         if (jp.shape, jq.shape, rot.shape, lq.shape) != self.actor_shapes:   # the kernel does not check bounds
@@ -616,13 +616,17 @@ class CompiledFrame:
                              f"{self.actor_shapes[1]}, limbs {self.actor_shapes[2]}, {self.actor_shapes[3]}")
         k, rt = self.k, self.rt
         st = rt._state
-        tf = self._plants_ready(st, t)
+        if self._plant_for is not st:   # (after that, the kernel's return value says when the window needs room)
+            self._plants_ready(st, t)
         J = self.J
         root, pos, local = np.empty((1, 3)), np.empty((1, J, 3)), np.empty((1, J, 4))
         contact, jq_out = np.empty((1, 2), np.bool_), np.empty((1, J), np.int8)
-        if not k.retarget_actor_frame(jp, jq, rot, lq, tf, st.pts, st.rot, st.pts_seen, st.rot_seen, self.pq, self.rq,
+        done = k.retarget_actor_frame(jp, jq, rot, lq, t, st.pts, st.rot, st.pts_seen, st.rot_seen, self.pq, self.rq,
                                       self.ps, self.ht, self.hxy, self.hn, self.ci, self.cf, self.wk, self.bk,
-                                      root, pos, local, contact, jq_out):
+                                      root, pos, local, contact, jq_out)
+        if done & 2 and self.legs is not None:
+            self._plants_ready(st, t)
+        if not done & 1:
             jq_out = rt._quality(self.rq[None], self.pq[None])   # something missing: held, flagged below
             c = rt._checks
             if c.joint.size:

@@ -99,7 +99,15 @@ class Envelope:
 
 def topic_frame(topic: str) -> bytes:
     """The first frame of a message on ``topic``, also the exact ZeroMQ subscription prefix."""
-    return topic.encode() + b"\0"
+    key = _TOPIC_FRAMES.get(topic)
+    if key is None:
+        key = topic.encode() + b"\0"
+        if len(_TOPIC_FRAMES) < 4096:   # a graph's topics; bounded against garbage
+            _TOPIC_FRAMES[topic] = key
+    return key
+
+
+_TOPIC_FRAMES: dict[str, bytes] = {}
 
 
 class _Plan:
@@ -114,11 +122,13 @@ class _Plan:
         self.struct = struct.Struct("<" + codes)
         self.py = [SCALAR_PY[sc.kind] for sc in self.numeric]
         self.array_names = [a.name for a in info.arrays]
+        self.string_names = [f.name for f in info.strings]
         # per-stream caches (speed only; the bytes are the same): the text block of str-only text
         # fields by their values, parsed text blocks by their bytes, and the array dims last
         # validated with their (name, dtype, shape, nbytes): a stream's frames keep their shapes
         self.text_str_only = all(getattr(f, "kind", None) == "str" for f in self.text)
         self.text_out: dict[tuple, bytes] = {}
+        self.names_out: dict[str, tuple[int, int, bytes]] = {}   # by sender: header name lengths and bytes
         self.text_in: dict[bytes, dict] = {}
         self.last_dims: tuple | None = None
         self.last_layout: list = []
@@ -154,8 +164,12 @@ def encode(
     """The multipart frames of ``msg`` on ``topic``. ``publish_ns`` defaults to now."""
     info = msg._info
     plan = _plan(info)
-    tname = info.name.encode()
-    sname = sender.encode()
+    names = plan.names_out.get(sender)
+    if names is None:   # (type name, sender name) bytes and lengths: once per sender
+        tname, sname = info.name.encode(), sender.encode()
+        names = (len(tname), len(sname), tname + sname)
+        if len(plan.names_out) < _TEXT_CACHE:
+            plan.names_out[sender] = names
     d = msg.__dict__
     arrays = [d[a] for a in plan.array_names]
     values = [d[sc.name] for sc in plan.numeric]
@@ -178,13 +192,13 @@ def encode(
         CODEC_VERSION,
         FLAG_LATCHED if latched else 0,
         info.version,
-        len(tname),
-        len(sname),
+        names[0],
+        names[1],
         seq,
         capture_ns,
         time.time_ns() if publish_ns is None else publish_ns,  # stamped last: encoding is not latency
     )
-    frames: list[bytes | memoryview] = [topic_frame(topic), header + tname + sname, block]
+    frames: list[bytes | memoryview] = [topic_frame(topic), header + names[2], block]
     for arr in arrays:
         # The field setters keep arrays contiguous with the declared dtype; native order on
         # every platform we support is little-endian.
@@ -323,10 +337,10 @@ def local_copy(msg: Message) -> Message:
     od.update(d)
     for name, arr in zip(plan.array_names, arrays):
         c = arr.copy()
-        c.flags.writeable = False
+        c.setflags(write=False)   # (setflags: no flags object built, as the attribute would)
         od[name] = c
-    for f in info.strings:
-        od[f.name] = list(od[f.name])
+    for name in plan.string_names:
+        od[name] = list(od[name])
     return out
 
 

@@ -183,6 +183,8 @@ class Message:
         for key in specs:
             # Instance attributes shadow the declarations; keep class-level access to specs.
             setattr(cls, key, _FieldDescriptor(key, specs[key]))
+        if "__init__" not in vars(cls) and not any(k == "self" or k.startswith("_") for k in specs):
+            cls.__init__ = _field_by_field_init(cls._info)   # (else the generic one: names it could clash with)
         from .registry import register
 
         register(cls)
@@ -245,6 +247,48 @@ class Message:
             "x-field-block": _field_block(cls),
             "properties": {k: s.json_schema() for k, s in info.fields.items()},
         }
+
+
+_MISSING = object()
+_FAST_SCALAR = {"int": int, "float": float, "str": str, "bool": bool}
+
+
+def _field_by_field_init(info: _TypeInfo):
+    """``Message.__init__`` for one type written out field by field, as dataclasses writes its
+    constructors: a value that already has its declared type (a Python scalar of the kind, a
+    C-contiguous array of the dtype, rank and fixed sizes) is stored after one inline check, any
+    other goes through its field's ``coerce`` (so the result is the generic constructor's). A frame
+    message is built per frame on the hot path: the generic loop costs several us more."""
+    env: dict[str, Any] = {"_MISSING": _MISSING, "_ndarray": np.ndarray, "_info": info,
+                           "_unknown_fields": _unknown_fields}
+    names = [f.name for f in (*info.scalars, *info.strings, *info.arrays)]
+    body = ["    if _unknown:", "        _unknown_fields(_info, _unknown)", "    _sd = self.__dict__"]
+    for f in info.scalars:
+        n = f.name
+        env[f"_c_{n}"], env[f"_t_{n}"], env[f"_d_{n}"] = f.coerce, _FAST_SCALAR[f.kind], f.default
+        body.append(f"    _sd[{n!r}] = _d_{n} if {n} is _MISSING else {n} if type({n}) is _t_{n} else _c_{n}({n})")
+    for f in info.strings:   # always copied: the message owns its list
+        n = f.name
+        env[f"_c_{n}"] = f.coerce
+        body.append(f"    _sd[{n!r}] = [] if {n} is _MISSING else _c_{n}({n})")
+    for f in info.arrays:
+        n = f.name
+        dt, rank, fixed = f._fast
+        env[f"_c_{n}"], env[f"_dt_{n}"], env[f"_e_{n}"] = f.coerce, dt, f.empty
+        sizes = "".join(f" and {n}.shape[{i}] == {size}" for i, size in fixed)
+        body.append(f"    _sd[{n!r}] = _e_{n}() if {n} is _MISSING else {n} if (type({n}) is _ndarray and "
+                    f"{n}.dtype is _dt_{n} and {n}.ndim == {rank}{sizes} and {n}.flags.c_contiguous) "
+                    f"else _c_{n}({n})")
+    args = "".join(f"{n}=_MISSING, " for n in names)
+    src = f"def __init__(self, *, {args}**_unknown):\n" + "\n".join(body) + "\n"
+    exec(compile(src, f"<{info.name}.__init__>", "exec"), env)   # noqa: S102 (our own field names)
+    init = env["__init__"]
+    init.__doc__ = f"A {info.name} from its fields by name (missing ones take their defaults)."
+    return init
+
+
+def _unknown_fields(info: _TypeInfo, unknown: dict) -> None:
+    raise MessageError(f"{info.name} has no field(s) {sorted(unknown)}")
 
 
 def _field_block(cls: type[Message]) -> str:

@@ -162,6 +162,13 @@ def test_the_actor_frame_is_the_layout_then_one_frame():
     pts = optical_points(np.where(jq[..., None] >= 1, jp, np.nan), model.joint_names)
     batch = Retargeter(ch, m, src, opts, live=False).process(pts, None, lr, lq >= 1, t)
     assert (batch.joint_quality < 2).any() and batch.contact.any()
+    # a 5 kHz stream: the 0.05 s speed window outgrows the compiled path's first buffers (64) twice
+    t_fast = np.arange(n) / 5000.0
+    fast = Retargeter(ch, m, src, opts, live=False).process(pts, None, lr, lq >= 1, t_fast)
+    rt = Retargeter(ch, m, src, opts)
+    got = np.concatenate([rt.process_actor(jp[f], jq[f], lr[f], lq[f], t_fast[f]).joint_positions for f in range(n)])
+    assert len(rt._live.compiled.ht) >= 256
+    assert np.abs(got - fast.joint_positions).max() < 1e-12
     for compiled, read_only in ((True, True), (True, False), (False, True)):
         rt = Retargeter(ch, m, src, opts, compiled=compiled)
         assert (rt._live.compiled is not None) == compiled
