@@ -5,17 +5,22 @@ import argparse
 import shutil
 import subprocess
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ..launch.check import CheckedGraph, check_graph, load_node_class
-from ..launch.graph import load_graph
-from ..formats.yaml_source import GraphError, parse_value
 from ..nodes.registry import NODE_TYPES
 from . import UserError
+
+if TYPE_CHECKING:
+    from ..launch.check import CheckedGraph
+
+# The graph checker (networkx, the bus, every format reader) is imported by the commands that run:
+# `mocapgraph --help` builds this family's parser and needs none of it.
 
 
 def parse_overrides(items: list[str]) -> dict[str, Any]:
     """``name:=value`` pairs, values typed as YAML."""
+    from ..formats.yaml_source import parse_value
+
     out = {}
     for item in items:
         name, sep, value = item.partition(":=")
@@ -27,6 +32,10 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
 
 def load_checked(path: str, overrides: list[str], check_files: bool = True,
                  machine: str | None = None) -> CheckedGraph:
+    from ..formats.yaml_source import GraphError
+    from ..launch.check import check_graph
+    from ..launch.graph import load_graph
+
     try:
         return check_graph(load_graph(path, parse_overrides(overrides)), check_files=check_files, machine=machine)
     except GraphError as exc:
@@ -113,6 +122,8 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 
 def cmd_node_list(args: argparse.Namespace) -> int:
+    from ..launch.check import load_node_class
+
     width = max(len(n) for n in NODE_TYPES)
     for name in sorted(NODE_TYPES):
         try:
@@ -125,6 +136,8 @@ def cmd_node_list(args: argparse.Namespace) -> int:
 
 
 def cmd_node_info(args: argparse.Namespace) -> int:
+    from ..launch.check import load_node_class
+
     try:
         path, cls = load_node_class(args.type)
     except KeyError as exc:

@@ -59,14 +59,27 @@ def test_a_command_parses_helps_and_fails_as_with_every_family_loaded(command):
         assert got == want, argv
 
 
-def test_a_command_loads_only_its_family():
+def _loaded_after(*argvs: list[str]) -> set[str]:
+    """Modules a fresh interpreter holds after running ``main`` on each of ``argvs``."""
     code = ("import sys\nfrom mocapgraph.cli import main\n"
-            "for argv in (['topic', '--help'], ['device', 'simulate', '--help'], ['bag', 'info', '--help']):\n"
+            f"for argv in {argvs!r}:\n"
             "    try:\n        main(argv)\n    except SystemExit:\n        pass\n"
             "print(' '.join(sorted(sys.modules)))")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0, run.stderr
-    loaded = set(run.stdout.splitlines()[-1].split())
+    return set(run.stdout.splitlines()[-1].split())
+
+
+HEAVY = {"mocapgraph.launch.check", "scipy", "numba", "networkx", "mujoco"}
+
+
+def test_a_command_loads_only_its_family():
+    loaded = _loaded_after(["topic", "--help"], ["device", "simulate", "--help"], ["bag", "info", "--help"])
     assert {"mocapgraph.cli.topic_cmds", "mocapgraph.cli.device_cmds", "mocapgraph.cli.bag_cmds"} <= loaded
-    assert not loaded & {"mocapgraph.cli.graph_cmds", "mocapgraph.cli.actor_cmds", "mocapgraph.launch.check",
-                         "scipy", "numba", "networkx", "mujoco"}, sorted(loaded)
+    assert not loaded & ({"mocapgraph.cli.graph_cmds", "mocapgraph.cli.actor_cmds"} | HEAVY), sorted(loaded)
+
+
+def test_the_whole_help_loads_no_graph_checker():
+    loaded = _loaded_after(["--help"], ["graph", "--help"], ["launch", "--help"])
+    assert {f"mocapgraph.cli.{m}" for m in COMMAND_MODULES} <= loaded
+    assert not loaded & HEAVY, sorted(loaded & HEAVY)
