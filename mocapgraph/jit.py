@@ -37,6 +37,7 @@ F = TypeVar("F", bound=Callable)
 
 # Modules whose `warm()` calls each of their kernels once with small inputs (compiles and caches).
 KERNEL_MODULES: tuple[str, ...] = (
+    "mocapgraph.kinematics.quat_kernels",      # (called by others: first)
     "mocapgraph.kinematics.global_fit_kernels",
     "mocapgraph.kinematics.joint_kernels",
     "mocapgraph.kinematics.retarget_source_kernels",
