@@ -39,6 +39,10 @@ class Process:
         return self.members[0].node.spec.respawn_delay
 
     @property
+    def nice(self) -> int:
+        return self.members[0].node.spec.nice
+
+    @property
     def required(self) -> bool:
         return any(c.node.spec.required for c in self.members)
 
