@@ -20,7 +20,7 @@ def launched_graph(graph_yaml: str, wait_topic: str, tmp: Path, timeout_s: float
     graph = tmp / "graph.yaml"
     graph.write_text(graph_yaml)
     master = f"ipc://{tmp}/master"
-    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)],
+    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(graph)], cwd=tmp,   # (its logs land there)
                             env=dict(os.environ, MOCAPGRAPH_MASTER=master), stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     try:

@@ -16,8 +16,9 @@ real time on one core):
 * N characters in one world (each with its own conditioning, database fill and read-out): ms per
   frame and per character, and how many fit in the 8.33 ms of a 120 Hz frame on one core;
 * MuJoCo alone: mj_step of the one-character world, per step and per frame (2 substeps);
-* a launched graph synthetic_character (120 Hz) -> physics_tracker -> this process: the tracker's
-  added latency (its publish stamp minus the input's publish stamp), median and p99.
+* a launched graph synthetic_character (120 Hz) -> physics_tracker -> this process, a process each and
+  composed (`process:`, the hop in process): the tracker's added latency (its publish stamp minus the
+  input's publish stamp), median and p99.
 Every figure is this process's CPU time with the wall time and the load average beside it (the
 machine is shared); the one-character run also prints its accuracy (MPJPE from the target, fall,
 largest force and torque against their bounds).
@@ -199,10 +200,14 @@ nodes:
 """
 
 
-def graph_latency(seconds: float) -> None:
+def graph_latency(seconds: float, composed: bool = False) -> None:
+    """The tracker's added latency in the launched graph; ``composed``: the source and the tracker in
+    one process (``process: live``: the hop between them in process)."""
     from mocapgraph.launch.manifest import subscribe
     from mocapgraph.messages import decode_envelope
-    with tempfile.TemporaryDirectory() as tmp, launched_graph(GRAPH, "sim_character_pose", Path(tmp)) as manifest:
+    graph = GRAPH.replace("    type: synthetic_character\n", "    type: synthetic_character\n    process: live\n") \
+        .replace("    type: physics_tracker\n", "    type: physics_tracker\n    process: live\n") if composed else GRAPH
+    with tempfile.TemporaryDirectory() as tmp, launched_graph(graph, "sim_character_pose", Path(tmp)) as manifest:
         sock = subscribe(manifest, ["character_pose", "sim_character_pose"])
         sent: dict[int, int] = {}
         done: dict[int, int] = {}
@@ -224,7 +229,8 @@ def graph_latency(seconds: float) -> None:
     if not len(v):
         print("launched graph: no matched frames")
         return
-    print(f"launched graph, synthetic_character 120 Hz -> physics_tracker, {len(v)} frames over {seconds:g} s:")
+    how = "composed in one process" if composed else "a process each"
+    print(f"launched graph, synthetic_character 120 Hz -> physics_tracker ({how}), {len(v)} frames over {seconds:g} s:")
     print(f"  added latency (input publish -> simulated pose publish) median {np.median(v):.2f} ms, "
           f"p99 {np.percentile(v, 99):.2f} ms, max {v.max():.2f} ms (load {load():.2f})")
 
@@ -299,6 +305,7 @@ def main() -> None:
           f"load {load():.2f})")
     if not opts.no_graph:
         graph_latency(opts.graph_seconds)
+        graph_latency(opts.graph_seconds, composed=True)
 
 
 if __name__ == "__main__":

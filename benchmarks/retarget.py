@@ -20,6 +20,9 @@ Prints:
   and the node process's CPU per frame. Target p99 <= 0.3 ms. Three runs: a process per node, the
   same with keep_up, and the solver and retargeter composed in one process (``process:``: the hop
   between them in process, the reader and the recorder in their own processes).
+- shipped graph: retarget_optical.yaml as a lab runs it (240 Hz onto standard_20, the viewer on at its
+  shipped nice 10, pipeline_process:=live), this process subscribed to actor_pose and character_pose:
+  the same added latency, p50, p99, max.
 - the machine's load average while it ran (the figures depend on it).
 
 Usage: python benchmarks/retarget.py [--live-frames 3000] [--graph-s 10] [--no-graph | --graph-only]
@@ -280,6 +283,49 @@ nodes:
               f"retargeting); load average now {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 
 
+def bench_shipped(seconds: float, viewer: bool = True) -> None:
+    """The shipped graph as a lab runs it, viewer included: retarget_optical.yaml at 240 Hz onto
+    standard_20 with the solver and retargeter composed (pipeline_process:=live); this process
+    subscribes to actor_pose and character_pose and pairs them by capture stamp (the retargeter
+    publishes its frame with the ActorPose's). Calibration runs live first (the actor's base pose
+    and gym), so the measurement starts when the first character frame comes."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from _launched import launched_graph
+    from mocapgraph.launch.manifest import subscribe
+    from mocapgraph.messages import decode_envelope
+    graph = (f"include:\n  - file: {REPO / 'graph_configs/retarget_optical.yaml'}\n"
+             "    args: {character: standard_20, rate: 240.0, pipeline_process: live, viewer_port: 0, "
+             f"viewer: {str(viewer).lower()}}}\n")
+    with tempfile.TemporaryDirectory() as tmp, launched_graph(graph, "character_pose", Path(tmp), 120.0) as manifest:
+        sock = subscribe(manifest, ["actor_pose", "character_pose"])
+        actor: dict[int, int] = {}
+        char: dict[int, int] = {}
+        lat: list[float] = []
+        t_end = time.monotonic() + 180.0
+        t_stop = None
+        while time.monotonic() < (t_stop or t_end):
+            if not sock.poll(200):
+                continue
+            env = decode_envelope(sock.recv_multipart())
+            (actor if env.topic == "actor_pose" else char)[env.capture_ns] = env.publish_ns
+            k = env.capture_ns
+            if k in actor and k in char:
+                lat.append((char.pop(k) - actor.pop(k)) * 1e-6)
+                if t_stop is None and len(lat) > 240:   # 1 s of poses: the start-up transient is over
+                    lat.clear()
+                    t_stop = time.monotonic() + seconds
+        sock.close(0)
+    v = np.asarray(lat)
+    if not len(v):
+        print("shipped graph: no character frames (calibration did not finish in time?)")
+        return
+    print(f"shipped graph retarget_optical.yaml (240 Hz, standard_20, pipeline_process:=live, viewer "
+          f"{'on' if viewer else 'off'}), "
+          f"{len(v)} frames over {seconds:g} s:")
+    print(f"  latency the retargeter adds: p50 {np.percentile(v, 50):.3f} ms, p99 {np.percentile(v, 99):.3f} ms, "
+          f"max {v.max():.3f} ms (target p99 <= 0.3 ms; load average {' '.join(f'{x:.1f}' for x in os.getloadavg())})")
+
+
 def bench_hop(count: int) -> None:
     """The raw reference for the graph's hop: one frame between two Python processes at 240 Hz,
     raw pyzmq and mocapgraph nodes (benchmarks/bus.py's measurement), same run."""
@@ -311,6 +357,7 @@ def main() -> None:
         bench_graph(a.graph_s)
         bench_graph(a.graph_s, keep_up=True)
         bench_graph(a.graph_s, composed=True)
+        bench_shipped(a.graph_s)
     print(f"load average after: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 
 

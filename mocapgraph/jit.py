@@ -19,11 +19,14 @@ debugger.
 """
 from __future__ import annotations
 
+import hashlib
 import importlib
 import logging
 import sys
 import time
 import traceback
+from pathlib import Path
+from types import ModuleType
 from typing import Callable, TypeVar
 
 import numba
@@ -34,6 +37,7 @@ F = TypeVar("F", bound=Callable)
 
 # Modules whose `warm()` calls each of their kernels once with small inputs (compiles and caches).
 KERNEL_MODULES: tuple[str, ...] = (
+    "mocapgraph.kinematics.quat_kernels",      # (called by others: first)
     "mocapgraph.kinematics.global_fit_kernels",
     "mocapgraph.kinematics.joint_kernels",
     "mocapgraph.kinematics.retarget_source_kernels",
@@ -82,6 +86,40 @@ if __name__ != "__main__":   # `python -m mocapgraph.jit` runs a second copy of 
 def kernel(func: F) -> F:
     """Compile `func` in nopython mode, cached on disk, releasing the GIL while it runs."""
     return numba.njit(cache=True, nogil=True, fastmath=False, error_model="numpy")(func)
+
+
+def kernel_calling(*modules: ModuleType) -> Callable[[F], F]:
+    """`kernel` for a module whose kernels call kernels of ``modules``: their sources join the cache stamp.
+
+    numba checks a cached kernel against its own source file only, while the machine code it keeps
+    has its callees compiled in: a kernel calling into another module that changed would load the
+    old callee from its cache, silently. With ``kernel = kernel_calling(quat_kernels)`` at the top of
+    a kernel module, its kernels' caches are stale when ``quat_kernels``' source (or what that one
+    calls in turn) changes, and compile again (logged as a run-time compile unless warming)."""
+    deps = tuple(modules)
+
+    def wrap(func: F) -> F:
+        disp = kernel(func)
+        caller = sys.modules.get(func.__module__)
+        if caller is not None:
+            caller._kernel_dependencies = deps   # (for the stamp of a module calling this one)
+        cache_file = getattr(getattr(disp, "_cache", None), "_cache_file", None)
+        if cache_file is None or not hasattr(cache_file, "_source_stamp"):   # fail loudly, never stale
+            raise RuntimeError(f"numba {numba.__version__}: jit.kernel_calling does not know this cache layout")
+        cache_file._source_stamp = (cache_file._source_stamp, _sources_stamp(deps))
+        return disp
+
+    return wrap
+
+
+def _sources_stamp(modules: tuple[ModuleType, ...]) -> str:
+    """A hash of the source files of ``modules`` and, recursively, of the modules their kernels call."""
+    h = hashlib.sha256()
+    for m in modules:
+        h.update(m.__name__.encode())
+        h.update(Path(m.__file__).read_bytes())
+        h.update(_sources_stamp(getattr(m, "_kernel_dependencies", ())).encode())
+    return h.hexdigest()
 
 
 def readonly(a: np.ndarray) -> np.ndarray:

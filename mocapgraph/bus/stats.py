@@ -46,18 +46,19 @@ class EdgeStats:
 
     def accept(self, seq: int, publish_ns: int, now_ns: int) -> bool:
         """Record one arrival; False when it is a duplicate (a latched resend) to be dropped."""
-        lost = sequence_gap(self.last_seq, seq, publish_ns == self.last_publish_ns)
-        if lost == DUPLICATE:
-            self.duplicates += 1
-            return False
-        if lost == RESTART:
-            self.restarts += 1
-            log.info("%s from %s: the sender restarted (sequence %d after %d): a new stream, not loss",
-                     self.topic, self.sender, seq, self.last_seq)
-        elif lost == ANOMALY:
-            self.anomalies += 1
-        else:
-            self.gaps += lost
+        if seq != self.last_seq + 1:   # (the next number, the usual case, is no loss: sequence_gap's 0)
+            lost = sequence_gap(self.last_seq, seq, publish_ns == self.last_publish_ns)
+            if lost == DUPLICATE:
+                self.duplicates += 1
+                return False
+            if lost == RESTART:
+                self.restarts += 1
+                log.info("%s from %s: the sender restarted (sequence %d after %d): a new stream, not loss",
+                         self.topic, self.sender, seq, self.last_seq)
+            elif lost == ANOMALY:
+                self.anomalies += 1
+            else:
+                self.gaps += lost
         self.last_seq = seq
         self.last_publish_ns = publish_ns
         self.received += 1

@@ -62,7 +62,8 @@ def to_text(graph: CheckedGraph) -> str:
     types = graph.topic_types()
     lines = [f"graph {graph.spec.file}"]
     for n in graph.nodes:
-        lines.append(f"  {n.name} ({n.spec.type})" + (f" in process {n.spec.process}" if n.spec.process else ""))
+        lines.append(f"  {n.name} ({n.spec.type})" + (f" in process {n.spec.process}" if n.spec.process else "")
+                     + (f", nice {n.spec.nice}" if n.spec.nice else ""))
         for port, topic in n.inputs.items():
             lines.append(f"    <- {topic} [{n.iface.inputs[port].type_name}]")
         for port, topic in n.outputs.items():

@@ -13,89 +13,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapgraph.jit import kernel
+from mocapgraph.jit import kernel_calling
+
+from . import quat_kernels
+
+kernel = kernel_calling(quat_kernels)   # matrix_to_quat_into, jacobi_eigen
 
 # joint kinds (PointRotationPlan.kind)
 CARRY, ONE, TWO, FIT = 0, 1, 2, 3
 
 
 @kernel
-def _shepperd(m00, m01, m02, m10, m11, m12, m20, m21, m22, out, j):
-    """out[j] = the wxyz quaternion (w >= 0) of a rotation matrix, exactly as
-    quaternion.matrix_to_quat: the row of 4 q q^T with the largest diagonal, normalised."""
-    d0 = 1.0 + m00 + m11 + m22
-    d1 = 1.0 + m00 - m11 - m22
-    d2 = 1.0 - m00 + m11 - m22
-    d3 = 1.0 - m00 - m11 + m22
-    # np.argmax: the first of equal maxima
-    k, best = 0, d0
-    if d1 > best:
-        k, best = 1, d1
-    if d2 > best:
-        k, best = 2, d2
-    if d3 > best:
-        k = 3
-    if k == 0:
-        q0, q1, q2, q3 = d0, m21 - m12, m02 - m20, m10 - m01
-    elif k == 1:
-        q0, q1, q2, q3 = m21 - m12, d1, m10 + m01, m02 + m20
-    elif k == 2:
-        q0, q1, q2, q3 = m02 - m20, m10 + m01, d2, m21 + m12
-    else:
-        q0, q1, q2, q3 = m10 - m01, m02 + m20, m21 + m12, d3
-    s = 1.0 / np.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
-    if q0 < 0.0:
-        s = -s
-    out[j, 0], out[j, 1], out[j, 2], out[j, 3] = q0 * s, q1 * s, q2 * s, q3 * s
-
-
-@kernel
 def _unit3(x, y, z):
     n = np.sqrt(x * x + y * y + z * z)
     return x / n, y / n, z / n
-
-
-@kernel
-def _jacobi4(A, V):
-    """Diagonalise the symmetric 4x4 A in place by cyclic Jacobi rotations (A <- V^T A V, V the
-    eigenvectors as columns, set here)."""
-    for i in range(4):
-        for k in range(4):
-            V[i, k] = 1.0 if i == k else 0.0
-    for _sweep in range(50):
-        off = 0.0
-        scale = 0.0
-        for p in range(4):
-            scale += abs(A[p, p])
-            for q in range(p + 1, 4):
-                off += abs(A[p, q])
-        if off <= 1e-300 or off <= 1e-17 * scale:
-            return
-        for p in range(3):
-            for q in range(p + 1, 4):
-                apq = A[p, q]
-                if apq == 0.0:
-                    continue
-                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
-                t = 1.0 / (abs(theta) + np.sqrt(theta * theta + 1.0))
-                if theta < 0.0:
-                    t = -t
-                c = 1.0 / np.sqrt(t * t + 1.0)
-                s = t * c
-                for k in range(4):          # A <- A J
-                    akp, akq = A[k, p], A[k, q]
-                    A[k, p] = c * akp - s * akq
-                    A[k, q] = s * akp + c * akq
-                for k in range(4):          # A <- J^T A
-                    apk, aqk = A[p, k], A[q, k]
-                    A[p, k] = c * apk - s * aqk
-                    A[q, k] = s * apk + c * aqk
-                A[p, q] = 0.0
-                A[q, p] = 0.0
-                for k in range(4):          # V <- V J
-                    vkp, vkq = V[k, p], V[k, q]
-                    V[k, p] = c * vkp - s * vkq
-                    V[k, q] = s * vkp + c * vkq
 
 
 @kernel
@@ -178,7 +109,7 @@ def point_rotations(points, index, rest, fit_kids, fit_rest, min_sin, min_gap, o
             m20 = a2 * r[3] + b2 * r[4] + c2 * r[5]
             m21 = a2 * r[6] + b2 * r[7] + c2 * r[8]
             m22 = a2 * r[9] + b2 * r[10] + c2 * r[11]
-            _shepperd(m00, m01, m02, m10, m11, m12, m20, m21, m22, out, j)
+            quat_kernels.matrix_to_quat_into(m00, m01, m02, m10, m11, m12, m20, m21, m22, out, j)
         else:   # FIT: Horn's 4x4 of S_ab = sum_k rest_a cur_b over unit current bones
             g = index[j, 6]
             sxx = sxy = sxz = syx = syy = syz = szx = szy = szz = 0.0
@@ -217,7 +148,7 @@ def point_rotations(points, index, rest, fit_kids, fit_rest, min_sin, min_gap, o
             for p in range(4):
                 for q in range(p):
                     A[p, q] = A[q, p]
-            _jacobi4(A, V)
+            quat_kernels.jacobi_eigen(A, V, True)
             top, second, col = -np.inf, -np.inf, 0
             for p in range(4):
                 lam = A[p, p]

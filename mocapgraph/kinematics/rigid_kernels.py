@@ -12,52 +12,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocapgraph.jit import kernel, readonly
+from mocapgraph.jit import kernel_calling, readonly
+
+from . import quat_kernels
+
+kernel = kernel_calling(quat_kernels)   # its eigen-solve (quat_kernels.jacobi_eigen)
 
 _COLLINEAR_TOL = 1e-6   # as rigid._COLLINEAR_TOL
-
-
-@kernel
-def _jacobi(A: np.ndarray, V: np.ndarray, vectors: bool) -> None:
-    """Diagonalise the symmetric n x n A in place by cyclic Jacobi rotations (eigenvalues on its
-    diagonal); with ``vectors``, V (set to I here) gets the eigenvectors as columns."""
-    n = A.shape[0]
-    if vectors:
-        for i in range(n):
-            for j in range(n):
-                V[i, j] = 1.0 if i == j else 0.0
-    for sweep in range(50):
-        off = 0.0
-        scale = 0.0
-        for i in range(n):
-            scale += A[i, i] * A[i, i]
-            for j in range(i + 1, n):
-                off += A[i, j] * A[i, j]
-        # Off-diagonal norm below 1e-15 of the diagonal's: eigenvalues and vectors exact to rounding.
-        if off <= 1e-30 * scale:
-            return
-        for p in range(n - 1):
-            for q in range(p + 1, n):
-                apq = A[p, q]
-                if apq == 0.0:
-                    continue
-                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
-                t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
-                cs = 1.0 / np.sqrt(t * t + 1.0)
-                sn = t * cs
-                for k in range(n):
-                    akp, akq = A[k, p], A[k, q]
-                    A[k, p] = cs * akp - sn * akq
-                    A[k, q] = sn * akp + cs * akq
-                for k in range(n):
-                    apk, aqk = A[p, k], A[q, k]
-                    A[p, k] = cs * apk - sn * aqk
-                    A[q, k] = sn * apk + cs * aqk
-                if vectors:
-                    for k in range(n):
-                        vkp, vkq = V[k, p], V[k, q]
-                        V[k, p] = cs * vkp - sn * vkq
-                        V[k, q] = sn * vkp + cs * vkq
 
 
 @kernel
@@ -117,7 +78,7 @@ def fit_frame(markers: np.ndarray, ref: np.ndarray, idx0: np.ndarray, weights: n
         for i in range(3):
             for j in range(3):
                 M3[i, j] = h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j]
-        _jacobi(M3, V, False)
+        quat_kernels.jacobi_eigen(M3, V, False)
         e0, e1, e2 = M3[0, 0], M3[1, 1], M3[2, 2]
         big = max(e0, e1, e2)
         small = min(e0, e1, e2)
@@ -142,7 +103,7 @@ def fit_frame(markers: np.ndarray, ref: np.ndarray, idx0: np.ndarray, weights: n
         for i in range(3):
             for j in range(3):
                 N[1 + i, 1 + j] = h[i, j] + h[j, i] - (trh if i == j else 0.0)
-        _jacobi(N, V, True)
+        quat_kernels.jacobi_eigen(N, V, True)
         best = 0
         for i in range(1, 4):
             if N[i, i] > N[best, best]:

@@ -268,7 +268,7 @@ def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None =
 
 
 def _check_processes(resolved: list[ResolvedNode]) -> None:
-    """Nodes sharing a ``process:`` run on one machine and are restarted together (same respawn)."""
+    """Nodes sharing a ``process:`` run on one machine, are restarted together (same respawn) and have one niceness."""
     first: dict[str, NodeSpec] = {}
     for rn in resolved:
         ns = rn.spec
@@ -279,7 +279,8 @@ def _check_processes(resolved: list[ResolvedNode]) -> None:
             continue
         for key, why in (("machine", "the nodes of one process run on one machine"),
                          ("respawn", "a process is restarted as a whole"),
-                         ("respawn_delay", "a process is restarted as a whole")):
+                         ("respawn_delay", "a process is restarted as a whole"),
+                         ("nice", "a process has one scheduling priority")):
             if getattr(ns, key) != getattr(lead, key):
                 raise ns.error(key, f"{getattr(ns, key)!r} differs from {getattr(lead, key)!r} of nodes[{lead.name}] "
                                f"in process {ns.process!r} ({why})")

@@ -20,12 +20,14 @@ A graph file::
         required: false         # when it dies and does not respawn, stop the graph (exit 1)
         host: 127.0.0.1         # address its publisher binds (default loopback, ipc)
         process: pipeline       # nodes naming one process run in one OS process (below)
+        nice: 10                # its process's niceness (0..19): a best-effort node yields the cores
         if: "${viewer}"         # a bool (after substitution): false leaves the node out
 
 ``process:`` composes nodes (ROS 2's component containers): they share one OS process and one
 event loop, and what one publishes to another skips ZeroMQ (`mocapgraph.bus.process`): a hop
 then costs a function call, not two processes' wake-ups. Each keeps its name, endpoint and
-diagnostics. The process is restarted as a whole, so its nodes agree on ``respawn:``; it is
+diagnostics. The process is restarted as a whole, so its nodes agree on ``respawn:`` (and on
+``nice:``: one process, one priority); it is
 required when any of them is; a crash takes all of them, so keep recorders on their own.
 
 ``if:`` also works on an include. ``expects:`` counts only in the file being checked (so
@@ -46,7 +48,7 @@ from typing import Any
 from ..formats.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
 NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "port", "machine",
-             "process", "doc", "if")
+             "process", "nice", "doc", "if")
 TOP_KEYS = ("args", "include", "nodes", "external", "expects", "description", "security")
 SECURITY_KEYS = ("key", "authorized", "insecure")
 EXPECTS_KEYS = ("topic", "type", "doc")
@@ -72,6 +74,7 @@ class NodeSpec:
     port: int = 0  # fixed tcp port (needed by nodes that others on other machines connect to)
     machine: str = ""  # which `launch --machine NAME` runs it ('' : every launch without --machine)
     process: str = ""  # the OS process it shares with the other nodes naming it ('' : its own)
+    nice: int = 0      # its process's niceness, 0..19: higher yields the cores to the others (a viewer)
     file: str = ""
     line: int = 0
     key_lines: dict[str, int] = field(default_factory=dict)
@@ -334,7 +337,7 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
             param_lines=dict(getattr(params, "key_lines", {})),
         )
         for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str),
-                          ("machine", str), ("port", int), ("process", str)):
+                          ("machine", str), ("port", int), ("process", str), ("nice", int)):
             if key in raw:
                 value = _substitute(raw[key], args, str(path), raw.line_of(key), key)
                 if (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))
@@ -343,6 +346,9 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
                                      f"got {value!r}")
                 if key == "port" and not 1 <= value <= 65535:
                     raise node.error(key, f"wants a tcp port in 1..65535, got {value!r}")
+                if key == "nice" and not 0 <= value <= 19:   # (below 0 needs privileges a lab PC should not give)
+                    raise node.error(key, f"wants a niceness in 0..19 (higher: yields the CPU to the other nodes), "
+                                     f"got {value!r}")
                 if key == "process" and value and not NODE_NAME.fullmatch(value):   # '' : its own process
                     raise node.error(key, f"{value[:80]!r} is not a process name (letters, digits, '_' and '-', "
                                      "at most 64, starting with a letter or '_')")

@@ -5,12 +5,13 @@ the supervisor starts, watches and stops processes, and speaks the control proto
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..bus.protocol import Wiring
+from ..bus.protocol import Wiring, die_with_parent
 from .check import ResolvedNode
 
 MAX_BACKOFF_S = 10.0
@@ -37,6 +38,16 @@ class Process:
     @property
     def respawn_delay(self) -> float:
         return self.members[0].node.spec.respawn_delay
+
+    @property
+    def nice(self) -> int:
+        return self.members[0].node.spec.nice  # the same for every member (graph check)
+
+    def before_exec(self) -> None:
+        """In the child, before the runtime starts: die with the launcher, take the niceness."""
+        die_with_parent()
+        if self.nice:
+            os.nice(self.nice)
 
     @property
     def required(self) -> bool:

@@ -34,7 +34,7 @@ from typing import IO, Any
 import zmq
 
 from ..bus.diagnostics import DIAGNOSTICS_TOPIC
-from ..bus.protocol import BYE, READY, START, STARTED, STOP, die_with_parent
+from ..bus.protocol import BYE, READY, START, STARTED, STOP
 from .check import CheckedGraph, ResolvedNode, process_groups, shutdown_order
 from ..bus.curve import CurveKeys
 from .liveness import STALL_S, Liveness, diagnostics_socket, drain_senders
@@ -126,7 +126,7 @@ class Supervisor:
         p.proc = subprocess.Popen(
             [sys.executable, "-m", "mocapgraph.bus.runtime", *(str(c.wiring_file) for c in p.members)],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            env=env, preexec_fn=die_with_parent, start_new_session=True,
+            env=env, preexec_fn=p.before_exec, start_new_session=True,
         )
         for c in p.members:
             c.ready = c.started = c.stopped = False

@@ -259,14 +259,14 @@ def _field_by_field_init(info: _TypeInfo):
     C-contiguous array of the dtype, rank and fixed sizes) is stored after one inline check, any
     other goes through its field's ``coerce`` (so the result is the generic constructor's). A frame
     message is built per frame on the hot path: the generic loop costs several us more."""
-    env: dict[str, Any] = {"_MISSING": _MISSING, "_ndarray": np.ndarray, "_info": info,
-                           "_unknown_fields": _unknown_fields}
+    env: dict[str, Any] = {"_MISSING": _MISSING, "_ndarray": np.ndarray, "_info": info, "_type": type,
+                           "_unknown_fields": _unknown_fields}   # (a field may be called ``type``)
     names = [f.name for f in (*info.scalars, *info.strings, *info.arrays)]
     body = ["    if _unknown:", "        _unknown_fields(_info, _unknown)", "    _sd = self.__dict__"]
     for f in info.scalars:
         n = f.name
         env[f"_c_{n}"], env[f"_t_{n}"], env[f"_d_{n}"] = f.coerce, _FAST_SCALAR[f.kind], f.default
-        body.append(f"    _sd[{n!r}] = _d_{n} if {n} is _MISSING else {n} if type({n}) is _t_{n} else _c_{n}({n})")
+        body.append(f"    _sd[{n!r}] = _d_{n} if {n} is _MISSING else {n} if _type({n}) is _t_{n} else _c_{n}({n})")
     for f in info.strings:   # always copied: the message owns its list
         n = f.name
         env[f"_c_{n}"] = f.coerce
@@ -276,7 +276,7 @@ def _field_by_field_init(info: _TypeInfo):
         dt, rank, fixed = f._fast
         env[f"_c_{n}"], env[f"_dt_{n}"], env[f"_e_{n}"] = f.coerce, dt, f.empty
         sizes = "".join(f" and {n}.shape[{i}] == {size}" for i, size in fixed)
-        body.append(f"    _sd[{n!r}] = _e_{n}() if {n} is _MISSING else {n} if (type({n}) is _ndarray and "
+        body.append(f"    _sd[{n!r}] = _e_{n}() if {n} is _MISSING else {n} if (_type({n}) is _ndarray and "
                     f"{n}.dtype is _dt_{n} and {n}.ndim == {rank}{sizes} and {n}.flags.c_contiguous) "
                     f"else _c_{n}({n})")
     args = "".join(f"{n}=_MISSING, " for n in names)

@@ -11,7 +11,10 @@ import math
 
 import numpy as np
 
-from ..jit import kernel
+from ..jit import kernel_calling
+from ..kinematics import quat_kernels
+
+kernel = kernel_calling(quat_kernels)   # matrix_to_quat_into
 
 
 @kernel
@@ -35,28 +38,7 @@ def geom_state_into(geom_xpos, geom_xmat, geom_ids, site_xpos, pt_site, p_t, ove
         m00, m01, m02 = geom_xmat[g, 0], geom_xmat[g, 1], geom_xmat[g, 2]
         m10, m11, m12 = geom_xmat[g, 3], geom_xmat[g, 4], geom_xmat[g, 5]
         m20, m21, m22 = geom_xmat[g, 6], geom_xmat[g, 7], geom_xmat[g, 8]
-        d0 = 1.0 + m00 + m11 + m22
-        d1 = 1.0 + m00 - m11 - m22
-        d2 = 1.0 - m00 + m11 - m22
-        d3 = 1.0 - m00 - m11 + m22
-        k, top = 0, d0
-        if d1 > top:
-            k, top = 1, d1
-        if d2 > top:
-            k, top = 2, d2
-        if d3 > top:
-            k, top = 3, d3
-        # row k of C = 4 q q^T
-        if k == 0:
-            w, x, y, z = d0, m21 - m12, m02 - m20, m10 - m01
-        elif k == 1:
-            w, x, y, z = m21 - m12, d1, m01 + m10, m02 + m20
-        elif k == 2:
-            w, x, y, z = m02 - m20, m01 + m10, d2, m12 + m21
-        else:
-            w, x, y, z = m10 - m01, m02 + m20, m12 + m21, d3
-        sc = (-1.0 if w < 0 else 1.0) / math.sqrt(w * w + x * x + y * y + z * z)
-        quat[i, 0], quat[i, 1], quat[i, 2], quat[i, 3] = w * sc, x * sc, y * sc, z * sc
+        quat_kernels.matrix_to_quat_into(m00, m01, m02, m10, m11, m12, m20, m21, m22, quat, i)
         if geom_j0[i] >= 0:
             err[i] = 0.5 * (point_err[geom_j0[i]] + point_err[geom_j1[i]])
         else:

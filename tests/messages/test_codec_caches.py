@@ -64,3 +64,18 @@ def test_conforming_arrays_are_taken_as_they_are_others_converted_or_refused():
         CharacterPose(root_position=np.zeros(4))
     with pytest.raises(MessageError, match="wants shape"):
         CharacterPose(local_rotations=np.zeros((3, 3)))
+
+
+def test_header_names_and_topic_frames_follow_sender_and_topic_and_stay_bounded():
+    from mocapgraph.messages import codec
+    from mocapgraph.messages.codec import decode_envelope, topic_frame
+    msg = _pose("c", 3)
+    for sender, topic in (("rt", "character_pose"), ("other", "poses/b"), ("rt", "character_pose"), ("ü-node", "t")):
+        env = decode_envelope(encode(topic, msg, 3, 5, sender, publish_ns=7))
+        assert (env.sender, env.topic, env.type_name) == (sender, topic, "CharacterPose")
+        assert topic_frame(topic) == topic.encode() + b"\0"
+    for k in range(5000):   # a hostile flood of names: the caches stop growing, the bytes stay right
+        env = decode_envelope(encode(f"t{k}", msg, 3, 5, f"s{k}", publish_ns=7))
+        assert (env.sender, env.topic) == (f"s{k}", f"t{k}")
+    assert len(codec._TOPIC_FRAMES) <= 4096
+    assert len(codec._plan(CharacterPose._info).names_out) <= codec._TEXT_CACHE

@@ -78,3 +78,17 @@ def test_an_array_of_the_declared_type_is_kept_and_errors_read_as_before():
         with pytest.raises(MessageError) as slow:
             _generic(CharacterPose, **kw)
         assert str(fast.value) == str(slow.value), kw
+
+
+def test_fields_named_like_builtins_or_self_still_build():
+    from mocapgraph.messages.schema import array, scalar
+
+    class OddNames(Message):
+        type_name = "TestOddNames"
+        type: str = scalar("str", "a field called type")
+        len = array("float64", (2,), "a field called len")
+
+    m = OddNames(type="t", len=np.zeros(2))
+    assert m.type == "t" and m.len.shape == (2,)
+    with pytest.raises(MessageError, match="wants shape"):
+        OddNames(len=np.zeros(3))
