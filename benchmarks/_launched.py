@@ -1,4 +1,4 @@
-"""A launched graph for a benchmark: start `mocapgraph launch`, wait for a topic, stop it on the way out."""
+"""A launched graph for a benchmark: start `mocapgraph launch`, wait for a topic, stop it on the way out; pair two topics' publish stamps."""
 from __future__ import annotations
 
 import os
@@ -42,3 +42,30 @@ def launched_graph(graph_yaml: str, wait_topic: str, tmp: Path, timeout_s: float
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+def paired_latencies_ms(sock, first_topic: str, seconds: float, warm_s: float, timeout_s: float = 180.0) -> list[float]:
+    """Publish stamp of the other topic minus ``first_topic``'s, ms, for each capture stamp seen on
+    both (a node publishes its frame with its input's capture stamp) on the SUB ``sock``: from
+    ``warm_s`` after the first pair for ``seconds`` (nothing after ``timeout_s`` without one)."""
+    from mocapgraph.messages import decode_envelope
+    first: dict[int, int] = {}
+    other: dict[int, int] = {}
+    out: list[float] = []
+    t_end = time.monotonic() + timeout_s
+    t_warm = None
+    while time.monotonic() < t_end:
+        if not sock.poll(200):
+            continue
+        env = decode_envelope(sock.recv_multipart())
+        (first if env.topic == first_topic else other)[env.capture_ns] = env.publish_ns
+        k = env.capture_ns
+        if k in first and k in other:
+            a, b = first.pop(k), other.pop(k)
+            now = time.monotonic()
+            if t_warm is None:   # the first pair: start-up (calibration, kernels) is over
+                t_warm = now + warm_s
+                t_end = t_warm + seconds
+            elif now > t_warm:
+                out.append((b - a) * 1e-6)
+    return out

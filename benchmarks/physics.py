@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 from scipy.spatial import cKDTree
 
-from _launched import launched_graph
+from _launched import launched_graph, paired_latencies_ms
 from mocapgraph.jit import warm_all
 from mocapgraph.messages import CharacterPose, PhysicsState
 from mocapgraph.physics import posture_kernels as pk
@@ -204,26 +204,11 @@ def graph_latency(seconds: float, composed: bool = False) -> None:
     """The tracker's added latency in the launched graph; ``composed``: the source and the tracker in
     one process (``process: live``: the hop between them in process)."""
     from mocapgraph.launch.manifest import subscribe
-    from mocapgraph.messages import decode_envelope
     graph = GRAPH.replace("    type: synthetic_character\n", "    type: synthetic_character\n    process: live\n") \
         .replace("    type: physics_tracker\n", "    type: physics_tracker\n    process: live\n") if composed else GRAPH
     with tempfile.TemporaryDirectory() as tmp, launched_graph(graph, "sim_character_pose", Path(tmp)) as manifest:
         sock = subscribe(manifest, ["character_pose", "sim_character_pose"])
-        sent: dict[int, int] = {}
-        done: dict[int, int] = {}
-        rows = []
-        t_warm = time.monotonic() + 2.0
-        t_stop = t_warm + seconds
-        while time.monotonic() < t_stop:
-            if not sock.poll(200):
-                continue
-            env = decode_envelope(sock.recv_multipart())
-            (sent if env.topic == "character_pose" else done)[env.capture_ns] = env.publish_ns
-            k = env.capture_ns
-            if k in sent and k in done:
-                a, b = sent.pop(k), done.pop(k)
-                if time.monotonic() > t_warm:
-                    rows.append((b - a) / 1e6)
+        rows = paired_latencies_ms(sock, "character_pose", seconds, warm_s=2.0)
         sock.close(0)
     v = np.asarray(rows)
     if not len(v):

@@ -290,30 +290,14 @@ def bench_shipped(seconds: float, viewer: bool = True) -> None:
     publishes its frame with the ActorPose's). Calibration runs live first (the actor's base pose
     and gym), so the measurement starts when the first character frame comes."""
     sys.path.insert(0, str(REPO / "benchmarks"))
-    from _launched import launched_graph
+    from _launched import launched_graph, paired_latencies_ms
     from mocapgraph.launch.manifest import subscribe
-    from mocapgraph.messages import decode_envelope
     graph = (f"include:\n  - file: {REPO / 'graph_configs/retarget_optical.yaml'}\n"
              "    args: {character: standard_20, rate: 240.0, pipeline_process: live, viewer_port: 0, "
              f"viewer: {str(viewer).lower()}}}\n")
     with tempfile.TemporaryDirectory() as tmp, launched_graph(graph, "character_pose", Path(tmp), 120.0) as manifest:
         sock = subscribe(manifest, ["actor_pose", "character_pose"])
-        actor: dict[int, int] = {}
-        char: dict[int, int] = {}
-        lat: list[float] = []
-        t_end = time.monotonic() + 180.0
-        t_stop = None
-        while time.monotonic() < (t_stop or t_end):
-            if not sock.poll(200):
-                continue
-            env = decode_envelope(sock.recv_multipart())
-            (actor if env.topic == "actor_pose" else char)[env.capture_ns] = env.publish_ns
-            k = env.capture_ns
-            if k in actor and k in char:
-                lat.append((char.pop(k) - actor.pop(k)) * 1e-6)
-                if t_stop is None and len(lat) > 240:   # 1 s of poses: the start-up transient is over
-                    lat.clear()
-                    t_stop = time.monotonic() + seconds
+        lat = paired_latencies_ms(sock, "actor_pose", seconds, warm_s=1.0)
         sock.close(0)
     v = np.asarray(lat)
     if not len(v):

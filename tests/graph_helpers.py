@@ -145,3 +145,16 @@ class CommandsRunning:
 def run_concurrently(commands: list[list[str]], timeout: float = 60.0, **popen_kw) -> list:
     """Run independent commands at once -> their CompletedProcesses in order (see CommandsRunning)."""
     return CommandsRunning(commands, **popen_kw).results(timeout)
+
+
+def graph_error(path: Path, text: str) -> str:
+    """The one-line error `graph check` gives for the graph ``text`` written to ``path``."""
+    import pytest
+
+    from mocapgraph.formats.yaml_source import GraphError
+    from mocapgraph.launch.check import check_graph
+    from mocapgraph.launch.graph import load_graph
+    path.write_text(text)
+    with pytest.raises(GraphError) as exc:
+        check_graph(load_graph(path))
+    return str(exc.value)

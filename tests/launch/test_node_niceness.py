@@ -3,10 +3,8 @@ from __future__ import annotations
 
 import os
 
-import pytest
 
-from graph_helpers import node_pids
-from mocapgraph.formats.yaml_source import GraphError
+from graph_helpers import graph_error, node_pids
 from mocapgraph.cli.graph_cmds import to_text
 from mocapgraph.launch.check import check_graph
 from mocapgraph.launch.graph import load_graph
@@ -44,11 +42,7 @@ nodes:
 
 def test_a_niceness_that_cannot_work_is_a_graph_error(tmp_path) -> None:
     def error(text: str) -> str:
-        path = tmp_path / "g.yaml"
-        path.write_text(text)
-        with pytest.raises(GraphError) as exc:
-            check_graph(load_graph(path))
-        return str(exc.value)
+        return graph_error(tmp_path / "g.yaml", text)
 
     for bad, what in (("-5", "wants a niceness in 0..19"), ("20", "wants a niceness in 0..19"),
                       ("high", "wants int"), ("2.5", "wants int"), ("true", "wants int")):

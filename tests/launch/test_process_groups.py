@@ -11,11 +11,10 @@ import time
 import numpy as np
 import pytest
 
-from graph_helpers import assert_pattern_frame, node_pids, pid_alive, read_jsonl, wait_until
+from graph_helpers import assert_pattern_frame, graph_error, node_pids, pid_alive, read_jsonl, wait_until
 from mocapgraph.bag.reader import BagReader
 from mocapgraph.bus.node import Input, Node, Output, Wiring
 from mocapgraph.bus.process import serve
-from mocapgraph.formats.yaml_source import GraphError
 from mocapgraph.kinematics.calibration import calibrate
 from mocapgraph.kinematics.model import save_model
 from mocapgraph.kinematics.synthetic_actor import SyntheticActor
@@ -94,11 +93,7 @@ nodes:
 
 def test_process_keys_that_cannot_work_are_graph_errors(tmp_path) -> None:
     def error(text: str) -> str:
-        path = tmp_path / "g.yaml"
-        path.write_text(text)
-        with pytest.raises(GraphError) as exc:
-            check_graph(load_graph(path))
-        return str(exc.value)
+        return graph_error(tmp_path / "g.yaml", text)
 
     msg = error("""\
 nodes:
