@@ -69,3 +69,18 @@ def paired_latencies_ms(sock, first_topic: str, seconds: float, warm_s: float, t
             elif now > t_warm:
                 out.append((b - a) * 1e-6)
     return out
+
+
+def launched_latencies_ms(graph_yaml: str, first_topic: str, second_topic: str, seconds: float, warm_s: float,
+                          start_timeout_s: float = 60.0) -> list[float]:
+    """Launch ``graph_yaml`` and return :func:`paired_latencies_ms` of its two topics (``second_topic``'s
+    publish stamp minus ``first_topic``'s, ms)."""
+    import tempfile
+    from mocapgraph.launch.manifest import subscribe
+    with tempfile.TemporaryDirectory() as tmp, launched_graph(graph_yaml, second_topic, Path(tmp),
+                                                             start_timeout_s) as manifest:
+        sock = subscribe(manifest, [first_topic, second_topic])
+        try:
+            return paired_latencies_ms(sock, first_topic, seconds, warm_s)
+        finally:
+            sock.close(0)

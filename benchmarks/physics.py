@@ -31,15 +31,13 @@ import cProfile
 import io
 import os
 import pstats
-import tempfile
 import time
-from pathlib import Path
 
 import mujoco
 import numpy as np
 from scipy.spatial import cKDTree
 
-from _launched import launched_graph, paired_latencies_ms
+from _launched import launched_latencies_ms
 from mocapgraph.jit import warm_all
 from mocapgraph.messages import CharacterPose, PhysicsState
 from mocapgraph.physics import posture_kernels as pk
@@ -203,14 +201,9 @@ nodes:
 def graph_latency(seconds: float, composed: bool = False) -> None:
     """The tracker's added latency in the launched graph; ``composed``: the source and the tracker in
     one process (``process: live``: the hop between them in process)."""
-    from mocapgraph.launch.manifest import subscribe
     graph = GRAPH.replace("    type: synthetic_character\n", "    type: synthetic_character\n    process: live\n") \
         .replace("    type: physics_tracker\n", "    type: physics_tracker\n    process: live\n") if composed else GRAPH
-    with tempfile.TemporaryDirectory() as tmp, launched_graph(graph, "sim_character_pose", Path(tmp)) as manifest:
-        sock = subscribe(manifest, ["character_pose", "sim_character_pose"])
-        rows = paired_latencies_ms(sock, "character_pose", seconds, warm_s=2.0)
-        sock.close(0)
-    v = np.asarray(rows)
+    v = np.asarray(launched_latencies_ms(graph, "character_pose", "sim_character_pose", seconds, warm_s=2.0))
     if not len(v):
         print("launched graph: no matched frames")
         return

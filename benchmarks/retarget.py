@@ -290,16 +290,11 @@ def bench_shipped(seconds: float, viewer: bool = True) -> None:
     publishes its frame with the ActorPose's). Calibration runs live first (the actor's base pose
     and gym), so the measurement starts when the first character frame comes."""
     sys.path.insert(0, str(REPO / "benchmarks"))
-    from _launched import launched_graph, paired_latencies_ms
-    from mocapgraph.launch.manifest import subscribe
+    from _launched import launched_latencies_ms
     graph = (f"include:\n  - file: {REPO / 'graph_configs/retarget_optical.yaml'}\n"
              "    args: {character: standard_20, rate: 240.0, pipeline_process: live, viewer_port: 0, "
              f"viewer: {str(viewer).lower()}}}\n")
-    with tempfile.TemporaryDirectory() as tmp, launched_graph(graph, "character_pose", Path(tmp), 120.0) as manifest:
-        sock = subscribe(manifest, ["actor_pose", "character_pose"])
-        lat = paired_latencies_ms(sock, "actor_pose", seconds, warm_s=1.0)
-        sock.close(0)
-    v = np.asarray(lat)
+    v = np.asarray(launched_latencies_ms(graph, "actor_pose", "character_pose", seconds, warm_s=1.0, start_timeout_s=120.0))
     if not len(v):
         print("shipped graph: no character frames (calibration did not finish in time?)")
         return
