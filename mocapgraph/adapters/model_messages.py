@@ -16,14 +16,16 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from ..kinematics.model import ActorModel, JointQuality, ModelFileError
 from ..kinematics.labels import missing_labels, place_labels
-from ..kinematics.solver import SolverResult
 from ..messages import ActorPose, SkeletonModel
+
+if TYPE_CHECKING:   # the solver (scipy, numba kernels) for a type only: a reader's process never loads it
+    from ..kinematics.solver import SolverResult
 
 EXTRA_FORMAT = "mocapgraph.skeleton_model.extra/1"
 

@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .axes import axis_name, default_forward, describe_rotation, parse_axis, to_world_rotation, up_option
 from .yaml_source import GraphError, LinedDict, load_yaml_file
@@ -94,6 +93,7 @@ class DeviceConfig:
         out = np.full_like(flat, np.nan)
         ok = np.isfinite(flat).all(axis=1)
         if ok.any():
+            from scipy.spatial.transform import Rotation   # (see _parse_world)
             r = Rotation.from_matrix(self.rotation) * Rotation.from_quat(flat[ok], scalar_first=True)
             out[ok] = r.as_quat(scalar_first=True)
         return out.reshape(q.shape)
@@ -126,6 +126,7 @@ class DeviceConfig:
         except ValueError as exc:
             raise DeviceConfigError(f"{self.source}: to_world.forward: with the reader's up_axis "
                                     f"{up_axis!r}: {exc}") from None
+        from scipy.spatial.transform import Rotation   # (see _parse_world)
         R = Rotation.from_euler("z", self.yaw_deg, degrees=True).as_matrix() @ R
         R[np.abs(R) < 1e-15] = 0.0
         return replace(self, rotation=R, up_from_reader=up)
@@ -198,6 +199,10 @@ def _parse_world(world: Any, path: Path, doc: LinedDict) -> tuple[np.ndarray, np
     yaw = world.get("yaw_deg", 0.0)
     if not isinstance(yaw, (int, float)) or isinstance(yaw, bool):
         raise _fail(world, path, "to_world.yaw_deg", f"wants degrees, got {yaw!r}")
+    # scipy (a third of a second to import) only for a device that is turned: every marker reader
+    # imports this module for its errors, most never turn. A node turning one imports it here,
+    # building its config, so quats_to_world never imports it on a frame.
+    from scipy.spatial.transform import Rotation
     R = Rotation.from_euler("z", float(yaw), degrees=True).as_matrix() @ R
     R[np.abs(R) < 1e-15] = 0.0
     t = world.get("translation_m", [0.0, 0.0, 0.0])
