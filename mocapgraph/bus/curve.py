@@ -13,10 +13,13 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import zmq
 import zmq.auth
-from zmq.auth.thread import ThreadAuthenticator
+
+if TYPE_CHECKING:   # imported by start_authenticator: its asyncio costs every node ~40 ms, most have no keys
+    from zmq.auth.thread import ThreadAuthenticator
 
 
 class KeyError_(ValueError):
@@ -72,6 +75,7 @@ def start_authenticator(ctx: zmq.Context, keys: CurveKeys) -> None:
         _users[id(ctx)] = _users.get(id(ctx), 0) + 1
         if id(ctx) in _authenticators:
             return
+        from zmq.auth.thread import ThreadAuthenticator
         auth = ThreadAuthenticator(ctx)
         auth.start()
         auth.configure_curve(domain="*", location=keys.authorized)
