@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .calibration import CalibrationWarning, calibrate
-from .model import ActorModel
+if TYPE_CHECKING:
+    from .model import ActorModel
 
 SEARCHING, FOUND, TIMED_OUT = "searching", "found", "timed_out"
 
@@ -134,6 +134,10 @@ class CaptureSession:
         """Calibrate ``definition`` from the base pose + gym (``options`` go to
         :func:`~mocapgraph.kinematics.calibration.calibrate`): (model, its warnings as text).
         CalibrationError when no model can be made."""
+        # the calibration (scipy, the solver's numba kernels: ~0.5 s to import) when calibrating: the
+        # capture steps before it need none of it, nor does the launcher checking a calibration node
+        from .calibration import CalibrationWarning, calibrate
+
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CalibrationWarning)
             model = calibrate(definition, self.frames(), base_frame=0, rate_hz=self.sampler.rate_hz or None,

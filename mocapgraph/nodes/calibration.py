@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..bus import Input, Node, Output, Param
-from ..kinematics.calibration import CalibrationError
 from ..kinematics.capture_steps import FOUND, TIMED_OUT, CaptureSession, GymSampler
 from ..kinematics.model import ActorModel, ModelFileError, as_saved, load_model
 from ..kinematics.subject import SubjectError, read_vsk
@@ -214,6 +213,8 @@ class CalibrationNode(Node):
         self.call_later(0.0, self._process)
 
     def _process(self) -> None:
+        from ..kinematics.calibration import CalibrationError   # (imported by the calibration step itself)
+
         self._auto_running = False
         try:
             subject = read_vsk(self.subject_file) if self.subject_file else None

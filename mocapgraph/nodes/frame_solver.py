@@ -14,16 +14,18 @@ file's spacing whatever the replay speed); when it goes backwards the temporal s
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
-from ..jit import warm_all
 from ..kinematics.model import ActorModel, ModelFileError, load_model
-from ..kinematics.solver import FrameSolver
 from ..messages import ActorPose, MarkerFrame, MarkerLayout
 from ..messages import SkeletonModel
 from ..adapters.model_messages import marker_index, missing_pose, model_from_message, pose_message
+
+if TYPE_CHECKING:   # imported when the node is built (see __init__)
+    from ..kinematics.solver import FrameSolver
 
 SOLVER_KERNELS = ("mocapgraph.kinematics.global_fit_kernels", "mocapgraph.kinematics.joint_kernels",
                   "mocapgraph.kinematics.rigid_kernels")
@@ -62,8 +64,14 @@ class FrameSolverNode(Node):
         self._last_t = -np.inf
         self._t0_ns: int | None = None  # capture-time origin, so float seconds stay precise
         self._skipped = 0
-        # the compiled kernels now, not at the first frame (numba's first call costs ~0.5 s even from
-        # its cache: at 240 Hz that queued a hundred frames behind it)
+        # the solver and its compiled kernels now, not at the first frame (numba's first call costs
+        # ~0.5 s even from its cache: at 240 Hz that queued a hundred frames behind it); not with this
+        # module, which the launcher imports to check a graph against the declarations above (scipy
+        # and numba would cost every check of a graph with a solver ~0.3 s)
+        from ..jit import warm_all
+        from ..kinematics.solver import FrameSolver
+
+        self._new_solver = FrameSolver
         warm_all(SOLVER_KERNELS)
         self._bad_frames = 0
         self._failures = 0
@@ -119,8 +127,8 @@ class FrameSolverNode(Node):
         self.absent = where < 0  # static-only markers the stream does not carry
         self.n_stream = len(layout.labels)
         self.identity = bool(len(where) == self.n_stream and (where == np.arange(len(where))).all())
-        self.solver = FrameSolver(self.model, max_gap_s=self.max_gap_s, enforce_lengths=self.enforce_lengths,
-                                  filter=self.filter or None, fit=self.fit)
+        self.solver = self._new_solver(self.model, max_gap_s=self.max_gap_s, enforce_lengths=self.enforce_lengths,
+                                       filter=self.filter or None, fit=self.fit)
         self._last_t = -np.inf
         self.log.info("solving %d joints of layout '%s' (%s) from %d markers", len(self.model.joint_names),
                       self.model.layout, self.model_source, len(where))

@@ -8,6 +8,7 @@ import importlib.util
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -24,7 +25,9 @@ MUST_NOT_LOAD: dict[str, set[str]] = {
     **{t: NOT_FOR_READERS for t in ("c3d_reader", "trc_reader", "serial_reader", "udp_reader",
                                     "lsl_reader", "kinect_reader", "topic_logger", "marker_test_pattern")},
     "synthetic_actor": {"numba", "ezc3d", "mujoco", "networkx", "asyncio", "mocapgraph.kinematics.solver"},
-    "calibration": {"numba", "ezc3d", "mujoco", "networkx", "mocapgraph.kinematics.solver"},
+    # (their math comes when the node is built or calibrates: the launcher's check loads the class only)
+    "calibration": {"scipy", "numba", "ezc3d", "mujoco", "networkx", "mocapgraph.kinematics.calibration"},
+    "frame_solver": {"scipy", "numba", "ezc3d", "mujoco", "networkx", "mocapgraph.kinematics.solver"},
     "bvh_player": {"numba", "ezc3d", "mujoco", "networkx", "asyncio"},
     "bag_recorder": NOT_FOR_OUTLETS | {"asyncio"},
     "bag_player": NOT_FOR_OUTLETS | {"asyncio"},
@@ -32,7 +35,6 @@ MUST_NOT_LOAD: dict[str, set[str]] = {
     "osc_outlet": NOT_FOR_OUTLETS | {"asyncio"},
     "lsl_outlet": NOT_FOR_OUTLETS | {"asyncio"},
     "foxglove_bridge": {"numba", "ezc3d", "mujoco", "networkx"},
-    "frame_solver": {"ezc3d", "mujoco", "networkx"},
 }
 
 
@@ -96,9 +98,33 @@ def test_a_node_process_loads_only_what_its_node_uses(node_type, loaded_by_type)
 
 
 def test_the_heavy_nodes_do_load_their_math(loaded_by_type):
-    """The check above sees real imports: the solver's process has its scipy and numba kernels."""
-    assert {"numba", "scipy", "mocapgraph.kinematics.solver"} <= loaded_by_type["frame_solver"]
-    assert "scipy" in loaded_by_type["calibration"] and "scipy" in loaded_by_type["synthetic_actor"]
+    """The check above sees real imports: the nodes that need scipy load it with their class."""
+    assert "scipy" in loaded_by_type["synthetic_actor"] and "scipy" in loaded_by_type["bvh_player"]
+
+
+def test_a_built_solver_node_has_its_solver_and_warm_kernels_before_any_frame():
+    """What the frame solver's module leaves out, building the node (before it reports ready) loads:
+    the solver, and every solver kernel module warmed (compiled code loaded, not compiled later)."""
+    code = ("from mocapgraph.nodes.frame_solver import SOLVER_KERNELS, FrameSolverNode\n"
+            "import sys, numba\n"
+            "from mocapgraph import jit\n"
+            "node = FrameSolverNode('solver', {'fit': 'global'})\n"
+            "for name in SOLVER_KERNELS:\n"
+            "    kernels = [k for k in vars(sys.modules[name]).values() if isinstance(k, numba.core.registry.CPUDispatcher)]\n"
+            "    assert kernels and any(k.signatures for k in kernels), name\n"
+            "assert not jit.runtime_compiles, jit.runtime_compiles\n"
+            "assert node._new_solver.__module__ == 'mocapgraph.kinematics.solver'")
+    assert "mocapgraph.kinematics.solver" in _loaded_after(code)
+
+
+def test_the_launchers_check_of_a_lab_graph_loads_no_solver_math():
+    """`mocapgraph launch` checks a graph against its node classes before starting anything: for a lab
+    graph (reader, calibration, solver, viewer) that costs no scipy, numba or MuJoCo."""
+    graph = Path(__file__).resolve().parents[2] / "graph_configs" / "lab_trc.yaml"
+    loaded = _loaded_after("from mocapgraph.cli.graph_cmds import load_checked\n"
+                           f"graph = load_checked({str(graph)!r}, [], check_files=False)\n"
+                           "assert {n.spec.type for n in graph.nodes} >= {'calibration', 'frame_solver'}")
+    assert not _heavy(loaded, {"scipy", "numba", "mujoco"})
 
 
 def test_one_format_module_does_not_load_the_others():
