@@ -90,6 +90,10 @@ class CalibrationNode(Node):
         self.model: ActorModel | None = None
         self._auto_running = False
         self._reset_capture()
+        # the calibration's math (scipy; the solver and numba for the bone lengths) now, not when the
+        # gym capture ends (processing races the stream: frames after it are solved with its model),
+        # and not with this module, which the launcher imports to check a graph against the declarations
+        from ..kinematics import calibration, solver  # noqa: F401
 
     def on_start(self) -> None:
         if self.binding.error:
@@ -213,7 +217,7 @@ class CalibrationNode(Node):
         self.call_later(0.0, self._process)
 
     def _process(self) -> None:
-        from ..kinematics.calibration import CalibrationError   # (imported by the calibration step itself)
+        from ..kinematics.calibration import CalibrationError   # (loaded in __init__)
 
         self._auto_running = False
         try:

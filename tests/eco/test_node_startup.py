@@ -117,6 +117,15 @@ def test_a_built_solver_node_has_its_solver_and_warm_kernels_before_any_frame():
     assert "mocapgraph.kinematics.solver" in _loaded_after(code)
 
 
+def test_a_built_calibration_node_has_its_math_before_the_gym_ends():
+    """Processing races the stream: the calibration (scipy) and the solver it measures bone lengths
+    with are loaded when the node is built, not when the gym capture ends."""
+    loaded = _loaded_after("from mocapgraph.nodes.calibration import CalibrationNode\n"
+                           "import sys\nassert 'scipy' not in sys.modules\n"
+                           "CalibrationNode('calibration', {})")
+    assert {"scipy", "mocapgraph.kinematics.calibration", "mocapgraph.kinematics.solver"} <= loaded
+
+
 def test_the_launchers_check_of_a_lab_graph_loads_no_solver_math():
     """`mocapgraph launch` checks a graph against its node classes before starting anything: for a lab
     graph (reader, calibration, solver, viewer) that costs no scipy, numba or MuJoCo."""
