@@ -6,7 +6,8 @@ script runs, per node type, a fresh interpreter that does just the imports (no n
 socket opened) under ``python -X importtime`` and prints:
 
 - the import wall time and CPU time (process_time) measured inside that interpreter, from before
-  ``import mocapgraph.bus.runtime`` to after ``load_class``; the modules loaded;
+  ``import mocapgraph.bus.runtime`` to after ``load_class``; the modules loaded (a node that loads its
+  math when it is built, the frame solver and the calibration, pays that after these figures);
 - which heavy packages got loaded (scipy, numba, ezc3d, mujoco, networkx, websockets, mcap);
 - the top packages by their own import time (-X importtime "self", summed per top-level package);
 - a baseline measured in the same run: ``import numpy, zmq`` alone (the floor every node pays);
