@@ -127,6 +127,7 @@ class _Plan:
         # a message's arrays and numeric scalars out of its __dict__, as tuples, in one C call each
         self.get_arrays = _getter(self.array_names)
         self.get_numeric = _getter([sc.name for sc in self.numeric])
+        self.get_text = _getter([f.name for f in self.text])
         # per-stream caches (speed only; the bytes are the same): the text block of str-only text
         # fields by their values, parsed text blocks by their bytes, and the array dims last
         # validated with their (name, dtype, shape, nbytes): a stream's frames keep their shapes
@@ -208,7 +209,7 @@ def encode_head(
     block = plan.struct.pack(*values)
     if plan.text:
         if plan.text_str_only:   # json.dumps costs ~10 us: once per distinct name
-            key = tuple(d[f.name] for f in plan.text)
+            key = plan.get_text(d)
             text = plan.text_out.get(key)
             if text is None:
                 text = json.dumps({f.name: d[f.name] for f in plan.text}, separators=(",", ":")).encode()
