@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import zmq
 
-from ..messages import DecodeError, Envelope, Message, decode_envelope, decode_payload, encode
-from ..messages.codec import local_copy, local_envelope, topic_frame
+from ..messages import DecodeError, Envelope, Message, decode_envelope, decode_payload
+from ..messages.codec import array_frames, encode_head, local_copy, local_envelope, topic_frame
 from ..messages.registry import UnknownTypeError, lookup
 from .curve import CurveKeys, make_client
 from .ports import Input, Output
@@ -34,6 +34,10 @@ BATCH = 256  # messages taken from one input per loop turn, so one busy input ca
 #: in-process messages held for an input with no queue limit (a recorder's): more than any burst
 #: one loop turn publishes; beyond it the oldest go, counted as gaps like a full socket queue's
 LOCAL_QUEUE_MAX = 10_000
+#: bytes: a frame smaller than this is copied when sent, so once ``publish`` returns its message's
+#: arrays may be written again (a node reusing its buffers relies on it); larger frames go
+#: zero-copy (the copy would cost more than the send) and must be left alone after publishing
+COPY_BELOW = 65536
 
 
 class OutputPort:
@@ -55,12 +59,18 @@ class OutputPort:
         if not isinstance(msg, self.decl.msg_type):
             raise TypeError(f"{self.decl.name} publishes {self.decl.type_name}, not {type(msg).__name__}")
         self.seq += 1
-        frames = encode(self.topic, msg, self.seq, time.time_ns() if capture_ns is None else capture_ns,
-                        self.node.name, None, self.latched)
-        if self.latched:
-            frames = [bytes(f) for f in frames]  # keep a copy we own for resends
-            self.last_frames = frames
-        self._send(frames, msg)
+        head, arrays = encode_head(self.topic, msg, self.seq, time.time_ns() if capture_ns is None else capture_ns,
+                                   self.node.name, None, self.latched)
+        if self.latched or not self.local:
+            frames = head + array_frames(arrays)
+            if self.latched:
+                frames = [bytes(f) for f in frames]  # keep a copy we own for resends
+                self.last_frames = frames
+            self._send(frames, msg)
+            return
+        # this process's subscribers first, before the socket frames are even assembled (the hop
+        # of a pipeline composed in one process); then ZeroMQ
+        self.send_zmq(self._send_local(head, msg, arrays))
 
     def publish_frames(self, frames: list, latched: bool = False) -> None:
         """Send already-encoded frames (a bag player's recorded bytes) on this port's topic.
@@ -87,18 +97,22 @@ class OutputPort:
     def send_zmq(self, frames: list) -> None:
         """To the subscribers over ZeroMQ only (a latched value re-sent to a late joiner)."""
         send = self.node._pub.send
-        copy = len(frames[-1]) < 65536  # zero-copy pays off only for large payloads
+        copy = len(frames[-1]) < COPY_BELOW  # zero-copy pays off only for large payloads
         for f in frames[:-1]:
             send(f, _SNDMORE, copy=copy)
         send(frames[-1], 0, copy=copy)
 
-    def _send_local(self, frames: list, msg: Message | None) -> None:
+    def _send_local(self, frames: list, msg: Message | None, arrays: tuple | None = None) -> list:
         """Hand the message to this process's subscribers: at once when no in-process delivery is
         under way (the handler publishing is then the only one running, and it is never one of
         them: no handler is re-entered), else queued for the loop's next turn.
 
         Each gets its own copy (`local_copy`: read-only arrays, shapes checked) beside the header
-        frames; raw subscribers (recorders) and messages that fail the check get the bytes."""
+        frames; raw subscribers (recorders) and messages that fail the check get the bytes.
+        ``arrays``: ``frames`` are the head only (`encode_head`), these the payload; returns the
+        whole frames (for the socket)."""
+        whole = frames if arrays is None else None
+        head = frames if arrays is not None else frames[:3]
         owned: list | None = None
         env = None if msg is None else local_envelope(self.topic, msg._info.name, self.node.name, frames[1])
         items = []
@@ -110,20 +124,23 @@ class OutputPort:
                 except DecodeError:
                     copy = None   # the subscriber decodes the bytes and rejects them, as over a socket
             if copy is None and owned is None:
+                if whole is None:
+                    whole = frames + array_frames(arrays)
                 # bytes of our own: array frames are views of the message, which its sender may reuse
-                owned = [f if type(f) is bytes else bytes(f) for f in frames]
-            items.append((port, owned if copy is None else frames[:3], copy))
+                owned = [f if type(f) is bytes else bytes(f) for f in whole]
+            items.append((port, owned if copy is None else head, copy))
         loop = self.node._loop
         if loop.delivering:
             for port, fr, copy in items:
                 port.post_local(fr, copy, env)
-            return
+            return whole if whole is not None else frames + array_frames(arrays)
         loop.delivering = True
         try:
             for port, fr, copy in items:
                 port.take_now(fr, copy, env)
         finally:
             loop.delivering = False
+        return whole if whole is not None else frames + array_frames(arrays)
 
 
 class InputPort:

@@ -194,6 +194,9 @@ class Node:
             self._ports[name] = port
             port.handler = self.input_handler(name)
             self._loop.watch(port.open(self._ctx, spec.get("endpoints", []), self._curve), port.on_readable, owner=self)
+        for name in (*self._iface.outputs, *self._iface.inputs):   # a handler's self.<port>: a dict lookup, not
+            # the declaration's descriptor call; (an attribute of that name the node has wins: bound_port())
+            self.__dict__.setdefault(name, self._ports[name])
         if w.control:
             self._launcher = LauncherLink(self._ctx, w.control, self.name)
             self._loop.watch(self._launcher.socket, self._on_control, owner=self)

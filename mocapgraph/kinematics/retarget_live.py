@@ -606,11 +606,19 @@ class CompiledFrame:
             self.hxy = np.concatenate([self.hxy, np.zeros((len(self.hxy), 4))])
         return 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0]))
 
-    def run_actor(self, jp, jq, rot, lq, t):
+    def buffers(self):
+        """A result of one frame ([1, ...] arrays) for :meth:`run_actor` to write into (``out``)."""
+        J = self.J
+        return self.Result(np.empty((1, J, 4)), np.empty((1, 3)), np.empty((1, J, 3)), np.empty((1, J), np.int8),
+                           np.empty((1, 2), np.bool_))
+
+    def run_actor(self, jp, jq, rot, lq, t, out=None):
         """One solved-actor frame (optical source) at time ``t`` (s, a float): joints [J, 3], quality [J],
         limb rotations [R, 4], quality [R] (int8), C-contiguous as a message holds them, all read-only (decoded) or all
         writable (the two compiled variants); :meth:`run` of OpticalFrames' points and the limbs of
-        quality >= 1, with the bone-follow flags, in one kernel call."""
+        quality >= 1, with the bone-follow flags, in one kernel call. ``out`` (from :meth:`buffers`):
+        written and returned instead of a new result (a caller that hands the arrays on before the
+        next frame, as the node does, allocates nothing per frame)."""
         if (jp.shape, jq.shape, rot.shape, lq.shape) != self.actor_shapes:   # the kernel does not check bounds
             raise ValueError(f"an actor frame of this source wants joints {self.actor_shapes[0]}, quality "
                              f"{self.actor_shapes[1]}, limbs {self.actor_shapes[2]}, {self.actor_shapes[3]}")
@@ -618,20 +626,21 @@ class CompiledFrame:
         st = rt._state
         if self._plant_for is not st:   # (after that, the kernel's return value says when the window needs room)
             self._plants_ready(st, t)
-        J = self.J
-        root, pos, local = np.empty((1, 3)), np.empty((1, J, 3)), np.empty((1, J, 4))
-        contact, jq_out = np.empty((1, 2), np.bool_), np.empty((1, J), np.int8)
+        if out is None:
+            out = self.buffers()
+        local, root, pos, jq_out, contact = (out.local_rotations, out.root_positions, out.joint_positions,
+                                             out.joint_quality, out.contact)
         done = k.retarget_actor_frame(jp, jq, rot, lq, t, st.pts, st.rot, st.pts_seen, st.rot_seen, self.pq, self.rq,
                                       self.ps, self.ht, self.hxy, self.hn, self.ci, self.cf, self.wk, self.bk,
                                       root, pos, local, contact, jq_out)
         if done & 2 and self.legs is not None:
             self._plants_ready(st, t)
         if not done & 1:
-            jq_out = rt._quality(self.rq[None], self.pq[None])   # something missing: held, flagged below
+            jq_out[:] = rt._quality(self.rq[None], self.pq[None])   # something missing: held, flagged below
             c = rt._checks
             if c.joint.size:
                 k.flag_unfollowed(pos[0], st.pts, c.joint, c.child, c.a, c.b, c.A, c.cos_limit, jq_out[0])
-        return self.Result(local, root, pos, jq_out, contact)
+        return out
 
     def run(self, pts, pok, rot, rok, t):
         """One frame, as LiveKernel.run: points [P, 3], rotations [R, 4] or None, masks or None."""

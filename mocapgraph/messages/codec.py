@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import operator
 import struct
 import time
 from dataclasses import dataclass
@@ -123,6 +124,10 @@ class _Plan:
         self.py = [SCALAR_PY[sc.kind] for sc in self.numeric]
         self.array_names = [a.name for a in info.arrays]
         self.string_names = [f.name for f in info.strings]
+        # a message's arrays and numeric scalars out of its __dict__, as tuples, in one C call each
+        self.get_arrays = _getter(self.array_names)
+        self.get_numeric = _getter([sc.name for sc in self.numeric])
+        self.get_text = _getter([f.name for f in self.text])
         # per-stream caches (speed only; the bytes are the same): the text block of str-only text
         # fields by their values, parsed text blocks by their bytes, and the array dims last
         # validated with their (name, dtype, shape, nbytes): a stream's frames keep their shapes
@@ -133,6 +138,16 @@ class _Plan:
         self.last_dims: tuple | None = None
         self.last_layout: list = []
         self.local_shapes: list | None = None   # the array shapes `local_copy` checked last
+
+
+def _getter(names: list[str]):
+    """``d -> tuple(d[n] for n in names)`` (operator.itemgetter, which returns a bare value for one name)."""
+    if len(names) >= 2:
+        return operator.itemgetter(*names)
+    if names:
+        one = operator.itemgetter(names[0])
+        return lambda d: (one(d),)
+    return lambda d: ()
 
 
 _CODES = {"int": "q", "float": "d", "bool": "?"}
@@ -162,6 +177,22 @@ def encode(
     latched: bool = False,
 ) -> list[bytes | memoryview]:
     """The multipart frames of ``msg`` on ``topic``. ``publish_ns`` defaults to now."""
+    head, arrays = encode_head(topic, msg, seq, capture_ns, sender, publish_ns, latched)
+    return head + array_frames(arrays)
+
+
+def encode_head(
+    topic: str,
+    msg: Message,
+    seq: int,
+    capture_ns: int,
+    sender: str = "",
+    publish_ns: int | None = None,
+    latched: bool = False,
+) -> tuple[list[bytes], tuple[np.ndarray, ...]]:
+    """:func:`encode` in two steps: the first three frames (topic, header, field block; stamped
+    last) and the arrays whose frames :func:`array_frames` makes (an in-process subscriber gets the
+    message before its socket frames are assembled)."""
     info = msg._info
     plan = _plan(info)
     names = plan.names_out.get(sender)
@@ -171,14 +202,14 @@ def encode(
         if len(plan.names_out) < _TEXT_CACHE:
             plan.names_out[sender] = names
     d = msg.__dict__
-    arrays = [d[a] for a in plan.array_names]
-    values = [d[sc.name] for sc in plan.numeric]
+    arrays = plan.get_arrays(d)
+    values = [*plan.get_numeric(d)]
     for arr in arrays:
-        values.extend(arr.shape)
+        values += arr.shape
     block = plan.struct.pack(*values)
     if plan.text:
         if plan.text_str_only:   # json.dumps costs ~10 us: once per distinct name
-            key = tuple(d[f.name] for f in plan.text)
+            key = plan.get_text(d)
             text = plan.text_out.get(key)
             if text is None:
                 text = json.dumps({f.name: d[f.name] for f in plan.text}, separators=(",", ":")).encode()
@@ -198,12 +229,14 @@ def encode(
         capture_ns,
         time.time_ns() if publish_ns is None else publish_ns,  # stamped last: encoding is not latency
     )
-    frames: list[bytes | memoryview] = [topic_frame(topic), header + names[2], block]
-    for arr in arrays:
-        # The field setters keep arrays contiguous with the declared dtype; native order on
-        # every platform we support is little-endian.
-        frames.append(memoryview(arr).cast("B") if arr.size else b"")
-    return frames
+    return [topic_frame(topic), header + names[2], block], arrays
+
+
+def array_frames(arrays: tuple[np.ndarray, ...]) -> list[memoryview | bytes]:
+    """The payload frames of a message's arrays (:func:`encode_head`): views of their bytes."""
+    # The field setters keep arrays contiguous with the declared dtype; native order on every
+    # platform we support is little-endian.
+    return [memoryview(arr).cast("B") if arr.size else b"" for arr in arrays]
 
 
 _NAMES: dict[tuple[int, bytes], tuple[str, str]] = {}
@@ -324,7 +357,7 @@ def local_copy(msg: Message) -> Message:
     info = msg._info
     plan = _plan(info)
     d = msg.__dict__
-    arrays = [d[a] for a in plan.array_names]
+    arrays = plan.get_arrays(d)
     shapes = [arr.shape for arr in arrays]
     if shapes != plan.local_shapes:   # a stream keeps its shapes: checked once per change
         symbols: dict[str, int] = {}

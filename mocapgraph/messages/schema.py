@@ -202,6 +202,15 @@ class Message:
         for spec in info.arrays:
             d[spec.name] = spec.coerce(values[spec.name]) if spec.name in values else spec.empty()
 
+    def __setattr__(self, name: str, value: Any) -> None:
+        spec = self._info.fields.get(name)
+        if spec is None:
+            object.__setattr__(self, name, value)
+        elif type(value) is _FAST_SCALAR.get(getattr(spec, "kind", None)):   # (a scalar of its own type: kept)
+            self.__dict__[name] = value
+        else:   # a field keeps its declared type, as the constructor makes it
+            self.__dict__[name] = spec.coerce(value)
+
     @classmethod
     def fields(cls) -> dict[str, FieldSpec]:
         """The declared fields by name, in declaration order."""
@@ -298,7 +307,9 @@ def _field_block(cls: type[Message]) -> str:
 
 
 class _FieldDescriptor:
-    """Class-level access returns the spec; instances store values in __dict__."""
+    """Class-level access returns the spec; instances store values in __dict__, which a read finds
+    first (a non-data descriptor: a field read is a dict lookup, no Python call; a frame's handler
+    reads several). Writes go through ``Message.__setattr__``, which coerces."""
 
     def __init__(self, name: str, spec: FieldSpec) -> None:
         self.name = name
@@ -311,6 +322,3 @@ class _FieldDescriptor:
             return obj.__dict__[self.name]
         except KeyError:
             raise AttributeError(self.name) from None
-
-    def __set__(self, obj: Any, value: Any) -> None:
-        obj.__dict__[self.name] = self.spec.coerce(value)

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
+from ..bus.bound_ports import COPY_BELOW
 from ..formats.character_file import CharacterFileError
 from ..formats.retarget_setup import build, source_from_model, source_from_skeleton_info
 from ..kinematics.retarget import RetargetOptions
@@ -90,6 +91,9 @@ class RetargeterNode(Node):
         self._rg_bad_frames = 0
         self._rg_t0: int | None = None
         self._rg_frames = 0
+        self._rg_dims: tuple[int, int] | None = None   # (joints, limbs) of the latched actor model
+        # the retargeter whose one-frame buffers _rg_out are, and the message that publishes them
+        self._rg_out_for = self._rg_out = self._rg_message = None
         from ..kinematics import retarget_kernels, retarget_source_kernels
         # the compiled kernels now, not at the first frame (which would queue ~0.4 s of frames behind it)
         retarget_kernels.load()
@@ -136,6 +140,7 @@ class RetargeterNode(Node):
     def on_skeleton_model(self, msg: SkeletonModel) -> None:
         src = source_from_model(msg.joint_names, msg.joint_parent, msg.joint_limbs, msg.limb_names, msg.base_joints,
                                 msg.layout_name)
+        self._rg_dims = (len(msg.joint_names), len(msg.limb_names))
         self._build(src, ("model", tuple(msg.joint_names), tuple(msg.limb_names), msg.base_joints.tobytes()),
                     f"actor of {len(msg.joint_names)} joints")
 
@@ -169,16 +174,22 @@ class RetargeterNode(Node):
         self._publish(res, msg.frame_number, self.skeleton_pose.envelope.capture_ns)
 
     def on_actor_pose(self, msg: ActorPose) -> None:
-        model = self.skeleton_model.latest
-        if self.rig is None or model is None:
+        rig, dims = self.rig, self._rg_dims
+        if rig is None or dims is None:
             return
-        J, L = len(model.joint_names), len(model.limb_names)
-        if msg.joint_positions.shape[0] != J or msg.limb_orientations.shape[0] != L:
-            self._wrong(msg.frame_number, msg.joint_positions.shape[0], J)
+        jp, rot = msg.joint_positions, msg.limb_orientations
+        if jp.shape[0] != dims[0] or rot.shape[0] != dims[1]:
+            self._wrong(msg.frame_number, jp.shape[0], dims[0])
             return
-        res = self.rig.retargeter.process_actor(msg.joint_positions, msg.joint_quality, msg.limb_orientations,
-                                                msg.limb_quality, self._times(self.actor_pose.envelope.capture_ns))
-        self._publish(res, msg.frame_number, self.actor_pose.envelope.capture_ns)
+        capture_ns = self.actor_pose.envelope.capture_ns
+        rt = rig.retargeter
+        if self._rg_out_for is not rt:   # one frame's arrays, written in place by each frame (see _publish)
+            out = rt.actor_buffers()
+            if out is not None and max(a.nbytes for a in vars(out).values()) >= COPY_BELOW:
+                out = None   # (a rig of thousands of joints: sent zero-copy, so new arrays each frame)
+            self._rg_out_for, self._rg_out, self._rg_message = rt, out, None
+        res = rt.process_actor(jp, msg.joint_quality, rot, msg.limb_quality, self._times(capture_ns), self._rg_out)
+        self._publish(res, msg.frame_number, capture_ns)
 
     def _wrong(self, frame: int, got: int, want: int) -> None:
         self._rg_bad_frames += 1
@@ -187,10 +198,21 @@ class RetargeterNode(Node):
                                     f"({self._rg_bad_frames} such frames)", error=True)
 
     def _publish(self, res, frame: int, capture_ns: int) -> None:
-        self.character_pose.publish(CharacterPose(
-            character=self.character_name or self.rig.character.name, frame_number=int(frame),
-            root_position=res.root_positions[0], local_rotations=res.local_rotations[0],
-            joint_positions=res.joint_positions[0], joint_quality=res.joint_quality[0]), capture_ns)
+        """Publish one frame's result. A result written into the node's own buffers (``_rg_out``) goes
+        out in one reused message whose arrays are those buffers: publishing sends copies (ZeroMQ
+        copies frames below COPY_BELOW bytes, in-process subscribers get copies), so the next frame
+        may overwrite them."""
+        msg = self._rg_message
+        if res is not self._rg_out or msg is None:
+            msg = CharacterPose(
+                character=self.character_name or self.rig.character.name, frame_number=int(frame),
+                root_position=res.root_positions[0], local_rotations=res.local_rotations[0],
+                joint_positions=res.joint_positions[0], joint_quality=res.joint_quality[0])
+            if res is self._rg_out:
+                self._rg_message = msg
+        else:
+            msg.frame_number = frame
+        self.character_pose.publish(msg, capture_ns)
         self._rg_frames += 1
 
     # ----- commands -----------------------------------------------------------------------------

@@ -11,7 +11,7 @@ from mocapgraph.formats.character_file import load_character
 from mocapgraph.formats.kinect_csv import read_kinect_csv
 from mocapgraph.formats.mapping_file import load_mapping
 from mocapgraph.kinematics.character import standard_20
-from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
+from mocapgraph.kinematics.retarget import RetargetOptions, RetargetResult, Retargeter
 from mocapgraph.kinematics.retarget_mapping import derive_mapping
 from mocapgraph.kinematics.retarget_source import kinect_source, optical_points, optical_source
 
@@ -169,19 +169,27 @@ def test_the_actor_frame_is_the_layout_then_one_frame():
     got = np.concatenate([rt.process_actor(jp[f], jq[f], lr[f], lq[f], t_fast[f]).joint_positions for f in range(n)])
     assert len(rt._live.compiled.ht) >= 256
     assert np.abs(got - fast.joint_positions).max() < 1e-12
-    for compiled, read_only in ((True, True), (True, False), (False, True)):
+    for compiled, read_only, into in ((True, True, False), (True, False, False), (False, True, False),
+                                      (True, True, True), (False, True, True)):
         rt = Retargeter(ch, m, src, opts, compiled=compiled)
         assert (rt._live.compiled is not None) == compiled
+        out = rt.actor_buffers() if into else None   # the node's way: one frame's arrays, rewritten each frame
+        assert (out is not None) == (compiled and into)
         frames = []
         for f in range(n):
             arrays = [a[f].copy() for a in (jp, jq, lr, lq)]
             for a in arrays:
                 a.flags.writeable = not read_only
-            frames.append(rt.process_actor(*arrays, t[f]))
+            r = rt.process_actor(*arrays, t[f], out)
+            if out is not None:
+                assert r is out
+                r = RetargetResult(**{k: getattr(r, k).copy() for k in FIELDS})
+            frames.append(r)
         for k in FIELDS:
             got = np.concatenate([getattr(r, k) for r in frames]).astype(float)
             worst = float(np.abs(got - getattr(batch, k).astype(float)).max())
-            print(f"\nactor frame (compiled {compiled}, read-only {read_only}) - batch max {k}: {worst:.1e}")
+            print(f"\nactor frame (compiled {compiled}, read-only {read_only}, into buffers {into}) - batch max {k}: "
+                  f"{worst:.1e}")
             assert worst < 1e-12 if k not in ("joint_quality", "contact") else worst == 0, (compiled, read_only, k)
     with pytest.raises(ValueError, match="actor frame"):
         Retargeter(ch, m, src, opts).process_actor(jp[0, :-1], jq[0, :-1], lr[0], lq[0], 0.0)

@@ -15,7 +15,9 @@ from graph_helpers import assert_pattern_frame, graph_error, node_pids, pid_aliv
 from mocapgraph.bag.reader import BagReader
 from mocapgraph.bus.node import Input, Node, Output, Wiring
 from mocapgraph.bus.process import serve
+from mocapgraph.formats.retarget_setup import build, source_from_model
 from mocapgraph.kinematics.calibration import calibrate
+from mocapgraph.kinematics.retarget import RetargetOptions
 from mocapgraph.kinematics.model import save_model
 from mocapgraph.kinematics.synthetic_actor import SyntheticActor
 from mocapgraph.cli.graph_cmds import to_text
@@ -239,7 +241,9 @@ nodes:
     assert not compiled, "kernels compiled while the graph ran:\n" + "\n".join(compiled)
     with BagReader(bag) as r:
         frames = {t: [m.frame_number for _, m in r.decoded(t)] for t in ("markers", "actor_pose", "character_pose")}
-        last = [m for _, m in r.decoded("character_pose")][-1]
+        actor = [(e.capture_ns, m) for e, m in r.decoded("actor_pose")]
+        characters = [m for _, m in r.decoded("character_pose")]
+        last = characters[-1]
         physics = sum(1 for _ in r.decoded("physics_state"))
     assert len(frames["actor_pose"]) >= 200, {t: len(f) for t, f in frames.items()}
     # every solved frame reached the retargeter in process and came out of it, in order; the
@@ -249,3 +253,19 @@ nodes:
     assert first <= 12 and frames["actor_pose"] == frames["markers"][first:first + len(frames["actor_pose"])]
     assert physics >= 0.5 * len(frames["character_pose"]), physics   # (it skips what it cannot keep up with)
     assert np.isfinite(last.joint_positions).all() and (last.joint_quality >= 1).all()
+    # each character frame is the retargeting of its actor frame: the same retargeter run here on
+    # the recorded actor frames gives every one (the node writes each frame into one set of buffers
+    # and one message: what went out must still be each frame's own)
+    rt = build("standard_20", None, source_from_model(model.joint_names, model.joint_parent, model.joint_limbs,
+                                                      model.limb_names, model.joint_base),
+               RetargetOptions(foot_planting=True)).retargeter
+    t0 = actor[0][0]
+    for (cap_ns, a), c in zip(actor, characters):
+        want = rt.process_actor(a.joint_positions, a.joint_quality, a.limb_orientations, a.limb_quality,
+                                (cap_ns - t0) * 1e-9)
+        assert c.frame_number == a.frame_number
+        for got, ref in ((c.joint_positions, want.joint_positions[0]), (c.local_rotations, want.local_rotations[0]),
+                         (c.root_position, want.root_positions[0])):
+            assert np.abs(got - ref).max() < 1e-12, c.frame_number
+        assert (c.joint_quality == want.joint_quality[0]).all(), c.frame_number
+    assert len({c.joint_positions.tobytes() for c in characters}) == len(characters)   # no two frames alike

@@ -92,3 +92,18 @@ def test_fields_named_like_builtins_or_self_still_build():
     assert m.type == "t" and m.len.shape == (2,)
     with pytest.raises(MessageError, match="wants shape"):
         OddNames(len=np.zeros(3))
+
+
+def test_assigning_a_field_coerces_it_as_the_constructor_does():
+    msg = CharacterPose(character="c", frame_number=1, root_position=np.zeros(3), local_rotations=np.zeros((20, 4)),
+                        joint_positions=np.zeros((20, 3)), joint_quality=np.zeros(20, np.int8))
+    msg.root_position = [1, 2, 3]                   # a list of ints: a float64 array
+    assert msg.root_position.dtype == np.float64 and msg.root_position.tolist() == [1.0, 2.0, 3.0]
+    msg.frame_number = np.int64(7)                  # a numpy integer: a Python int, as encode wants
+    assert type(msg.frame_number) is int and msg.frame_number == 7
+    with pytest.raises(MessageError, match="shape"):
+        msg.joint_positions = np.zeros((20, 4))
+    assert msg.joint_positions.shape == (20, 3)     # the refused value did not land
+    msg.note = "not a field"                        # other attributes are plain ones
+    assert msg.note == "not a field" and "note" not in type(msg)._info.fields
+    assert isinstance(CharacterPose.root_position, Array)   # the class still gives the declaration
