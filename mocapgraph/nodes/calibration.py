@@ -90,10 +90,7 @@ class CalibrationNode(Node):
         self.model: ActorModel | None = None
         self._auto_running = False
         self._reset_capture()
-        # the calibration's math (scipy; the solver and numba for the bone lengths) now, not when the
-        # gym capture ends (processing races the stream: frames after it are solved with its model),
-        # and not with this module, which the launcher imports to check a graph against the declarations
-        from ..kinematics import calibration, solver  # noqa: F401
+        from ..kinematics import calibration, solver  # noqa: F401  (its math now: see _process)
 
     def on_start(self) -> None:
         if self.binding.error:
@@ -217,8 +214,9 @@ class CalibrationNode(Node):
         self.call_later(0.0, self._process)
 
     def _process(self) -> None:
-        from ..kinematics.calibration import CalibrationError   # (loaded in __init__)
-
+        # the math was loaded by __init__, not here (processing races the stream: frames after it are
+        # solved with its model) nor with this module (the launcher's check imports it, declarations only)
+        from ..kinematics.calibration import CalibrationError
         self._auto_running = False
         try:
             subject = read_vsk(self.subject_file) if self.subject_file else None
