@@ -563,6 +563,7 @@ class CompiledFrame:
             self.ps = np.zeros(13)
             self.ht, self.hxy, self.hn = np.zeros(64), np.zeros((64, 4)), np.zeros(1, np.int64)
         self._plant_for = None      # the retargeter state whose plants the arrays above hold
+        self._out_checked = None    # the last ``out`` of run_actor found to fit (see _check_out)
         if self.legs is None:       # the frame kernel's plant arguments, unused
             self.ps, self.ht, self.hxy, self.hn = np.zeros(13), np.zeros(2), np.zeros((2, 4)), np.zeros(1, np.int64)
         lg = self.legs or (np.zeros(0, np.int64),) * 4 + (False,) + (np.zeros(0),) * 4 + (np.zeros(0, np.int64),) * 2
@@ -612,6 +613,19 @@ class CompiledFrame:
         return self.Result(np.empty((1, J, 4)), np.empty((1, 3)), np.empty((1, J, 3)), np.empty((1, J), np.int8),
                            np.empty((1, 2), np.bool_))
 
+    def _check_out(self, out) -> None:
+        """``out`` has :meth:`buffers`' shapes and dtypes, C-contiguous and writable (ValueError)."""
+        J = self.J
+        want = (((1, J, 4), np.float64), ((1, 3), np.float64), ((1, J, 3), np.float64), ((1, J), np.int8),
+                ((1, 2), np.bool_))
+        for a, (shape, dtype) in zip((out.local_rotations, out.root_positions, out.joint_positions, out.joint_quality,
+                                      out.contact), want):
+            if not (isinstance(a, np.ndarray) and a.shape == shape and a.dtype == dtype and a.flags.c_contiguous
+                    and a.flags.writeable):
+                raise ValueError(f"out: the buffers of this character ({J} joints) come from buffers(); an array "
+                                 f"here is {getattr(a, 'shape', type(a).__name__)} where {shape} {np.dtype(dtype)} is wanted")
+        self._out_checked = out
+
     def run_actor(self, jp, jq, rot, lq, t, out=None):
         """One solved-actor frame (optical source) at time ``t`` (s, a float): joints [J, 3], quality [J],
         limb rotations [R, 4], quality [R] (int8), C-contiguous as a message holds them, all read-only (decoded) or all
@@ -628,6 +642,8 @@ class CompiledFrame:
             self._plants_ready(st, t)
         if out is None:
             out = self.buffers()
+        elif out is not self._out_checked:   # the kernel writes without bounds checks: once per buffer set
+            self._check_out(out)
         local, root, pos, jq_out, contact = (out.local_rotations, out.root_positions, out.joint_positions,
                                              out.joint_quality, out.contact)
         done = k.retarget_actor_frame(jp, jq, rot, lq, t, st.pts, st.rot, st.pts_seen, st.rot_seen, self.pq, self.rq,

@@ -167,15 +167,8 @@ def field_layout(cls: type[Message]) -> str:
     return _plan(cls._info).struct.format
 
 
-def encode(
-    topic: str,
-    msg: Message,
-    seq: int,
-    capture_ns: int,
-    sender: str = "",
-    publish_ns: int | None = None,
-    latched: bool = False,
-) -> list[bytes | memoryview]:
+def encode(topic: str, msg: Message, seq: int, capture_ns: int, sender: str = "", publish_ns: int | None = None,
+           latched: bool = False) -> list[bytes | memoryview]:
     """The multipart frames of ``msg`` on ``topic``. ``publish_ns`` defaults to now."""
     head, arrays = encode_head(topic, msg, seq, capture_ns, sender, publish_ns, latched)
     return head + array_frames(arrays)

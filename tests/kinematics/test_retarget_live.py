@@ -193,3 +193,10 @@ def test_the_actor_frame_is_the_layout_then_one_frame():
             assert worst < 1e-12 if k not in ("joint_quality", "contact") else worst == 0, (compiled, read_only, k)
     with pytest.raises(ValueError, match="actor frame"):
         Retargeter(ch, m, src, opts).process_actor(jp[0, :-1], jq[0, :-1], lr[0], lq[0], 0.0)
+    rt = Retargeter(ch, m, src, opts)   # buffers that do not fit are refused (the kernel checks no bounds)
+    for field, bad in (("joint_positions", np.empty((1, 5, 3))), ("joint_quality", np.empty((1, ch.n_joints))),
+                       ("local_rotations", np.empty((1, ch.n_joints, 4))[:, ::-1])):
+        out = rt.actor_buffers()
+        setattr(out, field, bad)
+        with pytest.raises(ValueError, match="come from buffers"):
+            rt.process_actor(jp[0], jq[0], lr[0], lq[0], 0.0, out)
