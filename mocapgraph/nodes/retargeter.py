@@ -15,21 +15,19 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
 from ..bus.bound_ports import COPY_BELOW
-from ..formats.character_file import CharacterFileError
-from ..formats.retarget_setup import build, source_from_model, source_from_skeleton_info
-from ..kinematics.retarget import RetargetOptions
-from ..kinematics.retarget_mapping import MappingError
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, NodeCommand, NodeStatus, SkeletonInfo,
                         SkeletonModel, SkeletonPose)
-from ..formats.mapping_file import write_mapping
 
 from ..messages.commands import RETARGET_COMMANDS as COMMANDS
+
+if TYPE_CHECKING:   # the math (scipy, numba) is imported when the node is built (see __init__)
+    from ..kinematics.retarget import RetargetOptions
 
 
 class RetargeterNode(Node):
@@ -94,8 +92,11 @@ class RetargeterNode(Node):
         self._rg_dims: tuple[int, int] | None = None   # (joints, limbs) of the latched actor model
         # the retargeter whose one-frame buffers _rg_out are, and the message that publishes them
         self._rg_out_for = self._rg_out = self._rg_message = None
+        # the math and the compiled kernels now, not at the first model or frame (which would queue
+        # ~0.4 s of frames behind them), nor with this module, which the launcher imports to check a
+        # graph against the declarations above (scipy and numba would cost each check ~0.9 s of CPU)
+        from ..formats import mapping_file, retarget_setup  # noqa: F401
         from ..kinematics import retarget_kernels, retarget_source_kernels
-        # the compiled kernels now, not at the first frame (which would queue ~0.4 s of frames behind it)
         retarget_kernels.load()
         if self.source == "skeleton":   # rotations from a positions-only stream (Kinect)
             retarget_source_kernels.warm()
@@ -107,6 +108,7 @@ class RetargeterNode(Node):
                                                 data_json=json.dumps(data or {})))
 
     def _options(self) -> RetargetOptions:
+        from ..kinematics.retarget import RetargetOptions
         return RetargetOptions(spread=self.spread, aim=self.aim, roll=self.roll, follow_bones=self.follow_bones,
                                follow_tolerance_deg=float(self.follow_tolerance_deg),
                                foot_planting=self.foot_planting, root_scale=self.root_scale,
@@ -114,6 +116,9 @@ class RetargeterNode(Node):
                                offset=tuple(float(x) for x in (list(self.offset) + [0.0, 0.0, 0.0])[:3]))
 
     def _build(self, source, key: tuple, what: str) -> None:
+        from ..formats.character_file import CharacterFileError
+        from ..formats.retarget_setup import build
+        from ..kinematics.retarget_mapping import MappingError
         if self._rg_definition == key and self.rig is not None:
             return
         self.rig, self._rg_definition = None, key
@@ -138,6 +143,7 @@ class RetargeterNode(Node):
 
     # ----- definitions --------------------------------------------------------------------------
     def on_skeleton_model(self, msg: SkeletonModel) -> None:
+        from ..formats.retarget_setup import source_from_model
         src = source_from_model(msg.joint_names, msg.joint_parent, msg.joint_limbs, msg.limb_names, msg.base_joints,
                                 msg.layout_name)
         self._rg_dims = (len(msg.joint_names), len(msg.limb_names))
@@ -163,6 +169,7 @@ class RetargeterNode(Node):
             return
         has_q = bool(np.isfinite(msg.joint_orientations).any())
         if self.rig is None or self._rg_definition[1] != has_q:
+            from ..formats.retarget_setup import source_from_skeleton_info
             src = source_from_skeleton_info(info.joint_names, info.joint_parent, info.rest_offsets, has_orientations=has_q)
             self._build(src, ("skeleton", has_q, tuple(info.joint_names), info.rest_offsets.tobytes()),
                         f"{info.source or 'skeleton'} ({J} joints{'' if has_q else ', positions only'})")
@@ -226,6 +233,8 @@ class RetargeterNode(Node):
         if self.rig is None:
             self._status("waiting", f"{cmd.command}: no source stream yet", error=True)
             return
+        from ..formats.mapping_file import write_mapping
+        from ..kinematics.retarget_mapping import MappingError
         rt = self.rig.retargeter
         if cmd.command == "reset":
             rt.reset()

@@ -28,6 +28,7 @@ MUST_NOT_LOAD: dict[str, set[str]] = {
     # (their math comes when the node is built or calibrates: the launcher's check loads the class only)
     "calibration": {"scipy", "numba", "ezc3d", "mujoco", "networkx", "mocapgraph.kinematics.calibration"},
     "frame_solver": {"scipy", "numba", "ezc3d", "mujoco", "networkx", "mocapgraph.kinematics.solver"},
+    "retargeter": {"scipy", "numba", "ezc3d", "mujoco", "networkx", "mocapgraph.kinematics.retarget"},
     "bvh_player": {"numba", "ezc3d", "mujoco", "networkx", "asyncio"},
     "bag_recorder": NOT_FOR_OUTLETS | {"asyncio"},
     "bag_player": NOT_FOR_OUTLETS | {"asyncio"},
