@@ -133,13 +133,13 @@ class OutputPort:
         if loop.delivering:
             for port, fr, copy in items:
                 port.post_local(fr, copy, env)
-            return whole if whole is not None else frames + array_frames(arrays)
-        loop.delivering = True
-        try:
-            for port, fr, copy in items:
-                port.take_now(fr, copy, env)
-        finally:
-            loop.delivering = False
+        else:
+            loop.delivering = True
+            try:
+                for port, fr, copy in items:
+                    port.take_now(fr, copy, env)
+            finally:
+                loop.delivering = False
         return whole if whole is not None else frames + array_frames(arrays)
 
 

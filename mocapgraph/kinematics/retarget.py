@@ -430,13 +430,18 @@ class Retargeter:
                             None if rotations is None else rotations[None],
                             None if rotation_ok is None else rotation_ok[None], float(time_s))
 
+    def _actor_kernel(self):
+        """The compiled live path when it takes actor frames (an optical source), else None."""
+        live = self._live
+        if live is not None and live.compiled is not None and live.compiled.hips is not None:
+            return live.compiled
+        return None
+
     def actor_buffers(self) -> RetargetResult | None:
         """A one-frame result for :meth:`process_actor` to write into (its ``out``), or None when the
         live path is not compiled (then each frame's result is new)."""
-        live = self._live
-        if live is not None and live.compiled is not None and live.compiled.hips is not None:
-            return live.compiled.buffers()
-        return None
+        compiled = self._actor_kernel()
+        return None if compiled is None else compiled.buffers()
 
     def process_actor(self, joint_positions: np.ndarray, joint_quality: np.ndarray, limb_rotations: np.ndarray,
                       limb_quality: np.ndarray, time_s: float, out: RetargetResult | None = None) -> RetargetResult:
@@ -446,10 +451,9 @@ class Retargeter:
         when the live path is compiled (the node's hot path: no point layout or mask in Python).
         ``out`` (from :meth:`actor_buffers`): the compiled path writes this frame into it and returns
         it (overwritten by the next call); otherwise, and without it, the result is new."""
-        live = self._live
-        if live is not None and live.compiled is not None and live.compiled.hips is not None:
-            return live.compiled.run_actor(joint_positions, joint_quality, limb_rotations, limb_quality, float(time_s),
-                                           out)
+        compiled = self._actor_kernel()
+        if compiled is not None:
+            return compiled.run_actor(joint_positions, joint_quality, limb_rotations, limb_quality, float(time_s), out)
         if self.source.kind != "optical":
             raise ValueError(f"an actor frame wants an optical source, this one is {self.source.kind}")
         if self._optical is None:

@@ -615,15 +615,12 @@ class CompiledFrame:
 
     def _check_out(self, out) -> None:
         """``out`` has :meth:`buffers`' shapes and dtypes, C-contiguous and writable (ValueError)."""
-        J = self.J
-        want = (((1, J, 4), np.float64), ((1, 3), np.float64), ((1, J, 3), np.float64), ((1, J), np.int8),
-                ((1, 2), np.bool_))
-        for a, (shape, dtype) in zip((out.local_rotations, out.root_positions, out.joint_positions, out.joint_quality,
-                                      out.contact), want):
-            if not (isinstance(a, np.ndarray) and a.shape == shape and a.dtype == dtype and a.flags.c_contiguous
-                    and a.flags.writeable):
-                raise ValueError(f"out: the buffers of this character ({J} joints) come from buffers(); an array "
-                                 f"here is {getattr(a, 'shape', type(a).__name__)} where {shape} {np.dtype(dtype)} is wanted")
+        for a, want in zip(vars(out).values(), vars(self.buffers()).values()):
+            if not (isinstance(a, np.ndarray) and a.shape == want.shape and a.dtype == want.dtype
+                    and a.flags.c_contiguous and a.flags.writeable):
+                raise ValueError(f"out: the buffers of this character ({self.J} joints) come from buffers(); an "
+                                 f"array here is {getattr(a, 'shape', type(a).__name__)} where {want.shape} "
+                                 f"{want.dtype} is wanted")
         self._out_checked = out
 
     def run_actor(self, jp, jq, rot, lq, t, out=None):
