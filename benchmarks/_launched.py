@@ -10,7 +10,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-from mocapgraph.launch.manifest import NoGraphError, fetch_manifest
+from mocapgraph.bus.manifest import NoGraphError, fetch_manifest
 
 
 @contextmanager
@@ -76,7 +76,7 @@ def launched_latencies_ms(graph_yaml: str, first_topic: str, second_topic: str, 
     """Launch ``graph_yaml`` and return :func:`paired_latencies_ms` of its two topics (``second_topic``'s
     publish stamp minus ``first_topic``'s, ms)."""
     import tempfile
-    from mocapgraph.launch.manifest import subscribe
+    from mocapgraph.bus.manifest import subscribe
     with tempfile.TemporaryDirectory() as tmp, launched_graph(graph_yaml, second_topic, Path(tmp),
                                                              start_timeout_s) as manifest:
         sock = subscribe(manifest, [first_topic, second_topic])

@@ -41,6 +41,8 @@ from mocapgraph.messages import MarkerFrame, MarkerLayout, decode_envelope, enco
 from mocapgraph.messages.codec import topic_frame
 from mocapgraph.testing.marker_pattern import pattern_positions
 
+from _context import print_context
+
 N_MARKERS = 64
 RATE = 240.0
 
@@ -207,6 +209,10 @@ def main() -> None:
 def run(a: argparse.Namespace, tmp: Path) -> None:
     print(f"64-marker MarkerFrame, {a.messages} messages, bags in {tmp}; load average "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
+    pooled = ("generated 64-marker MarkerFrames: the test pattern (240 Hz) + N(0, 0.2 mm) noise and random "
+              "residuals, a pool of 512 distinct frames")
+    print_context("0 (np.random.default_rng, the frame pool; the live publisher rebuilds the same pool)", pooled,
+                  f"{a.messages} messages per run, the pool cycled", section="record")
     for comp in ("lz4", "none"):
         rate, per_msg, raw = bench_recorder(tmp, a.messages, comp)
         print(f"record ({comp:>4}) recorder path: {rate:9.0f} msg/s  file {per_msg:7.0f} B/msg "
@@ -215,6 +221,9 @@ def run(a: argparse.Namespace, tmp: Path) -> None:
         rate, lost, gaps = bench_live(tmp, a.messages, comp)
         print(f"record ({comp:>4}) live over ipc:  {rate:9.0f} msg/s  lost {lost} (recorder counted {gaps})")
     bag = make_replay_bag(tmp / "replay.mcap", a.replay_s)
+    print_context("1 (np.random.default_rng: frame noise, residuals and 50 us recording jitter)",
+                  f"a generated replay bag: {int(a.replay_s * RATE)} 64-marker frames at 240 Hz (test pattern + noise)",
+                  "every message of the bag, each rate", section="replay")
     for extra in ((), ("--realtime",)):
         for rate in (1.0, 4.0):
             r = bench_replay(bag, rate, *extra)
@@ -226,6 +235,8 @@ def run(a: argparse.Namespace, tmp: Path) -> None:
             print(f"  player: {r['player']}")
     big = tmp / "rec_lz4.mcap"
     data = big.read_bytes()
+    print_context("0 (the record section's frame pool)", f"the recorder's lz4 bag of {a.messages} messages",
+                  "recover: its first 90 % of bytes; scan: the whole bag", section="recover, scan")
     cut = tmp / "cut.mcap"
     cut.write_bytes(data[: int(len(data) * 0.9)])
     t0 = time.perf_counter()

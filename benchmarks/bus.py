@@ -34,13 +34,22 @@ import numpy as np
 import zmq
 
 HERE = Path(__file__).resolve().parent
+BUS_NODES = HERE / "bus_nodes.py"  # named by file: the graph check loads only files a graph names
 sys.path.insert(0, str(HERE))
+from _context import print_context  # noqa: E402
 from bus_nodes import frame  # noqa: E402
 
 from mocapgraph.messages import encode  # noqa: E402
-from mocapgraph.messages.codec import HEADER  # noqa: E402
+from mocapgraph.messages.codec import HEADER_AT  # noqa: E402
 
-PUB_OFFSET = HEADER.size - 8  # publish stamp is the header's last field
+PUB_OFFSET = HEADER_AT["publish_ns"]  # where the publish stamp is in a header
+SEED = "0 (bus_nodes.frame(64, 0): positions from np.random.default_rng(0))"
+DATA = "one generated 64-marker MarkerFrame, sent again and again (only its frame number and stamps change)"
+
+
+def _load() -> str:
+    """The 1-minute load average on this machine's cores (beside each figure: it is shared)."""
+    return f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
 
 
 def run_graph(yaml_text: str, tmp: Path, wait_for: str | None = None, run_s: float | None = None,
@@ -78,10 +87,10 @@ def mocapgraph_latency(tmp: Path, rate_hz: float, count: int, head: str = "", ho
     run_graph(f"""{head}
 nodes:
   - name: sender
-    type: bus_nodes:BenchSender{host_line}
+    type: {BUS_NODES}:BenchSender{host_line}
     params: {{rate_hz: {rate_hz}, count: {count}}}
   - name: receiver
-    type: bus_nodes:BenchReceiver
+    type: {BUS_NODES}:BenchReceiver
     params: {{echo: {str(rate_hz == 0).lower()}, out_file: "{out}"}}
 """, tmp, run_s=0.6 + count / (rate_hz or 4000) + 1.5 + slack_s)
     return np.load(out)[20:]  # drop warm-up
@@ -154,6 +163,9 @@ def pct(a: np.ndarray, p: float) -> float:
 
 
 def latency_section(tmp: Path, count: int) -> None:
+    print_context(SEED, DATA, f"per mode {ROUNDS} rounds each of raw pyzmq and mocapgraph, {count // ROUNDS} frames a "
+                  f"round back-to-back, {min(count, 2400) // ROUNDS} at 240 Hz; each round's first 20 dropped (warm-up)",
+                  section="latency")
     print("one-way latency, 64-marker MarkerFrame, two processes (us)")
     print(f"{'mode':<14}{'raw p50':>9}{'raw p99':>9}{'mg p50':>9}{'mg p99':>9}{'p50 x':>8}{'p99 x':>8}")
     for label, rate in (("back-to-back", 0.0), ("240 Hz", 240.0)):
@@ -171,33 +183,42 @@ def latency_section(tmp: Path, count: int) -> None:
 
 def fanout_section(tmp: Path, seconds: float) -> None:
     count = int(seconds * 1000)
+    print_context(SEED, DATA, f"{count} frames intended at 1 kHz, every one counted by each of 4 receivers",
+                  section="fanout")
     files = [tmp / f"fan{i}.npy" for i in range(4)]
+    sent_file = tmp / "fan_sent.txt"
     receivers = "".join(f"""
   - name: r{i}
-    type: bus_nodes:BenchReceiver
+    type: {BUS_NODES}:BenchReceiver
     params: {{out_file: "{f}"}}""" for i, f in enumerate(files))
     run_graph(f"""
 nodes:
   - name: sender
-    type: bus_nodes:BenchSender
-    params: {{rate_hz: 1000.0, count: {count}}}{receivers}
+    type: {BUS_NODES}:BenchSender
+    params: {{rate_hz: 1000.0, count: {count}, out_file: "{sent_file}"}}{receivers}
 """, tmp, run_s=seconds + 3.0)
+    sent = int(sent_file.read_text().split()[0])   # the sender's own count, not the intended one
     results = [open(str(f) + ".counts").read().split() for f in files]
     got = [int(r[0]) for r in results]
     gaps = [int(r[1]) for r in results]
-    print(f"1 kHz to 4 subscribers for {seconds:.0f} s: sent {count}, received {got}, gaps {gaps} "
-          f"({'OK' if sum(gaps) == 0 and min(got) == count else 'LOSS'})")
+    # a frame the sender sent that a receiver never got: a gap inside its stream, or one after its last
+    missed = [g + max(0, sent - int(r[2])) for g, r in zip(gaps, results)]
+    verdict = "LOSS" if any(missed) else "OK"
+    slow = f"; the sender sent {sent} of the {count} intended (a slow sender, not loss)" if sent < count else ""
+    print(f"1 kHz to 4 subscribers for {seconds:.0f} s (load {_load()}): sent {sent}, received {got}, "
+          f"gaps {gaps}, missed {missed} ({verdict}){slow}")
 
 
 def burst_section(tmp: Path, n: int) -> None:
     out = tmp / "burst.npy"
+    print_context(SEED, DATA, f"{n} frames in one burst (the last 0.3 s later), all counted", section="burst")
     run_graph(f"""
 nodes:
   - name: sender
-    type: bus_nodes:BenchSender
+    type: {BUS_NODES}:BenchSender
     params: {{burst: true, count: {n}}}
   - name: receiver
-    type: bus_nodes:BenchReceiver
+    type: {BUS_NODES}:BenchReceiver
     params: {{out_file: "{out}", queue: 1000}}
 """, tmp, run_s=4.0 + n / 50000)
     got, gaps, last = (int(x) for x in open(str(out) + ".counts").read().split())
@@ -207,14 +228,16 @@ nodes:
 
 
 def startup_section(tmp: Path) -> None:
+    print_context(SEED, DATA + "; a 7-node graph (1 sender at 100 Hz, 6 receivers)", "one launch, timed once",
+                  section="startup")
     nodes = "".join(f"""
   - name: n{i}
-    type: bus_nodes:BenchReceiver""" for i in range(6))
+    type: {BUS_NODES}:BenchReceiver""" for i in range(6))
     t0 = time.monotonic()
     text = run_graph(f"""
 nodes:
   - name: sender
-    type: bus_nodes:BenchSender
+    type: {BUS_NODES}:BenchSender
     params: {{rate_hz: 100.0, count: 1000000}}{nodes}
 """, tmp, wait_for="nodes ready in")
     wall = time.monotonic() - t0
@@ -233,6 +256,9 @@ def _keys(tmp: Path) -> str:
 
 
 def transport_section(tmp: Path, count: int) -> None:
+    print_context(SEED + "; CurveZMQ keys generated fresh", DATA,
+                  f"{ROUNDS} interleaved rounds of {count // ROUNDS} frames at 240 Hz per transport (ipc, tcp, curve "
+                  "tcp); each round's first 20 dropped (warm-up)", section="transport")
     print("one-way latency by transport, 64-marker MarkerFrame at 240 Hz, mocapgraph nodes (us)")
     curve = _keys(tmp)
     modes = (("ipc", "", ""), ("tcp", "", "127.0.0.1"), ("curve tcp", curve, "127.0.0.1"))
@@ -260,14 +286,17 @@ def soak_section(tmp: Path, minutes: float) -> None:
     """1 kHz to 4 subscribers over CurveZMQ tcp for ``minutes``: gaps and memory slope per process."""
     import threading
 
-    from mocapgraph.launch.manifest import fetch_manifest
+    from mocapgraph.bus.manifest import fetch_manifest
 
     seconds = minutes * 60
     count = int(seconds * 1000)
+    print_context(SEED + "; CurveZMQ keys generated fresh", DATA,
+                  f"{count} frames planned at 1 kHz to 4 receivers; RSS slope over the second half of the run",
+                  section="soak")
     files = [tmp / f"soak{i}.npy" for i in range(4)]
     receivers = "".join(f"""
   - name: r{i}
-    type: bus_nodes:BenchReceiver
+    type: {BUS_NODES}:BenchReceiver
     params: {{out_file: "{f}"}}""" for i, f in enumerate(files))
     master = f"ipc://{tmp / 'soak-master'}"
     samples: dict[str, list[tuple[float, float]]] = {}
@@ -290,7 +319,7 @@ def soak_section(tmp: Path, minutes: float) -> None:
     run_graph(f"""{_keys(tmp)}
 nodes:
   - name: sender
-    type: bus_nodes:BenchSender
+    type: {BUS_NODES}:BenchSender
     host: 127.0.0.1
     params: {{rate_hz: 1000.0, count: {count}}}{receivers}
 """, tmp, run_s=seconds + 3.0, master=master)
@@ -322,7 +351,8 @@ def main() -> None:
     ap.add_argument("--only", choices=["latency", "startup", "burst", "fanout", "transport", "soak"],
                     help="run one section")
     a = ap.parse_args()
-    print(f"machine: {os.cpu_count()} cores, pyzmq {zmq.pyzmq_version()}, libzmq {zmq.zmq_version()}")
+    print(f"machine: {os.cpu_count()} cores, pyzmq {zmq.pyzmq_version()}, libzmq {zmq.zmq_version()}; "
+          f"load {_load()}")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         sections = {"latency": lambda: latency_section(tmp, a.count), "startup": lambda: startup_section(tmp),

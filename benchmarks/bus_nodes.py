@@ -1,4 +1,4 @@
-"""Nodes used only by benchmarks/bus.py (importable as bus_nodes:Class with benchmarks/ on PYTHONPATH)."""
+"""Nodes used only by benchmarks/bus.py (graph type: benchmarks/bus_nodes.py:Class, named by file)."""
 from __future__ import annotations
 
 import time
@@ -24,6 +24,7 @@ class BenchSender(Node):
     count = Param(2000, "frames to send")
     burst = Param(False, "send count frames in one tight loop")
     n_markers = Param(64, "markers per frame")
+    out_file = Param("", "where to write the number of frames actually sent, on stop")
 
     def on_start(self) -> None:
         self.sent = 0
@@ -60,6 +61,11 @@ class BenchSender(Node):
     def on_back(self, msg: MarkerFrame) -> None:
         time.sleep(0.0002)  # let the receiver settle, so each sample is an idle-path latency
         self._send()
+
+    def on_stop(self) -> None:
+        if self.out_file:   # what was really sent: a slow sender is not a lossy bus
+            with open(self.out_file, "w") as f:
+                f.write(f"{self.sent}\n")
 
 
 class BenchReceiver(Node):

@@ -19,6 +19,8 @@ from scipy.spatial.transform import Rotation
 from mocapgraph.formats import read_bvh, read_c3d, read_c3d_segments, read_kinect_csv, read_trc
 from mocapgraph.formats.wire_protocol import BinaryDecoder, TextDecoder, encode_binary, encode_text
 
+from _context import print_context
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
@@ -40,6 +42,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     n = ap.parse_args().repeat
     print(f"data: {DATA}")
+    print_context(None, f"the real captures under {DATA} (c3d/, trc/, bvh/, the first 2 kinect2/*.csv; absent files "
+                  "skipped)", f"every frame of each file, best of {n} runs", section="files")
     for rel in ["c3d/pycgm/Static_trial.c3d", "c3d/pycgm/Movement_trial.c3d",
                 "c3d/ezc3d-testFiles/Qualisys.c3d", "c3d/ezc3d-testFiles/BTS.c3d",
                 "c3d/ezc3d-testFiles/FP_Type1.c3d", "c3d/btkdata/golfswing.c3d"]:
@@ -69,6 +73,8 @@ def main() -> None:
 
     segments_and_graph_check(n)
 
+    print_context("0 (np.random.default_rng: marker positions)", "2000 generated frames of 40 markers, U(-2, 2) m, "
+                  "encoded in this run", f"every frame, cut into 1400-byte chunks; best of {n} runs", section="wire")
     rng = np.random.default_rng(0)
     frames = [(k, k * 8333, rng.uniform(-2, 2, (40, 3))) for k in range(2000)]
     for name, enc, dec in (("text", encode_text, TextDecoder), ("binary", encode_binary, BinaryDecoder)):
@@ -90,6 +96,9 @@ def segments_and_graph_check(n: int) -> None:
     from mocapgraph.launch.check import check_graph
     from mocapgraph.launch.graph import load_graph
 
+    print_context("1 (np.random.default_rng: Rotation.random(random_state=rng) and the translations)",
+                  "a generated C3D with a ROTATION group, 20 segments x 3000 frames at 120 Hz, written in this run",
+                  f"every frame, best of {n} runs", section="segments")
     with tempfile.TemporaryDirectory() as d:
         T, S = 3000, 20
         rng = np.random.default_rng(1)
@@ -112,6 +121,9 @@ def segments_and_graph_check(n: int) -> None:
         print(f"  {'':<42} x{t / t0:5.2f} of a bare ezc3d.c3d() ({t0 * 1e3:.2f} ms)")
     graph = Path(__file__).resolve().parents[1] / "graph_configs" / "lab_c3d.yaml"
     if (DATA / "c3d/pycgm/Movement_trial.c3d").exists():
+        print_context(None, "graph_configs/lab_c3d.yaml, its default capture "
+                      "../shared/data/c3d/pycgm/Movement_trial.c3d",
+                      f"the whole graph check, best of {n} runs", section="graph check")
         spec = load_graph(graph)
         t_off, _ = best_of(lambda: check_graph(spec, check_files=False), n)
         t_on, _ = best_of(lambda: check_graph(spec), n)

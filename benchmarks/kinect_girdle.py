@@ -13,7 +13,7 @@ Tracked (state 2):
   beside the estimates from the upper arm (0.186 H) and forearm (0.146 H) for comparison;
 - per coordinate the mean, the std over frames, and the spread of the per-recording means.
 
-standard_20's girdle offsets (kinematics/character.py) are these means, left/right symmetrised.
+standard_20's girdle offsets (retarget/character.py) are these means, left/right symmetrised.
 
 Then, every recording onto standard_20 with the shipped mapping: per girdle bone (HipCenter and
 ShoulderCenter to their children) the angle to the Kinect's bone over the frames with both ends
@@ -32,6 +32,8 @@ import os
 from pathlib import Path
 
 import numpy as np
+
+from _context import print_context
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = (REPO / ".." / "shared" / "data").resolve()
@@ -93,6 +95,9 @@ def main() -> int:
     if not per:
         print(f"no Kinect v2 recordings in {SHARED / 'kinect2'}")
         return 1
+    print_context(None, f"real Kinect v2 recordings {SHARED / 'kinect2'}/{{{','.join(per)}}}.csv",
+                  "every frame with the joints involved all Tracked (state 2); the retargeting below: every frame",
+                  section="geometry, retargeted")
     allf = {k: np.concatenate([p[k] for p in per.values()]) for k in next(iter(per.values()))}
     H = float(np.median(allf["leg"])) / 0.491
     print(f"Kinect v2 girdle geometry over {len(per)} recordings (load average {os.getloadavg()[0]:.2f})")
@@ -116,14 +121,14 @@ def main() -> int:
 
 def _retargeter(trial, best_fit: bool, tolerance):
     from mocapgraph.formats.mapping_file import load_mapping
-    from mocapgraph.kinematics.character import standard_20
-    from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
-    from mocapgraph.kinematics.retarget_source import kinect_source, plan_point_rotations
+    from mocapgraph.retarget.character import standard_20
+    from mocapgraph.retarget.retargeter import RetargetOptions, Retargeter
+    from mocapgraph.retarget.source import kinect_source, plan_point_rotations
     src = kinect_source(trial.names, trial.parents)
     ch = standard_20(1.75)
     rt = Retargeter(ch, load_mapping("kinect_v2_standard_20"), src, RetargetOptions(follow_tolerance_deg=tolerance))
     if not best_fit:    # the baseline rule; the live path reads the same plan
-        rt._plan = plan_point_rotations(src, best_fit=False)
+        rt.plan.point_plan = plan_point_rotations(src, best_fit=False)
     return rt, ch
 
 
@@ -168,10 +173,13 @@ def live_cost(frames: int) -> None:
     with the kernel (the live path) and with the numpy derivation swapped in (the baseline)."""
     import time
     from mocapgraph.formats.kinect_csv import read_kinect_csv
-    from mocapgraph.kinematics import retarget_live
-    from mocapgraph.kinematics.retarget_source import rotations_from_points, rotations_from_points_frame
+    from mocapgraph.retarget import live as retarget_live
+    from mocapgraph.retarget.source import rotations_from_points, rotations_from_points_frame
     t = read_kinect_csv(SHARED / "kinect2" / "Ges03_drawlines.csv", ground="feet")
     good = np.flatnonzero(np.isfinite(t.positions).all((1, 2)))
+    print_context(None, f"real Kinect v2 recording {SHARED / 'kinect2' / 'Ges03_drawlines.csv'}",
+                  f"its {len(good)} frames with every joint finite, cycled to {frames} frames per variant "
+                  "(the first 50 also run once untimed, to warm up)", section="live cost")
     pts = t.positions[good]
     ok = t.tracking_state[good] == 2
     idx = np.arange(frames) % len(pts)
@@ -193,9 +201,9 @@ def live_cost(frames: int) -> None:
         rt, _ = _retargeter(t, best_fit, tol)
         for i in idx[:50]:
             rt.process(pts[i:i + 1], ok[i:i + 1])
-            rotations_from_points_frame(rt._plan, pts[i])
-        d_np = timed(lambda i: numpy_frame(rt._plan, pts[i]))
-        d_k = timed(lambda i: rotations_from_points_frame(rt._plan, pts[i]))
+            rotations_from_points_frame(rt.plan.point_plan, pts[i])
+        d_np = timed(lambda i: numpy_frame(rt.plan.point_plan, pts[i]))
+        d_k = timed(lambda i: rotations_from_points_frame(rt.plan.point_plan, pts[i]))
         whole_k = timed(lambda i: rt.process(pts[i:i + 1], ok[i:i + 1]))
         retarget_live.rotations_from_points_frame = numpy_frame      # the baseline: numpy derivation
         try:
@@ -209,10 +217,10 @@ def live_cost(frames: int) -> None:
               f"numpy derivation {whole_np[0]:7.1f} ({whole_np[1]:7.1f}) = {1e6 / whole_np[0]:6.0f} frames/s; "
               f"load average {os.getloadavg()[0]:.2f}")
     # the bone check alone: the compiled one-frame kernel beside the numpy reference on one frame
-    from mocapgraph.kinematics.bone_follow import unfollowed
-    from mocapgraph.kinematics.retarget_kernels import flag_unfollowed
+    from mocapgraph.retarget.bone_follow import unfollowed
+    from mocapgraph.retarget.kernels import flag_unfollowed
     rt, ch = _retargeter(t, True, 10.0)
-    c = rt._checks
+    c = rt.plan.checks
     res = rt.process(pts, ok)
     q = np.full(ch.n_joints, 2, np.int8)
     c0, w0 = time.process_time(), time.perf_counter()

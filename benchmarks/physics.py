@@ -8,7 +8,7 @@ real time on one core):
 * one character tracking the synthetic walk at 120 Hz, a hand hidden so the posture database fills
   it every frame: ms per frame for what the node does per frame (conditioning with the database
   search, targets, simulation, state read-out, the outgoing PhysicsState/CharacterPose objects), the
-  compiled kernels (``TrackerParams.compiled``) beside the numpy reference measured in the same run,
+  compiled kernels (``world.COMPILED``) beside the numpy reference (``reference.REFERENCE``) measured in the same run,
   and the ratio; then a second, profiled pass's breakdown per stage (thread CPU time per stage, with
   the profiling clock's own cost) and, with ``--cprofile``, cProfile's top functions;
 * the posture search alone at 300 and 10 000 postures: the brute-force kernel, numpy's brute force
@@ -37,14 +37,17 @@ import mujoco
 import numpy as np
 from scipy.spatial import cKDTree
 
+from _context import print_context
 from _launched import launched_latencies_ms
 from mocapgraph.jit import warm_all
 from mocapgraph.messages import CharacterPose, PhysicsState
 from mocapgraph.physics import posture_kernels as pk
 from mocapgraph.physics.posture_db import PostureDB
 from mocapgraph.physics.synthetic_targets import synthetic_targets
+from mocapgraph.physics.control import tick
+from mocapgraph.physics.reference import REFERENCE, ReferenceConditioner
 from mocapgraph.physics.tracker import TargetConditioner
-from mocapgraph.physics.world import PhysicsWorld, TrackerParams, tick
+from mocapgraph.physics.world import COMPILED, PhysicsWorld, TrackerParams
 
 RATE = 120.0
 FRAME_MS = 1000.0 / RATE
@@ -99,8 +102,8 @@ def hidden_hand_inputs(clip, i: int, hand: int, offset=np.zeros(3)):
 
 def one_character(clip, db, frames: int, compiled: bool, profiled: bool = False, messages: bool = True) -> dict:
     ch = clip.character
-    w = PhysicsWorld([ch], params=TrackerParams(compiled=compiled))
-    cond = TargetConditioner(ch, db, compiled=compiled)
+    w = PhysicsWorld([ch], params=TrackerParams(), kernels=COMPILED if compiled else REFERENCE)
+    cond = (TargetConditioner if compiled else ReferenceConditioner)(ch, db)
     w.set_pose(0, clip.local_rotations[0], clip.root[0])
     hand = ch.index("HandRight")
     prof: dict[str, float] | None = {} if profiled else None
@@ -121,16 +124,16 @@ def one_character(clip, db, frames: int, compiled: bool, profiled: bool = False,
     if prof is not None:   # the database time was counted inside conditioning
         prof["conditioning"] -= prof.get("database", 0.0)
     return dict(ms=1e3 * cpu / frames, wall=1e3 * wall / frames, load=load(), mpjpe=1e3 * err.mean(),
-                fall=low < 0.5 * w.bodies[0].standing_height, fmax=w.max_applied_force,
-                bound=w.params.gains.max_force, tmax=w.max_applied_torque, tbound=w.params.gains.max_torque,
+                fall=low < 0.5 * w.bodies[0].standing_height, fmax=w.control.max_applied_force,
+                bound=w.params.gains.max_force, tmax=w.control.max_applied_torque, tbound=w.params.gains.max_torque,
                 resets=w.resets, stages={k: 1e3 * v / frames for k, v in (prof or {}).items()})
 
 
 def many(clip, db, n: int, frames: int, compiled: bool) -> tuple[float, float]:
     ch = clip.character
     offs = [np.array([0.0, 2.5 * k, 0.0]) for k in range(n)]  # T-pose arms span 1.8 m
-    w = PhysicsWorld([ch] * n, spawns=offs, params=TrackerParams(compiled=compiled))
-    conds = [TargetConditioner(ch, db, compiled=compiled) for _ in range(n)]
+    w = PhysicsWorld([ch] * n, spawns=offs, params=TrackerParams(), kernels=COMPILED if compiled else REFERENCE)
+    conds = [(TargetConditioner if compiled else ReferenceConditioner)(ch, db) for _ in range(n)]
     hand = ch.index("HandRight")
     for k in range(n):
         w.set_pose(k, clip.local_rotations[0], clip.root[0] + offs[k])
@@ -228,6 +231,14 @@ def main() -> None:
                          np.concatenate([p.local_rotations for p in parts]), min_ssd=0.005)
     db.choose_search()
     db.choose_search_compiled()
+    n_clip = len(clip)
+    print_context("0 for the tracked performer, 1 for the database's (synthetic_targets: SyntheticActor kiip_full_body "
+                  "seed 0 / seed 1); PostureDB.choose_search probes: np.random.default_rng(0)",
+                  "the synthetic performer on standard_20 at 120 Hz, the right hand hidden every frame",
+                  f"tracked: performer 0, 17-{17.0 + opts.frames / RATE + 0.1:.2f} s (frames 2040-{2040 + n_clip - 1}), "
+                  f"its first {opts.frames} frames ({min(opts.frames, 240)} for N characters, 60 then 200 "
+                  f"uncontrolled steps for mj_step); database: performer 1, 1-17 s and 22-37.5 s (frames 120-2039, "
+                  "2640-4499), not the tracked performer", section="tracking")
     print(f"machine: load average {load():.2f} on {os.cpu_count()} cores; times are this process's CPU time "
           "(the machine is shared: wall time would count other people's work)")
     runs = {c: one_character(clip, db, opts.frames, c) for c in (False, True)}
@@ -262,6 +273,9 @@ def main() -> None:
         pstats.Stats(w_prof, stream=buf).sort_stats("tottime").print_stats(15)
         print("  cProfile of the compiled run (tottime; cProfile's own cost inflates small calls):")
         print("\n".join("    " + ln for ln in buf.getvalue().splitlines() if ln.strip()))
+    print_context("300 and 10000 (np.random.default_rng(size): postures N(0, 0.3), queries)",
+                  "generated reduced postures, k = 7", "400 queries per size: random postures + N(0, 0.02)",
+                  section="posture search")
     for size in (300, 10000):
         r = search_ms(size)
         print(f"posture search over {size} postures (k = 7), ms per query: " +
@@ -282,6 +296,11 @@ def main() -> None:
     print(f"MuJoCo mj_step, one character: {us:.1f} us per step, {2 * us / 1000:.3f} ms per 120 Hz frame (2 steps; "
           f"load {load():.2f})")
     if not opts.no_graph:
+        print_context("0 (the synthetic_character node's default performer seed)",
+                      "a launched synthetic_character (the performer on standard_20 at 120 Hz, 17-37.5 s of its "
+                      "session, looping) -> physics_tracker (no posture database: its default)",
+                      f"frames matched on both topics, from 2 s after the first pair for {opts.graph_seconds:g} s, per run",
+                      section="launched graph")
         graph_latency(opts.graph_seconds)
         graph_latency(opts.graph_seconds, composed=True)
 

@@ -26,6 +26,8 @@ import numpy as np
 from mocapgraph.physics.synthetic_targets import synthetic_targets
 from mocapgraph.physics.world import PhysicsWorld, TrackerParams
 
+from _context import print_context
+
 REPO = Path(__file__).resolve().parents[1]
 SHARED = (REPO / ".." / "shared" / "data").resolve()
 RECORDINGS = ["Ges01_wavehand", "Ges02_balancinghands", "Ges03_drawlines", "Ges04_comehere", "Ges05_demopoint"]
@@ -48,7 +50,7 @@ def track(character, local_rotations, root, positions, orientations, times, para
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     dt = np.diff(times)[:, None]
     tv = np.r_[np.zeros((1, len(feet))), np.linalg.norm(np.diff(positions[:, feet, :2], axis=0), axis=2) / dt]
-    contact = (positions[:, feet, 2] < w.pin_rest_z[None] + params.contact_height) & (tv < params.contact_speed)
+    contact = (positions[:, feet, 2] < w.pins.rest_z[None] + params.contact_height) & (tv < params.contact_speed)
     both = contact.copy()
     both[0] = False
     both[1:] &= contact[:-1]
@@ -79,6 +81,11 @@ def main() -> int:
     turns = np.zeros(len(clip), dtype=bool)
     for a, b in ((25.0, 27.5), (35.0, 37.5)):
         turns[(clip.times >= a) & (clip.times < b)] = True
+    print_context("0 (synthetic_targets' performer: SyntheticActor kiip_full_body seed 0)",
+                  "the synthetic performer on standard_20 at 120 Hz (synthetic_targets)",
+                  f"17-37.5 s of its session, frames {int(round(17 * 120))}-{int(round(37.5 * 120)) - 1} "
+                  f"({len(clip)} frames); the turns: 25-27.5 s and 35-37.5 s ({int(turns.sum())} frames)",
+                  section="synthetic")
     print("synthetic performer, 20.5 s loop at 120 Hz:")
     for vj in (True, False):
         r = track(clip.character, clip.local_rotations, clip.root, clip.positions, clip.orientations, clip.times,
@@ -90,9 +97,9 @@ def main() -> int:
         return 0
     from mocapgraph.formats.kinect_csv import read_kinect_csv
     from mocapgraph.formats.mapping_file import load_mapping
-    from mocapgraph.kinematics.character import standard_20
-    from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
-    from mocapgraph.kinematics.retarget_source import kinect_source, observed_bone_lengths
+    from mocapgraph.retarget.character import standard_20
+    from mocapgraph.retarget.retargeter import RetargetOptions, Retargeter
+    from mocapgraph.retarget.source import kinect_source, observed_bone_lengths
     ch = standard_20(1.75)
     mapping = load_mapping("kinect_v2_standard_20")
     for name in RECORDINGS:
@@ -100,6 +107,8 @@ def main() -> int:
         if not path.exists():
             continue
         trial = read_kinect_csv(path, ground="feet")
+        print_context(None, f"real Kinect v2 recording {path}", f"all {len(trial.timestamps_ns)} frames",
+                      section=name)
         # the performer's own bone lengths, as the retargeter node and `mocapgraph retarget` take them
         tracked = np.where((trial.tracking_state == 2)[..., None], trial.positions, np.nan)
         src = kinect_source(trial.names, trial.parents, bone_lengths=observed_bone_lengths(tracked, trial.parents))

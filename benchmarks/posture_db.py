@@ -22,6 +22,8 @@ import numpy as np
 from mocapgraph.physics.posture_db import PostureDB, normalise
 from mocapgraph.physics.synthetic_targets import synthetic_targets
 
+from _context import print_context
+
 ROOT = Path(__file__).resolve().parents[1]
 CMU = ROOT / ".." / "shared" / "data" / "bvh" / "cmu" / "131_01.bvh"
 
@@ -70,6 +72,15 @@ def main() -> None:
         rot.append(cmu[1])
     db = PostureDB.build(ch.joint_names, ch.parents, np.concatenate(pos), np.concatenate(rot), k=7, min_ssd=0.005)
     n_raw = sum(len(p) for p in pos)
+    print_context("0 (synthetic_targets' performer: SyntheticActor kiip_full_body seed 0)",
+                  "the synthetic performer on standard_20 at 120 Hz" + (f", and the real capture {CMU.resolve()} "
+                                                                      "retargeted onto standard_20" if cmu is not None else
+                                                                      f" (no CMU 131_01: {CMU} absent)"),
+                  f"held out: queries 17-22 s (frames 2040-2639, {len(query)} frames); database (train): 1-17 s "
+                  "(frames 120-2039) and 25-37.5 s (frames 3000-4499) of the same performer"
+                  + (f", plus all {len(cmu[0])} CMU 131_01 frames" if cmu is not None else "")
+                  + f"; {n_raw} frames, {len(db)} kept after SSD >= 0.005 m^2; 22-25 s unused; brute/k-d times over "
+                  "the first 200 queries", section="figure 5")
     print(f"database: {len(db)} postures of {n_raw} (SSD >= 0.005 m^2; sources: synthetic gym, turns, walk back, kick"
           f"{', CMU 131_01' if cmu is not None else ''}); query: {len(query)} frames of walk and reach")
     qn = normalise(db.frame, query.positions)[0].reshape(len(query), -1)
@@ -100,6 +111,11 @@ def main() -> None:
     br = np.concatenate([big[0].local_rotations] * 3)[:10000]
     bp = bp + np.random.default_rng(0).normal(0, 0.005, bp.shape)       # so none are identical
     db10 = PostureDB.build(ch.joint_names, ch.parents, bp, br, k=7, min_ssd=0.0)
+    print_context("0 (the performer) and 0 (np.random.default_rng: N(0, 5 mm) on every posture)",
+                  "the synthetic performer on standard_20 at 120 Hz, 1-37.5 s (frames 120-4499) three times, cut to "
+                  "10 000 postures, plus noise", "queries: the first 300 of the 600 above (their frames are in this "
+                  "database, noised: a timing figure, not an error one); 3 interleaved rounds, best of each",
+                  section="10 000 postures")
     red = db10.project(qn)
     # interleaved rounds, best of each: the machine is shared and its load comes in bursts
     rounds = [(per_query_ms(db10, red[:300], "brute"), per_query_ms(db10, red[:300], "kdtree"),

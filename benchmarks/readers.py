@@ -34,6 +34,8 @@ import zmq
 from mocapgraph.messages import decode_envelope
 from mocapgraph.messages.codec import topic_frame
 
+from _context import print_context
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = (ROOT / ".." / "shared" / "data").resolve()
 
@@ -108,7 +110,7 @@ def jitter(tmp: Path, label: str, cls: str, params: dict, rate: float, seconds: 
 
 def write_240hz_c3d(path: Path, seconds: float) -> None:
     from mocapgraph.formats import MarkerTrial, write_c3d
-    from mocapgraph.kinematics.synthetic_actor import SyntheticActor
+    from mocapgraph.kinematics.synthetic.actor import SyntheticActor
 
     actor = SyntheticActor("plug_in_gait", rate=240.0, seed=1)
     cap = actor.capture(0, min(actor.n_frames, int(240 * (seconds + 2))))
@@ -126,6 +128,9 @@ def main() -> int:
         tmp = Path(td)
         print("1. replay as fast as possible (rate_scale 0, loop), received by a subscriber process")
         if DATA.is_dir():
+            print_context(None, f"real captures {DATA / 'c3d/pycgm/Movement_trial.c3d'} and {DATA / 'bvh/cmu/131_01.bvh'}",
+                          f"{args.frames} frames received per file (looping), the first 10 % dropped (start-up)",
+                          section="replay throughput")
             throughput(tmp, "C3D Movement_trial.c3d (39 markers, layout)", "mocapgraph.nodes.c3d_reader:C3DReader",
                        {"file": str(DATA / "c3d/pycgm/Movement_trial.c3d"), "layout": "plug_in_gait",
                         "rate_scale": 0.0, "loop": True}, "markers", 120.0, args.frames)
@@ -135,13 +140,21 @@ def main() -> int:
         else:
             print(f"  skipped: {DATA} is absent")
         print(f"2. real-time replay at 240 Hz for {args.seconds:g} s (load now {os.getloadavg()[0]:.2f})")
+        jitter_split = f"{int(240 * args.seconds)} frames at 240 Hz, the first 0.5 s ({int(240 * 0.5)} frames) dropped"
+        print_context(None, "the marker_test_pattern node (deterministic circles, 39 markers)", jitter_split,
+                      section="jitter, baseline")
         jitter(tmp, "baseline: marker_test_pattern node, 240 Hz, 39 markers (bus timers only)",
                "mocapgraph.testing.marker_pattern:MarkerTestPattern", {"rate_hz": 240.0, "n_markers": 39},
                240.0, args.seconds)
         c3d = tmp / "synthetic_240hz.c3d"
         write_240hz_c3d(c3d, args.seconds)
+        print_context("1 (SyntheticActor plug_in_gait seed 1)", f"a 240 Hz C3D written here from the synthetic actor "
+                      f"(plug_in_gait, frames 0-{int(240 * (args.seconds + 2)) - 1} at most), replayed looping",
+                      jitter_split, section="jitter, C3D replay")
         jitter(tmp, "C3D replay, 240 Hz file, 39 markers", "mocapgraph.nodes.c3d_reader:C3DReader",
                {"file": str(c3d), "layout": "plug_in_gait", "loop": True}, 240.0, args.seconds)
+        print_context("0 (the synthetic_actor node's default seed)", "the synthetic_actor node, kiip_full_body at "
+                      "240 Hz, 1 mm noise", jitter_split, section="jitter, synthetic actor")
         jitter(tmp, "synthetic actor node, 240 Hz, noise 1 mm, kiip_full_body (62 markers) + ground truth",
                "mocapgraph.nodes.synthetic_actor:SyntheticActorNode",
                {"layout": "kiip_full_body", "rate_hz": 240.0, "noise_mm": 1.0}, 240.0, args.seconds)

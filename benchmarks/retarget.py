@@ -3,7 +3,7 @@
 Prints:
 - live: one frame at a time (what the node does), the synthetic actor (1 mm noise, solved) onto
   standard_20 (20 joints), with and without foot planting; frames/s and us/frame of the compiled
-  kernel (retarget_kernels), the numpy one-frame path and the batched path, beside a baseline
+  kernel (kernels), the numpy one-frame path and the batched path, beside a baseline
   measured in the same run: one Character.forward_kinematics call per frame. Target: at least
   10 000 frames/s (under 0.1 ms a frame) on one core.
 - node path: what the retargeter node does per ActorPose (decode, Retargeter.process_actor: the point
@@ -45,14 +45,26 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = (REPO / ".." / "shared" / "data").resolve()
+sys.path.insert(0, str(REPO / "benchmarks"))
+from _context import print_context  # noqa: E402
+
+ACTOR_SEED = "0 (SyntheticActor kiip_full_body seed 0, 1 mm noise)"
+
+
+def _actor_data() -> str:
+    """What the solved synthetic actor of _solved_actor is: its calibration and performance frames."""
+    cap = _solved_actor()[0]
+    perf = cap.phase_slice("performance")
+    return (f"the synthetic actor (kiip_full_body, {cap.rate:g} Hz), calibrated on frames 0-{cap.phases['gym'][1] - 1} "
+            f"(base and gym), its performance (frames {perf.start}-{perf.stop - 1}) solved by FrameSolver")
 
 
 @functools.lru_cache(maxsize=1)
 def _solved_actor():
-    from mocapgraph.kinematics.calibration import calibrate
-    from mocapgraph.kinematics.retarget_source import optical_points, optical_source
-    from mocapgraph.kinematics.solver import FrameSolver
-    from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
+    from mocapgraph.kinematics.calibration.calibrate import calibrate
+    from mocapgraph.retarget.source import optical_points, optical_source
+    from mocapgraph.kinematics.solving.solver import FrameSolver
+    from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
     cap = SyntheticActor("kiip_full_body", options=CaptureOptions(noise_mm=1.0)).capture()
     model = calibrate(cap.skeleton, cap.markers[: cap.phases["gym"][1]], rate_hz=cap.rate, source="synthetic")
     perf = cap.phase_slice("performance")
@@ -65,13 +77,15 @@ def _solved_actor():
 
 
 def bench_live(n: int) -> None:
-    from mocapgraph.kinematics.character import standard_20
-    from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
-    from mocapgraph.kinematics.retarget_mapping import derive_mapping
+    from mocapgraph.retarget.character import standard_20
+    from mocapgraph.retarget.retargeter import RetargetOptions, Retargeter
+    from mocapgraph.retarget.mapping import derive_mapping
     cap, model, src, pts, rot, rok, t, actor = _solved_actor()
     ch = standard_20(1.75)
     m = derive_mapping(ch, src)
     n = min(n, len(pts))
+    print_context(ACTOR_SEED, _actor_data(), f"the first {n} performance frames one at a time (the first 50 also run "
+                  "once untimed, to warm up)", section="live")
     q = np.tile([1.0, 0, 0, 0], (ch.n_joints, 4 // 4))
     t0 = time.process_time()
     for f in range(n):
@@ -121,8 +135,8 @@ def bench_node_path(n: int) -> None:
     CharacterPose (the buffers' arrays; the frame number set), encode. (The launched graph below
     adds transport and scheduling on a loaded machine.)"""
     from mocapgraph.formats.retarget_setup import build, source_from_model
-    from mocapgraph.kinematics.retarget import RetargetOptions
-    from mocapgraph.kinematics.solver import FrameSolver
+    from mocapgraph.retarget.retargeter import RetargetOptions
+    from mocapgraph.kinematics.solving.solver import FrameSolver
     from mocapgraph.messages import ActorPose, CharacterPose
     from mocapgraph.messages.codec import decode_envelope, decode_payload, encode, header_capture_ns
     cap, model, src, pts, rot, rok, t, actor = _solved_actor()
@@ -130,6 +144,8 @@ def bench_node_path(n: int) -> None:
     res = FrameSolver(model, rate_hz=cap.rate).solve(cap.markers[perf])
     n = min(n, len(pts))
     wire = []
+    print_context(ACTOR_SEED, _actor_data(), f"the first {n} performance frames, encoded as ActorPose; wall "
+                  "latencies from frame 50 on", section="node path")
     for f in range(n):
         msg = ActorPose(actor="a", frame_number=f, joint_positions=res.joints[f], joint_quality=res.joint_quality[f],
                         limb_orientations=res.limb_rotation[f], limb_quality=res.limb_quality[f],
@@ -169,11 +185,12 @@ def bench_node_path(n: int) -> None:
 def bench_batch() -> None:
     from mocapgraph.formats.bvh_file import bvh_to_skeleton, read_bvh
     from mocapgraph.formats.character_file import load_character
-    from mocapgraph.kinematics.character import standard_20
-    from mocapgraph.kinematics.retarget import RetargetOptions, Retargeter
-    from mocapgraph.kinematics.retarget_mapping import derive_mapping
-    from mocapgraph.kinematics.retarget_source import skeleton_source
+    from mocapgraph.retarget.character import standard_20
+    from mocapgraph.retarget.retargeter import RetargetOptions, Retargeter
+    from mocapgraph.retarget.mapping import derive_mapping
+    from mocapgraph.retarget.source import skeleton_source
     cap, model, src, pts, rot, rok, t, actor = _solved_actor()
+    print_context(ACTOR_SEED, _actor_data(), f"every performance frame ({len(pts)}), one call", section="batch, synthetic")
     print("batch, a whole trial in one call:")
     for planting in (False, True):
         ch = standard_20(1.75)
@@ -186,6 +203,8 @@ def bench_batch() -> None:
     bvh = SHARED / "bvh/cmu/131_01.bvh"
     if bvh.exists():
         motion = read_bvh(bvh)
+        print_context(None, f"the real capture {bvh}", f"every frame ({motion.n_frames}), one call",
+                      section="batch, CMU 131_01")
         tr = bvh_to_skeleton(motion)
         rest = motion.rest_positions()
         p = tr.parents
@@ -203,13 +222,18 @@ def bench_batch() -> None:
 
 def bench_graph(seconds: float, keep_up: bool = False, composed: bool = False) -> None:
     from mocapgraph.bag.reader import BagReader
-    from mocapgraph.kinematics.calibration import calibrate
+    from mocapgraph.kinematics.calibration.calibrate import calibrate
     from mocapgraph.kinematics.model import save_model
-    from mocapgraph.kinematics.synthetic_actor import SyntheticActor
+    from mocapgraph.kinematics.synthetic.actor import SyntheticActor
     tmp = Path(tempfile.mkdtemp(prefix="retarget_bench_"))
     cap = SyntheticActor("kiip_full_body", rate=240.0).capture(0, int(240 * 20))
     model = calibrate(cap.skeleton, cap.markers[: cap.phases["gym"][1]], rate_hz=cap.rate, source="synthetic")
     save_model(model, tmp / "model.json")
+    print_context("0 (SyntheticActor kiip_full_body seed 0: the model's capture; the synthetic_actor node's default "
+                  "seed 0, 0.5 mm noise)", f"the synthetic_actor node at 240 Hz, looping; the model calibrated on frames "
+                  f"0-{cap.phases['gym'][1] - 1} (base and gym) of the same actor at 240 Hz",
+                  f"the frames retargeted in {seconds:g} s after the graph is ready, the first 10 % dropped",
+                  section="graph" + (", keep_up" if keep_up else "") + (", composed" if composed else ""))
     graph = tmp / "g.yaml"
     process = "\n    process: pipeline" if composed else ""
     graph.write_text(f"""
@@ -298,6 +322,10 @@ def bench_shipped(seconds: float, viewer: bool = True) -> None:
     graph = (f"include:\n  - file: {REPO / 'graph_configs/retarget_optical.yaml'}\n"
              "    args: {character: standard_20, rate: 240.0, pipeline_process: live, viewer_port: 0, "
              f"viewer: {str(viewer).lower()}}}\n")
+    print_context("0 (lab_synthetic.yaml's default seed; 0.5 mm noise)",
+                  "graph_configs/retarget_optical.yaml: the synthetic_actor node (kiip_full_body) at 240 Hz, calibrated "
+                  "live, onto standard_20",
+                  f"frames paired on both topics from 1 s after the first pair, for {seconds:g} s", section="shipped graph")
     v = np.asarray(launched_latencies_ms(graph, "actor_pose", "character_pose", seconds, warm_s=1.0, start_timeout_s=120.0))
     if not len(v):
         print("shipped graph: no character frames (calibration did not finish in time?)")
@@ -316,6 +344,8 @@ def bench_hop(count: int) -> None:
     sys.path.insert(0, str(REPO / "benchmarks"))
     import bus
     tmp = Path(tempfile.mkdtemp(prefix="retarget_hop_"))
+    print_context(bus.SEED, bus.DATA, f"{count} frames at 240 Hz each way (raw pyzmq, mocapgraph), the first 20 "
+                  "dropped (warm-up)", section="hop reference")
     raw = bus.raw_latency(tmp, 240.0, count) / 1e6
     mg = bus.mocapgraph_latency(tmp, 240.0, count) / 1e6
     print(f"raw hop reference at 240 Hz, 64-marker frame between two Python processes ({len(raw)} / {len(mg)} frames):")

@@ -20,11 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
+from _context import print_context
 from _launched import launched_graph
-from mocapgraph.kinematics.calibration import calibrate
-from mocapgraph.kinematics.global_fit import GlobalFitOptions
-from mocapgraph.kinematics.solver import FrameSolver
-from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
+from mocapgraph.kinematics.calibration.calibrate import calibrate
+from mocapgraph.kinematics.solving.global_fit import GlobalFitOptions
+from mocapgraph.kinematics.solving.solver import FrameSolver
+from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
 
 
 def _rate(fn, n: int, repeat: int = 3) -> float:
@@ -61,12 +62,16 @@ nodes:
 def graph_latency(seconds: float) -> None:
     """Launch reader -> solver at 240 Hz and time every frame from the reader's publish stamp."""
     from mocapgraph.kinematics.model import save_model
-    from mocapgraph.launch.manifest import subscribe
+    from mocapgraph.bus.manifest import subscribe
     from mocapgraph.messages import decode_envelope
 
     # The solver loads a model calibrated here on the same synthetic actor (seed 0) as the reader.
     cap = SyntheticActor("kiip_full_body", rate=240.0, options=CaptureOptions(noise_mm=1.0)).capture(0, 4080)
     model = calibrate(cap.skeleton, cap.markers[::4], rate_hz=60.0)
+    print_context("0 (SyntheticActor kiip_full_body seed 0 for the model; the synthetic_actor node's default seed 0)",
+                  f"the synthetic_actor node (kiip_full_body) at 240 Hz, 1 mm noise, {seconds + 5.0:g} s; the model calibrated on its "
+                  "frames 0-4079 at 240 Hz, every 4th", f"frames matched on both topics from 1 s after the subscription, "
+                  f"for {seconds:g} s", section="launched graph")
     with tempfile.TemporaryDirectory() as tmp:
         save_model(model, Path(tmp) / "model.json")
         graph = GRAPH.format(duration=seconds + 5.0, model=Path(tmp) / "model.json")
@@ -110,7 +115,7 @@ def live_global_stages(model, frames: np.ndarray) -> None:
     GlobalTracker.track and FrameSolver.step timed separately (CPU time, us per frame)."""
     from scipy.linalg.lapack import dpotrs
 
-    from mocapgraph.kinematics.global_track import _cayley_neg
+    from mocapgraph.kinematics.solving.global_track_numpy import _cayley_neg
 
     solver = FrameSolver(model, fit="global", compiled=False)
     solver.step(frames[0])          # the first frame comes from the batch path and seeds the tracker
@@ -200,11 +205,12 @@ def live_global_convergence(model, frames: np.ndarray) -> None:
         out = track(markers)
         its.append(0 if out is None else out.iterations)
         if out is not None:
-            left.append(tr._kernel.info.copy())
+            left.append(tr.buffers.work.info.copy())
             # The optimum reached: markers' distance to their fitted places, joints' two sides apart.
-            y = markers[tr._idx0]
-            seen = np.isfinite(y).all(-1) & tr._pad
-            d = np.linalg.norm(tr._a @ np.swapaxes(out.rot, -1, -2) + out.centroid[:, None] - y, axis=-1)
+            lay = tr.buffers.lay
+            y = markers[lay.idx0]
+            seen = np.isfinite(y).all(-1) & (lay.pad > 0)
+            d = np.linalg.norm(lay.a @ np.swapaxes(out.rot, -1, -2) + out.centroid[:, None] - y, axis=-1)
             marker_rms.append(np.sqrt(np.mean(d[seen] ** 2)))
             qa = (out.rot[gf._ja] @ gf._p_a[..., None])[..., 0] + out.centroid[gf._ja]
             qb = (out.rot[gf._jb] @ gf._p_b[..., None])[..., 0] + out.centroid[gf._jb]
@@ -276,6 +282,13 @@ def main() -> None:
     t_cal = time.perf_counter() - t0
     perf = cap.markers[cap.phase_slice("performance")]
     n_live = min(3000, len(perf))
+    ps = cap.phase_slice("performance")
+    print_context("0 (SyntheticActor kiip_full_body seed 0, 1 mm noise)",
+                  f"the synthetic actor ({sk.name}, {cap.rate:g} Hz, 120 s session)",
+                  f"calibration: the base and gym (frames 0-{len(gym) - 1}) repeated to 7200 frames; live rates and "
+                  f"stage timings: the first {n_live} performance frames (frames {ps.start}-{ps.start + n_live - 1}); "
+                  f"live convergence, batch and accuracy: every performance frame ({ps.start}-{ps.stop - 1}, "
+                  f"{len(perf)} frames)", section="solver, calibration")
 
     def live(**kw):
         s = FrameSolver(model, **kw)

@@ -36,6 +36,8 @@ from pathlib import Path
 
 from mocapgraph.nodes.registry import NODE_TYPES
 
+from _context import print_context
+
 ROOT = Path(__file__).resolve().parents[1]
 GRAPHS = ROOT / "graph_configs"
 HEAVY = ("scipy", "numba", "ezc3d", "mujoco", "networkx", "websockets", "mcap", "matplotlib")
@@ -107,6 +109,9 @@ def main() -> int:
     def both(imports: str) -> tuple[dict, dict | None]:
         return measure(imports), (measure(imports, old_tree) if old_tree else None)
 
+    print_context(None, f"imports of {len(types)} node types (fresh interpreters, -X importtime)"
+                  + (f", beside the tree {old_tree}" if old_tree else ""), "each type once, no repetition",
+                  section="node types")
     base = measure("import numpy, zmq")
     print(f"baseline import numpy, zmq: wall {base['wall']:.3f} s, cpu {base['cpu']:.3f} s, "
           f"{len(base['modules'])} modules (load average {load()})")
@@ -129,6 +134,8 @@ def main() -> int:
              f"x{totals['cpu'] / totals['old_cpu']:.2f})" if old_tree else "") + f" (load average {load()})")
     if args.graphs != "none":
         graphs = args.graphs.split(",") if args.graphs else sorted(str(p) for p in GRAPHS.glob("*.yaml"))
+        print_context(None, f"the launcher's check of {len(graphs)} graphs ({', '.join(Path(g).name for g in graphs)}), "
+                      "input files not checked", "each graph once", section="graphs")
         print(f"{'launcher check of':24s} {head}" + (f" | before {head} ratio" if old_tree else ""))
         cpu = old_cpu = 0.0
         for g in graphs:

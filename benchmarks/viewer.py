@@ -27,6 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _context import print_context  # noqa: E402
+
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
@@ -87,6 +90,9 @@ def main() -> int:
         print(f"needs Debian's chromium at {CHROMIUM}", file=sys.stderr)
         return 2
 
+    print_context("0 (np.random.default_rng: positions N(0, 1), every 11th marker NaN)",
+                  f"one generated {args.markers}-marker MarkerFrame", "the same frame, 2000 encodings each way",
+                  section="wire encoding")
     encoding_figures(args.markers)
     tmp = Path(tempfile.mkdtemp(prefix="viewer-bench-"))
     port = free_port()
@@ -112,11 +118,15 @@ nodes:
                 print("".join(lines), file=sys.stderr)
                 return 1
             time.sleep(0.05)
-        from mocapgraph.launch.manifest import fetch_manifest
+        from mocapgraph.bus.manifest import fetch_manifest
 
         pid = next(n["pid"] for n in fetch_manifest(env["MOCAPGRAPH_MASTER"])["nodes"] if n["name"] == "viz")
         url = next(x.split("viewer at ", 1)[1].split()[0] for x in lines if "viewer at " in x)  # carries the token
         stats_url = url.replace("/?", "/stats?")
+        time.sleep(1.0)
+        print_context(None, f"the marker_test_pattern node (deterministic circles), {args.markers} markers at "
+                      f"{args.rate:g} Hz, marker 0 missing every 10th frame", f"{args.seconds:g} s without a browser, "
+                      f"then {args.seconds:g} s with one (after its first drawn frame + 2 s)", section="graph")
         time.sleep(1.0)
         idle = cpu_percent(pid, args.seconds)
         print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}; graph: {args.markers} markers at "

@@ -35,18 +35,30 @@ from numba.core import event as numba_event
 
 F = TypeVar("F", bound=Callable)
 
-# Modules whose `warm()` calls each of their kernels once with small inputs (compiles and caches).
+# Modules with kernels, in warm-up order; each compiles through its `warm()`, or through the
+# function WARMED_BY names (a module above the kernels, when only their callers build real arguments).
 KERNEL_MODULES: tuple[str, ...] = (
     "mocapgraph.kinematics.quat_kernels",      # (called by others: first)
-    "mocapgraph.kinematics.global_fit_kernels",
-    "mocapgraph.kinematics.joint_kernels",
-    "mocapgraph.kinematics.retarget_source_kernels",
-    "mocapgraph.kinematics.rigid_kernels",
+    "mocapgraph.kinematics.solving.global_fit_kernels",
+    "mocapgraph.kinematics.solving.joint_kernels",
+    "mocapgraph.retarget.source_kernels",
+    "mocapgraph.kinematics.solving.rigid_kernels",
     "mocapgraph.physics.controller_kernels",
     "mocapgraph.physics.posture_kernels",
     "mocapgraph.physics.state_kernels",
-    "mocapgraph.kinematics.retarget_kernels",
+    "mocapgraph.retarget.kernels",
 )
+#: kernel module -> "module:function" that warms it
+WARMED_BY: dict[str, str] = {
+    "mocapgraph.retarget.source_kernels": "mocapgraph.retarget.warmup:warm_source_kernels",
+    "mocapgraph.retarget.kernels": "mocapgraph.retarget.warmup:warm_frame_kernels",
+}
+
+
+def warm_one(name: str) -> None:
+    """Run the warm-up of kernel module ``name`` (its `warm()`, or the function WARMED_BY names)."""
+    module, _, func = WARMED_BY.get(name, f"{name}:warm").partition(":")
+    getattr(importlib.import_module(module), func)()
 
 
 _log = logging.getLogger("mocapgraph.jit")
@@ -131,14 +143,14 @@ def readonly(a: np.ndarray) -> np.ndarray:
 
 
 def warm_all(modules: tuple[str, ...] = KERNEL_MODULES) -> dict[str, float]:
-    """Import each kernel module and run its `warm()`; returns seconds per module."""
+    """Run each kernel module's warm-up (see `warm_one`); returns seconds per module."""
     global _warming
     spent: dict[str, float] = {}
     _warming = True
     try:
         for name in modules:
             start = time.perf_counter()
-            importlib.import_module(name).warm()
+            warm_one(name)
             spent[name] = time.perf_counter() - start
     finally:
         _warming = False

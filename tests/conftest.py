@@ -8,6 +8,9 @@ import pytest
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = (REPO_ROOT / ".." / "shared" / "data").resolve()
 
+# the synthetic capture (TRC, bag, calibrated model) that the bag, CLI and report tests share
+pytest_plugins = ["capture_fixture"]
+
 
 @pytest.fixture
 def shared_data() -> Path:
@@ -121,3 +124,17 @@ def launch_module_graph(tmp_path_factory):
     yield start
     for g in started:
         g.stop()
+
+
+# The fast subset (``pytest -m "not slow"``, a few minutes) leaves out what starts processes or a
+# browser, or is judged on time: a test asking for one of these fixtures or marked ``timing`` is
+# slow by itself; modules slow for other reasons (CLIs as processes, compiles) say so with
+# ``pytestmark = pytest.mark.slow``. The full suite (CI) runs everything.
+SLOW_FIXTURES = frozenset({"launch_graph", "launch_module_graph", "run_node", "browser", "open_page", "two_namespaces"})
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.get_closest_marker("timing") or SLOW_FIXTURES.intersection(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+

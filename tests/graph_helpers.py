@@ -1,4 +1,4 @@
-"""Helpers shared by the tests that run real graphs: topic_logger files, waiting, processes."""
+"""Helpers shared by the tests that run real graphs: topic_logger files, waiting, processes, commands."""
 from __future__ import annotations
 
 import json
@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from mocapgraph.launch.manifest import fetch_manifest
+from mocapgraph.bus.manifest import fetch_manifest
 
 
 class _ParsedLog:
@@ -158,3 +158,32 @@ def graph_error(path: Path, text: str) -> str:
     with pytest.raises(GraphError) as exc:
         check_graph(load_graph(path))
     return str(exc.value)
+
+
+class CommandSender:
+    """An external publisher of NodeCommand on ``topic`` (declared under ``external:`` in the
+    graph at ``tcp://127.0.0.1:<port>``), as a control panel or script would send them."""
+
+    def __init__(self, topic: str, node: str = "the node") -> None:
+        import zmq
+
+        self.topic, self.node = topic, node
+        self.sock = zmq.Context.instance().socket(zmq.XPUB)
+        self.port = self.sock.bind_to_random_port("tcp://127.0.0.1")
+        self.seq = 0
+
+    def wait_subscriber(self, timeout_s: float = 30.0) -> None:
+        from mocapgraph.messages.codec import topic_frame
+
+        assert self.sock.poll(int(timeout_s * 1000)), f"{self.node} never subscribed to {self.topic}"
+        assert self.sock.recv() == b"\x01" + topic_frame(self.topic)
+
+    def send(self, command: str, target: str = "", **args: Any) -> None:
+        from mocapgraph.messages import NodeCommand, encode
+
+        self.seq += 1
+        msg = NodeCommand(target=target, command=command, args_json=json.dumps(args))
+        self.sock.send_multipart([bytes(f) for f in encode(self.topic, msg, self.seq, time.time_ns(), "test")])
+
+    def close(self) -> None:
+        self.sock.close(0)

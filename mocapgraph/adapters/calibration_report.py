@@ -11,7 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..kinematics.capture_steps import BasePoseFinder
+from ..kinematics.calibration.capture_steps import BasePoseFinder
 from ..kinematics.model import ActorModel
 from ..messages import NodeStatus
 from .model_messages import jsonable, quality_report

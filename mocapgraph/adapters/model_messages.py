@@ -7,7 +7,7 @@ Shared by the calibration and solver nodes and the batch commands (no math here)
   ``extra_json``, whose float repr round-trips), so a model sent over the bus solves to the very
   same joints as the file it came from;
 - placing a stream's or file's marker labels on a model's markers (:func:`marker_index`);
-- a :class:`~mocapgraph.kinematics.solver.SolverResult` as an ``ActorPose``;
+- a :class:`~mocapgraph.kinematics.solving.solver.SolverResult` as an ``ActorPose``;
 - the per-joint quality report of a calibration (status JSON and the CLI table).
 
 Units: metres, radians in messages; the report gives millimetres and degrees for people.
@@ -23,9 +23,10 @@ import numpy as np
 from ..kinematics.model import ActorModel, JointQuality, ModelFileError
 from ..kinematics.labels import missing_labels, place_labels
 from ..messages import ActorPose, SkeletonModel
+from ..messages.bounded_json import loads_bounded
 
 if TYPE_CHECKING:   # the solver (scipy, numba kernels) for a type only: a reader's process never loads it
-    from ..kinematics.solver import SolverResult
+    from ..kinematics.solving.solver import SolverResult
 
 EXTRA_FORMAT = "mocapgraph.skeleton_model.extra/1"
 
@@ -107,7 +108,7 @@ def model_to_message(model: ActorModel, marker_limb: Sequence[int] | np.ndarray 
 def model_from_message(msg: SkeletonModel, source: str = "skeleton_model message") -> ActorModel:
     """The kinematics model carried by a message; ModelFileError if it is malformed."""
     try:
-        extra = json.loads(msg.extra_json or "{}")
+        extra = loads_bounded(msg.extra_json or "{}", max_depth=8)  # from the bus: bounded before parsing
         if extra.get("format") != EXTRA_FORMAT:
             raise ValueError(f"extra_json format {extra.get('format')!r}, expected {EXTRA_FORMAT!r}")
         L, J = len(msg.limb_names), len(msg.joint_names)

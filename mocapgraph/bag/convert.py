@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from ..formats.errors import FormatError
 from ..formats.marker_trial import MarkerTrial
-from ..formats.skeleton_trial import SkeletonTrial, topological_order
+from ..formats.skeleton_trial import SkeletonTrial, offsets_from_rest, topological_order
 from ..messages import (Array, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, Message, Scalar,
                         SkeletonInfo, SkeletonPose, Strings)
 from .errors import BagError
@@ -103,11 +103,7 @@ def skeleton_rest_offsets(trial: SkeletonTrial) -> np.ndarray:
                 warnings.simplefilter("ignore", RuntimeWarning)
                 out[child] = np.nanmedian(d, axis=0)
         return out
-    rest = np.asarray(rest, np.float64)
-    out = rest.copy()
-    child = np.flatnonzero(trial.parents >= 0)
-    out[child] = rest[child] - rest[trial.parents[child]]
-    return out
+    return offsets_from_rest(rest, trial.parents)
 
 
 def skeleton_to_bag(trial: SkeletonTrial, writer: BagWriter, *, source: str, start_ns: int = 0,

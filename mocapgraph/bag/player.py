@@ -105,11 +105,208 @@ def select_topics(infos: dict[str, TopicInfo], topics: Iterable[str] | None = No
     return chosen, skipped
 
 
+class _Feed:
+    """The chosen topics read from the bag in file order into a read-ahead buffer of
+    (schedule time on the bag's axis ns, message, generation); starts over at the end when
+    looping, shifting the schedule times so that they keep growing."""
+
+    def __init__(self, reader: BagReader, topics: list[str], start_ns: int, end_ns: int | None,
+                 loop: bool, loop_gap_ns: int) -> None:
+        self.reader = reader
+        self.topics = topics
+        self.start_ns = start_ns      # where every pass starts (the --start position)
+        self.end_ns = end_ns
+        self.loop = loop
+        self.loop_gap_ns = loop_gap_ns  # a typical period between two passes: the last frame is not the first
+        self.buf: deque[tuple[int, RawMessage, int]] = deque()
+        self.src: Iterator[RawMessage] | None = None
+        self.exhausted = False
+        self.passes = 0
+        self.loops = 0
+        self.shift_ns = 0  # added to bag times on loop passes (t keeps growing)
+        self.pass_first_ns: int | None = None
+        self.last_t = -(1 << 62)
+        self.gen = 0  # bumped by every loop and seek: sequence numbers are rebased at the change
+        self.src_start_ns = start_ns  # where the open pass began (a seek: elsewhere)
+        self.sent_early: set[tuple[str, int]] = set()  # (topic, log ns) handed out by latched_first
+
+    def open(self, start_ns: int) -> None:
+        """Read from ``start_ns`` (log time) on."""
+        self.src = self.reader.messages(self.topics, start_ns, self.end_ns)
+        self.src_start_ns = start_ns
+        self.exhausted = False
+        self.pass_first_ns = None
+
+    def restart_at(self, start_ns: int) -> None:
+        """Forget what was read ahead and read from ``start_ns``, as a new generation (a seek)."""
+        self.buf.clear()
+        self.shift_ns = 0
+        self.last_t = -(1 << 62)
+        self.gen += 1
+        self.sent_early.clear()
+        self.open(start_ns)
+
+    def _next_pass(self) -> None:
+        self.passes += 1
+        self.loops += 1
+        self.gen += 1
+        self.open(self.start_ns)
+
+    def _at_end(self) -> bool:
+        """The open pass ran out: True when a looping feed has started the next one."""
+        if self.loop and self.pass_first_ns is None and self.src_start_ns != self.start_ns:
+            # a seek near the end found nothing of the chosen topics: loop means loop
+            self._next_pass()
+            return True
+        if self.loop and self.pass_first_ns is not None:
+            self.shift_ns += self.last_t - self.shift_ns - self.pass_first_ns + self.loop_gap_ns
+            self._next_pass()
+            return True
+        self.src = None
+        self.exhausted = True
+        return False
+
+    def read_one(self) -> bool:
+        """Move one message from the bag into the buffer; False at the end (after looping)."""
+        while True:
+            if self.src is None:
+                return False
+            try:
+                raw = next(self.src)
+            except StopIteration:
+                if self._at_end():
+                    continue
+                return False
+            if self.sent_early and self.passes == 0 and (raw.topic, raw.log_ns) in self.sent_early:
+                continue  # already sent by latched_first
+            t = schedule_stamp(raw)
+            if self.pass_first_ns is None:
+                self.pass_first_ns = t
+            t = max(t + self.shift_ns, self.last_t)  # never earlier than the one before: file order holds
+            self.last_t = t
+            self.buf.append((t, raw, self.gen))
+            return True
+
+    def fill(self, budget_s: float, ahead: int) -> None:
+        """Read ahead for up to ``budget_s`` seconds or until ``ahead`` messages wait."""
+        t_end = time.perf_counter() + budget_s
+        while len(self.buf) < ahead and time.perf_counter() < t_end:
+            if not self.read_one():
+                break
+
+    def peek(self) -> tuple[int, RawMessage, int] | None:
+        """The next (schedule time ns, message, generation), None at the end."""
+        if not self.buf and not self.read_one():
+            return None
+        return self.buf[0]
+
+
+class _Pacer:
+    """The bag's axis against the wall clock: bag time ``t`` (ns) is due at
+    ``anchor_wall + (t - anchor_bag) / 1e9 / rate`` (clock seconds)."""
+
+    def __init__(self, clock, rate: float) -> None:
+        self.clock = clock
+        self.rate = rate
+        self.anchor_wall = 0.0
+        self.anchor_bag: int | None = None  # None: not anchored (the next due message will be)
+
+    def anchor(self, bag_ns: int) -> None:
+        """Bag time ``bag_ns`` is now."""
+        self.anchor_bag = bag_ns
+        self.anchor_wall = self.clock()
+
+    def bag_now(self) -> int:
+        """The bag time (ns) it is now; only when anchored."""
+        return self.anchor_bag + int((self.clock() - self.anchor_wall) * self.rate * 1e9)
+
+    def due(self, t: int) -> float:
+        """Clock time (s) bag time ``t`` (ns) is due."""
+        return self.anchor_wall + (t - self.anchor_bag) / 1e9 / self.rate
+
+    def set_rate(self, rate: float) -> None:
+        """Change speed from now on: when anchored, re-anchored at the present bag time first."""
+        if self.anchor_bag is not None:
+            self.anchor(self.bag_now())
+        self.rate = rate
+
+
+class _Renumbering:
+    """Sequence numbers that continue across loop passes and seeks, per (bag topic, sender).
+
+    Within a generation (a pass, or what follows a seek) each stream keeps a constant offset;
+    the first message of a new generation sets it so the stream goes on from the last number sent.
+    """
+
+    def __init__(self) -> None:
+        self.last: dict[tuple[str, bytes], int] = {}
+        self.offset: dict[tuple[str, bytes], int] = {}
+        self.gen = 0
+
+    def apply(self, topic: str, header: bytearray, gen: int) -> None:
+        """Renumber the codec ``header`` of a message of bag ``topic`` in place."""
+        key = (topic, header_sender(header))
+        seq = header_seq(header)
+        if gen != self.gen:
+            self.offset = {}
+            self.gen = gen
+        off = self.offset.get(key)
+        if off is None:
+            off = self.offset[key] = (self.last[key] + 1 - seq) if key in self.last else 0
+        if off:
+            set_header_seq(header, seq + off)
+        self.last[key] = seq + off
+
+
+class _SendStats:
+    """What was sent and how well: the count, lag behind schedule over the last LAG_WINDOW
+    sends (s), and the achieved rate (bag seconds per clock second, over >= 0.5 s)."""
+
+    def __init__(self) -> None:
+        self.sent = 0
+        self.lags = np.zeros(LAG_WINDOW)
+        self.nlags = 0
+        self.rate_mark: tuple[float, int] | None = None  # (clock s, bag ns) the rate is measured from
+        self.achieved_rate = float("nan")
+        np.percentile(self.lags[:2], [50, 99])  # numpy's first call costs ~15 ms: not while playing
+
+    def restart_rate(self) -> None:
+        """Measure the rate afresh (after a pause, seek or rate change)."""
+        self.rate_mark = None
+
+    def record(self, items: list[Outgoing], sent_at: float, playing: bool) -> None:
+        for o in items:
+            self.lags[self.nlags % LAG_WINDOW] = sent_at - o.due_s
+            self.nlags += 1
+            self.sent += 1
+        if items and playing:
+            t = items[-1].bag_ns
+            if self.rate_mark is None:
+                self.rate_mark = (sent_at, t)
+            elif sent_at - self.rate_mark[0] > 0.5:
+                self.achieved_rate = (t - self.rate_mark[1]) / 1e9 / (sent_at - self.rate_mark[0])
+                self.rate_mark = (sent_at, t)
+
+    def lags_s(self) -> np.ndarray:
+        return self.lags[:min(self.nlags, LAG_WINDOW)].copy()
+
+    def lag_ms(self) -> tuple[float, float, float]:
+        n = min(self.nlags, LAG_WINDOW)
+        if n == 0:
+            return float("nan"), float("nan"), float("nan")
+        lags = self.lags[:n] * 1e3
+        return float(np.percentile(lags, 50)), float(np.percentile(lags, 99)), float(lags.max())
+
+
 class Playback:
     """The schedule of one bag. Call `begin`, then repeatedly `take_due(now)` / `next_due()`.
 
     rate: playback speed (2.0 plays twice as fast). start_s / end_s: window in seconds from the
     bag's start. loop: start over at the end. remap: bag topic -> sent topic.
+
+    The parts: `_Feed` reads ahead, `_Pacer` ties the bag's axis to the clock, `_Renumbering`
+    keeps sequence numbers going, `_SendStats` counts; this class is the play/pause/seek/step
+    state that drives them.
     """
 
     def __init__(self, reader: BagReader, *, topics: Iterable[str] | None = None, exclude: str | None = None,
@@ -124,7 +321,6 @@ class Playback:
             raise BagError(reader.path, "has no topic that can be played"
                            + (f" ({'; '.join(f'{k}: {v}' for k, v in self.skipped.items())})" if self.skipped else ""))
         self.remap = dict(remap or {})
-        self.rate = float(rate)
         self.loop = loop
         self.clock = clock
         # Windows (start/end/seek) select on log time, the MCAP index; positions are reported on
@@ -135,87 +331,60 @@ class Playback:
         self.end_ns = None if end_s is None else log0 + int(end_s * 1e9)
         if self.end_ns is not None and self.end_ns <= self.start_ns:
             raise BagError(reader.path, f"--end {end_s} s is not after --start {start_s} s")
-        self.origin_ns, last_pub = reader.publish_span(sorted(self.topics))
-        first = next(iter(reader.messages(sorted(self.topics))), None)
-        if first is not None:
-            self.origin_ns = schedule_stamp(first)
-        self.duration_s = (end_s if end_s is not None else max(0.0, (last_pub - self.origin_ns) / 1e9))
+        self.origin_ns, self.duration_s = self._origin_and_duration(end_s)
         self.state = "idle"
-        self._buf: deque[tuple[int, RawMessage, int]] = deque()  # (bag time, message, generation)
-        self._src: Iterator[RawMessage] | None = None
-        self._exhausted = False
-        self._pass = 0
-        self._shift_ns = 0  # added to bag times on loop passes (t keeps growing)
-        self._pass_first_ns: int | None = None
-        self._last_t = -(1 << 62)
-        self._anchor_wall = 0.0
-        self._anchor_bag: int | None = None
-        self._pause_bag_ns: int | None = None
+        self._pause_bag_ns: int | None = None  # where a paused playback stands
         self._last_sent_ns: int | None = None
-        self._seq_last: dict[tuple[str, bytes], int] = {}
-        self._seq_offset: dict[tuple[str, bytes], int] = {}
-        self._gen = 0  # bumped by every loop and seek: sequence numbers are rebased at the change
-        self._out_gen = 0
-        self._sent_early: set[tuple[str, int]] = set()
-        self.sent = 0
-        self.loops = 0
-        self._lags = np.zeros(LAG_WINDOW)
-        self._nlags = 0
-        self._rate_mark: tuple[float, int] | None = None
-        self.achieved_rate = float("nan")
-        self._loop_gap_ns = self._typical_period_ns()
-        np.percentile(self._lags[:2], [50, 99])  # numpy's first call costs ~15 ms: not while playing
+        self._feed = _Feed(reader, sorted(self.topics), self.start_ns, self.end_ns, loop,
+                           self._typical_period_ns())
+        self._pacer = _Pacer(clock, float(rate))
+        self._numbers = _Renumbering()
+        self._stats = _SendStats()
 
-    # ----- reading -----------------------------------------------------------------------------
+    def _origin_and_duration(self, end_s: float | None) -> tuple[int, float]:
+        """(the schedule stamp (ns) of the first message played, the window's length (s))."""
+        names = sorted(self.topics)
+        origin_ns, last_pub = self.reader.publish_span(names)
+        first = next(iter(self.reader.messages(names)), None)
+        if first is not None:
+            origin_ns = schedule_stamp(first)
+        return origin_ns, (end_s if end_s is not None else max(0.0, (last_pub - origin_ns) / 1e9))
+
     def _typical_period_ns(self) -> int:
+        """Period (ns) of the busiest topic: the gap left between two loop passes."""
         busiest = max(self.topics, key=lambda t: self.topics[t].count)
         rate = self.summary.topics[busiest].rate_hz
         return int(1e9 / rate) if rate > 0 else 0
 
-    def _open_source(self, start_ns: int) -> None:
-        self._src = self.reader.messages(sorted(self.topics), start_ns, self.end_ns)
-        self._exhausted = False
-        self._pass_first_ns = None
+    # ----- what the parts hold ---------------------------------------------------------------
+    @property
+    def rate(self) -> float:
+        return self._pacer.rate
 
+    @property
+    def loops(self) -> int:
+        return self._feed.loops
+
+    @property
+    def sent(self) -> int:
+        return self._stats.sent
+
+    @property
+    def achieved_rate(self) -> float:
+        return self._stats.achieved_rate
+
+    @property
+    def _buf(self) -> deque[tuple[int, RawMessage, int]]:
+        return self._feed.buf
+
+    # ----- reading -----------------------------------------------------------------------------
     def _read_one(self) -> bool:
         """Move one message from the bag into the buffer; False at the end (after looping)."""
-        while True:
-            if self._src is None:
-                return False
-            try:
-                raw = next(self._src)
-            except StopIteration:
-                if self.loop and self._pass_first_ns is not None:
-                    self._shift_ns += self._last_t - self._shift_ns - self._pass_first_ns + self._loop_gap_ns
-                    self._pass += 1
-                    self.loops += 1
-                    self._gen += 1
-                    self._open_source(self.start_ns)
-                    continue
-                self._src = None
-                self._exhausted = True
-                return False
-            if self._sent_early and self._pass == 0 and (raw.topic, raw.log_ns) in self._sent_early:
-                continue  # already sent by latched_first
-            t = schedule_stamp(raw)
-            if self._pass_first_ns is None:
-                self._pass_first_ns = t
-            t = max(t + self._shift_ns, self._last_t)
-            self._last_t = t
-            self._buf.append((t, raw, self._gen))
-            return True
+        return self._feed.read_one()
 
     def fill(self, budget_s: float = 0.002, ahead: int = 2048) -> None:
         """Read ahead for up to ``budget_s`` (call when idle, so that chunk decoding never delays a send)."""
-        t_end = time.perf_counter() + budget_s
-        while len(self._buf) < ahead and time.perf_counter() < t_end:
-            if not self._read_one():
-                break
-
-    def _peek(self) -> tuple[int, RawMessage, int] | None:
-        if not self._buf and not self._read_one():
-            return None
-        return self._buf[0]
+        self._feed.fill(budget_s, ahead)
 
     # ----- control -----------------------------------------------------------------------------
     def latched_first(self) -> list[Outgoing]:
@@ -235,16 +404,16 @@ class Playback:
         out = []
         for raw in best.values():
             if raw.log_ns <= horizon:
-                out.append(self._outgoing(raw.publish_ns, raw, self.clock(), self._gen))
-                self._sent_early.add((raw.topic, raw.log_ns))
+                out.append(self._outgoing(raw.publish_ns, raw, self.clock(), self._feed.gen))
+                self._feed.sent_early.add((raw.topic, raw.log_ns))
         return out
 
     def begin(self, paused: bool = False) -> None:
-        self._open_source(self.start_ns)
-        self._anchor_bag = None
+        self._feed.open(self.start_ns)
+        self._pacer.anchor_bag = None
         self.state = "paused" if paused else "playing"
         if paused:
-            first = self._peek()
+            first = self._feed.peek()
             self._pause_bag_ns = first[0] if first else self.start_ns
 
     def pause(self) -> None:
@@ -254,10 +423,9 @@ class Playback:
 
     def resume(self) -> None:
         if self.state == "paused":
-            self._anchor_bag = self._pause_bag_ns
-            self._anchor_wall = self.clock()
+            self._pacer.anchor(self._pause_bag_ns)
             self.state = "playing"
-            self._rate_mark = None
+            self._stats.restart_rate()
 
     def toggle(self) -> None:
         self.resume() if self.state == "paused" else self.pause()
@@ -265,29 +433,25 @@ class Playback:
     def set_rate(self, rate: float) -> None:
         if not rate > 0:
             raise ValueError(f"rate must be positive, got {rate}")
-        if self.state == "playing" and self._anchor_bag is not None:
-            self._anchor_bag = self._bag_now()
-            self._anchor_wall = self.clock()
-        self.rate = float(rate)
-        self._rate_mark = None
+        if self.state == "playing":
+            self._pacer.set_rate(float(rate))
+        else:
+            self._pacer.rate = float(rate)
+        self._stats.restart_rate()
 
     def seek(self, position_s: float) -> None:
-        """Jump to ``position_s`` from the bag's start; keeps playing or paused."""
-        target = self.summary.start_ns + int(max(0.0, position_s) * 1e9)
-        self._buf.clear()
-        self._shift_ns = 0
-        self._last_t = -(1 << 62)
-        self._gen += 1
-        self._sent_early.clear()
-        self._open_source(max(target, self.start_ns))
-        first = self._peek()
+        """Jump to ``position_s`` from the bag's start; keeps playing or paused. A position past the
+        end is the end (the last message; a looping player then starts over)."""
+        last_ns = self.summary.end_ns if self.end_ns is None else self.end_ns - 1
+        target = min(self.summary.start_ns + int(min(max(0.0, position_s), 1e7) * 1e9), last_ns)
+        self._feed.restart_at(max(target, self.start_ns))
+        first = self._feed.peek()
         t0 = first[0] if first else target
         if self.state == "playing":
-            self._anchor_bag = t0
-            self._anchor_wall = self.clock()
+            self._pacer.anchor(t0)
         else:
             self._pause_bag_ns = t0
-        self._rate_mark = None
+        self._stats.restart_rate()
         if first is None:
             self.state = "finished" if not self.loop else self.state
 
@@ -295,14 +459,14 @@ class Playback:
         """While paused: the next message and every following one with the same capture stamp."""
         if self.state != "paused":
             return []
-        first = self._peek()
+        first = self._feed.peek()
         if first is None:
             return []
         now = self.clock()
         out = [self._pop(now)]
         cap = header_capture_ns(out[0].frames[1])
         while True:
-            nxt = self._peek()
+            nxt = self._feed.peek()
             if nxt is None:
                 break
             if header_capture_ns(header_of(nxt[1].data)) != cap:
@@ -313,25 +477,21 @@ class Playback:
 
     # ----- timing -----------------------------------------------------------------------------
     def _bag_now(self) -> int:
-        if self._anchor_bag is None:
+        if self._pacer.anchor_bag is None:
             return self._last_sent_ns or self.start_ns
-        return self._anchor_bag + int((self.clock() - self._anchor_wall) * self.rate * 1e9)
-
-    def _due(self, t: int) -> float:
-        return self._anchor_wall + (t - self._anchor_bag) / 1e9 / self.rate
+        return self._pacer.bag_now()
 
     def next_due(self) -> float | None:
         """Monotonic time the next message is due, None when paused or finished."""
         if self.state != "playing":
             return None
-        nxt = self._peek()
+        nxt = self._feed.peek()
         if nxt is None:
             self.state = "finished"
             return None
-        if self._anchor_bag is None:
-            self._anchor_bag = nxt[0]
-            self._anchor_wall = self.clock()
-        return self._due(nxt[0])
+        if self._pacer.anchor_bag is None:
+            self._pacer.anchor(nxt[0])
+        return self._pacer.due(nxt[0])
 
     def take_due(self, now: float | None = None) -> list[Outgoing]:
         """Every message due at ``now`` (never one that is not yet due)."""
@@ -345,45 +505,23 @@ class Playback:
             now = None
 
     def _pop(self, now: float, due: float | None = None) -> Outgoing:
-        t, raw, gen = self._buf.popleft()
+        t, raw, gen = self._feed.buf.popleft()
         o = self._outgoing(t, raw, now if due is None else due, gen)
         self._last_sent_ns = t
         return o
 
     def _outgoing(self, t: int, raw: RawMessage, due: float, gen: int = 0) -> Outgoing:
+        """``raw`` ready to send: on its remapped topic, renumbered, with a writable header."""
         topic = self.remap.get(raw.topic, raw.topic)
         frames = raw.frames(topic)
         header = bytearray(frames[1])
-        sender = header_sender(header)
-        key = (raw.topic, sender)
-        seq = header_seq(header)
-        if gen != self._out_gen:
-            # the first message of a new pass or after a seek: continue every stream's numbering
-            # from the last one sent
-            self._seq_offset = {}
-            self._out_gen = gen
-        off = self._seq_offset.get(key)
-        if off is None:
-            off = self._seq_offset[key] = (self._seq_last[key] + 1 - seq) if key in self._seq_last else 0
-        if off:
-            set_header_seq(header, seq + off)
-        self._seq_last[key] = seq + off
+        self._numbers.apply(raw.topic, header, gen)
         frames[1] = header
         return Outgoing(topic, frames, header_latched(header), t, due)
 
     def record_sent(self, items: list[Outgoing], sent_at: float) -> None:
         """Account messages the caller has just sent (lag statistics, achieved rate)."""
-        for o in items:
-            self._lags[self._nlags % LAG_WINDOW] = sent_at - o.due_s
-            self._nlags += 1
-            self.sent += 1
-        if items and self.state == "playing":
-            t = items[-1].bag_ns
-            if self._rate_mark is None:
-                self._rate_mark = (sent_at, t)
-            elif sent_at - self._rate_mark[0] > 0.5:
-                self.achieved_rate = (t - self._rate_mark[1]) / 1e9 / (sent_at - self._rate_mark[0])
-                self._rate_mark = (sent_at, t)
+        self._stats.record(items, sent_at, self.state == "playing")
 
     # ----- reporting -----------------------------------------------------------------------------
     @property
@@ -391,16 +529,12 @@ class Playback:
         t = self._last_sent_ns if self.state != "paused" else self._pause_bag_ns
         if t is None:
             return self.start_s
-        return max(0.0, (t - self._shift_ns - self.origin_ns) / 1e9)
+        return max(0.0, (t - self._feed.shift_ns - self.origin_ns) / 1e9)
 
     def lag_ms(self) -> tuple[float, float, float]:
         """Send lag behind schedule over the recent window: p50, p99, max, ms (NaN before any)."""
-        n = min(self._nlags, LAG_WINDOW)
-        if n == 0:
-            return float("nan"), float("nan"), float("nan")
-        lags = self._lags[:n] * 1e3
-        return float(np.percentile(lags, 50)), float(np.percentile(lags, 99)), float(lags.max())
+        return self._stats.lag_ms()
 
     def lags_s(self) -> np.ndarray:
-        n = min(self._nlags, LAG_WINDOW)
-        return self._lags[:n].copy()
+        """The recent send lags behind schedule, s, oldest first until the window wraps."""
+        return self._stats.lags_s()

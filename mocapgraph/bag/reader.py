@@ -22,9 +22,9 @@ from mcap.records import Channel, Metadata
 from mcap.stream_reader import MAGIC_SIZE, StreamReader
 
 from ..messages import Envelope, Message, decode_envelope, decode_payload
-from ..messages.codec import DecodeError, header_sender, header_seq
+from ..messages.codec import DecodeError, header_sender, header_seq, header_stream
 from ..messages.registry import UnknownTypeError, lookup
-from ..messages.sequence import DUPLICATE, sequence_gap
+from ..messages.sequence import StreamTracker
 from .errors import BagError
 from .framing import MESSAGE_ENCODING, header_of, unpack_frames
 from .writer import META_INFO, META_LOSSES
@@ -330,7 +330,7 @@ class BagReader:
 
         Per-topic spans (and so rates) are updated from publish stamps, exact and free of the
         recorder's receive delays."""
-        last_seq: dict[tuple[str, str], int] = {}
+        streams: dict[tuple[str, str], StreamTracker] = {}
         seq_gaps: dict[str, int] = {}
         times: dict[str, list[int]] = {}
         first: dict[str, int] = {}
@@ -340,16 +340,17 @@ class BagReader:
                 continue
             try:
                 head = header_of(raw.data)
-                seq = header_seq(head)
+                seq, stream = header_seq(head), header_stream(head)
                 sender = header_sender(head).decode(errors="replace")
             except (struct.error, IndexError):
                 continue
-            key = (raw.topic, sender)
-            lost = sequence_gap(last_seq.get(key, 0), seq)
-            if lost > 0:
-                seq_gaps[raw.topic] = seq_gaps.get(raw.topic, 0) + lost
-            if lost != DUPLICATE:
-                last_seq[key] = seq
+            tracker = streams.get((raw.topic, sender))
+            if tracker is None:
+                tracker = streams[(raw.topic, sender)] = StreamTracker()
+            before = tracker.gaps
+            tracker.take(stream, seq, raw.publish_ns)
+            if tracker.gaps != before:   # (a forged jump found out later is taken back)
+                seq_gaps[raw.topic] = seq_gaps.get(raw.topic, 0) + tracker.gaps - before
             t = raw.publish_ns or raw.log_ns  # the sender's clock: free of the recorder's own delays
             times.setdefault(raw.topic, []).append(t)
             first.setdefault(raw.topic, t)

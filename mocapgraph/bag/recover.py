@@ -1,35 +1,41 @@
-"""Recovering a truncated or unfinished bag: copy every whole, intact chunk into a new bag.
+"""Recovering a damaged, truncated or unfinished bag: every readable message into a new bag.
 
 A recorder killed mid-session leaves a file without summary and footer, often ending in a
-partly written chunk. The MCAP index is at the end, so the seeking reader sees nothing; here the
-file is walked record by record from the start (length-prefixed records), every chunk that is
-whole and passes its CRC is decoded, and its schemas, channels and messages (stamps and sequence
-kept) are written to a new, indexed bag with the original metadata plus a ``mocapgraph.recovery``
-record. A partial chunk at the end is counted (its header gives its time span and size, from
-which the number of messages lost is estimated); messages the recorder held in memory and never
-wrote leave no trace (at most one flush period, 0.25 s by default).
+partly written chunk; a bad disk or a copy flips bytes anywhere. Here the file is walked record
+by record from the start (length-prefixed records, skipping damage to the next plausible chunk),
+and written to a new, indexed bag with the original metadata plus a ``mocapgraph.recovery`` record:
+
+* every whole chunk that passes its CRC, wherever it lies;
+* the readable front of a chunk the file ends inside (lz4 decoded block by block, each message
+  checked against its own frame lengths);
+* channels and schemas from wherever they survive: the summary section (when its CRC agrees),
+  any chunk, any top-level record. A first pass collects them when there is no usable summary,
+  so a damaged first chunk (where a recorder writes every channel record) costs only its own
+  messages.
+
+Loss is reported as counted when the bag says how many messages it held (the summary's
+Statistics, or the MessageIndex records following a damaged chunk), else estimated from sizes
+and marked so. Messages the recorder held in memory and never wrote leave no trace (at most one
+flush period, 0.25 s by default).
 """
 from __future__ import annotations
 
 import io
 import os
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
-from mcap.stream_reader import breakup_chunk
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
 from .errors import BagError
 from .reader import MCAP_MAGIC, READ_ERRORS, sniff_kind
+from .salvage import (OPCODES, REC, ChunkContent, Summary, message_index_count, message_ok, next_chunk,
+                      open_map, read_chunk, read_summary)
 from .writer import PROFILE, mocapgraph_version
-
-_REC = struct.Struct("<BQ")
-_CHUNK_HEAD = struct.Struct("<QQQI")  # start, end, uncompressed size, crc
 
 
 @dataclass
@@ -41,10 +47,16 @@ class RecoveryReport:
     saved: int = 0
     saved_by_topic: dict[str, int] = field(default_factory=dict)
     chunks_saved: int = 0
-    chunks_bad: int = 0
-    lost_estimate: int = 0  # messages in the partial/damaged chunks (estimated from their size)
-    lost_span_s: float = 0.0  # time span of the partial/damaged chunks
+    chunks_bad: int = 0  # damaged chunks and damaged regions skipped, plus a cut last chunk
+    chunks_partial: int = 0  # cut chunks whose readable front was saved
+    salvaged: int = 0  # messages saved from cut chunks
+    lost_estimate: int = 0  # messages lost (counted when lost_counted, else estimated from sizes)
+    lost_counted: bool = False
+    lost_span_s: float = 0.0  # time span of the damaged chunks
+    lost_by_topic: dict[str, int] = field(default_factory=dict)  # when the bag's statistics say
+    orphans: int = 0  # readable messages whose channel record survives nowhere
     tail_bytes: int = 0  # bytes after the last whole record
+    channels_from: str = ""  # "summary" or "records"
     start_ns: int = 0
     end_ns: int = 0
     was_complete: bool = False
@@ -52,25 +64,39 @@ class RecoveryReport:
 
     def text(self) -> str:
         span = (self.end_ns - self.start_ns) / 1e9 if self.saved else 0.0
-        lines = [f"saved {self.saved} messages ({self.chunks_saved} chunks, {span:.2f} s) to {self.output}"]
+        part = (f"; {self.salvaged} of them from the readable front of {self.chunks_partial} cut chunk(s)"
+                if self.chunks_partial else "")
+        lines = [f"saved {self.saved} messages ({self.chunks_saved} whole chunks{part}, {span:.2f} s) "
+                 f"to {self.output}"]
         for t, n in sorted(self.saved_by_topic.items()):
             lines.append(f"  {t}: {n}")
         if self.was_complete:
             lines.append("the source was a complete bag; nothing was lost")
-        else:
-            lost = f"lost: about {self.lost_estimate} messages" if self.chunks_bad else "lost: no written message"
+            return "\n".join(lines)
+        if self.lost_estimate or self.chunks_bad:
+            how = ("counted from the bag's own index" if self.lost_counted
+                   else "estimated from the damaged chunks' sizes")
+            lost = f"lost: {'' if self.lost_counted else 'about '}{self.lost_estimate} messages ({how})"
             if self.chunks_bad:
-                lost += f" in {self.chunks_bad} partial or damaged chunk(s) spanning {self.lost_span_s:.2f} s"
-            lines.append(lost + (f"; {self.tail_bytes} bytes at the end were unusable" if self.tail_bytes else ""))
-            lines.append(f"why: {self.reason}" if self.reason else "")
-            lines.append("messages the recorder had not flushed when it stopped are not in the file "
-                         "(at most one flush period, 0.25 s by default)")
-        return "\n".join(x for x in lines if x)
+                lost += (f" in {self.chunks_bad} damaged or cut chunk(s) or region(s) spanning "
+                         f"{self.lost_span_s:.2f} s")
+        else:
+            lost = "lost: no written message"
+        if self.orphans:
+            lost += f"; {self.orphans} of them readable but with no surviving channel record"
+        lost_topics = [f"  lost {t}: {n}" for t, n in sorted(self.lost_by_topic.items()) if n]
+        lines.append(lost + (f"; {self.tail_bytes} bytes at the end were unusable" if self.tail_bytes else ""))
+        lines += lost_topics
+        if self.reason:
+            lines.append(f"why: {self.reason}")
+        lines.append("messages the recorder had not flushed when it stopped are not in the file "
+                     "(at most one flush period, 0.25 s by default)")
+        return "\n".join(lines)
 
 
 def recover(src: str | Path, dst: str | Path | None = None, *, compression: str = "lz4",
             progress: Callable[[int, int], None] | None = None, force: bool = False) -> RecoveryReport:
-    """Write a new complete bag from every whole chunk of ``src``; returns what was saved and lost.
+    """Write a new complete bag from every readable message of ``src``; returns what was saved and lost.
 
     An existing ``dst`` is kept unless ``force``; a source with no message to save is an error
     and leaves no output. The new bag is written beside ``dst`` and renamed into place at the end.
@@ -93,224 +119,285 @@ def recover(src: str | Path, dst: str | Path | None = None, *, compression: str 
         if magic != MCAP_MAGIC:
             kind = sniff_kind(magic, src)
             raise BagError(src, "not an MCAP file: nothing to recover" + (f" (it looks like {kind})" if kind else ""))
+        mm = open_map(f)
+        if mm is None:
+            raise BagError(src, "cannot map the file to read it")
         try:
+            summary = read_summary(mm, size)
+            known = _known_records(mm, size, summary, rep)
             with open(tmp, "wb") as out:
                 w = Writer(out, compression=CompressionType.LZ4 if compression == "lz4" else CompressionType.NONE,
                            chunk_size=1 << 20)
-                _walk(f, size, w, rep, progress)
+                _Copier(w, rep, known, summary).run(_walk(mm, size), size, progress)
                 w.finish()
             if rep.saved == 0:
-                raise BagError(src, f"nothing to recover: no whole chunk with a message in its {size} bytes"
+                raise BagError(src, f"nothing to recover: no readable message in its {size} bytes"
                                + (f" ({rep.reason})" if rep.reason else ""))
             os.replace(tmp, dst)
         finally:
+            mm.close()
             if tmp.exists():
                 tmp.unlink()
     return rep
 
 
-def _walk(f, size: int, w: Writer, rep: RecoveryReport, progress) -> None:
-    schema_map: dict[int, int] = {}
-    channel_map: dict[int, int] = {}
-    channels: dict[int, Channel] = {}
-    pending_schemas: dict[int, Schema] = {}
-    header_seen = False
-    started = False
-    meta_records: list[Metadata] = []
-    saved_bytes = 0  # uncompressed bytes of saved chunks, to estimate lost message counts
-    pos = f.tell()
-    last_report = 0
+# ----- the walk -------------------------------------------------------------------------------------
+# events: ("rec", pos, opcode, record) | ("chunk", pos, ChunkContent, nbytes) | ("index", pos, count)
+#         | ("damaged", pos, start, end) | ("end", pos, tail_bytes, why)
+Event = tuple
 
-    def start(profile: str = PROFILE, library: str = "") -> None:
-        nonlocal started
-        if not started:
-            w.start(profile=profile or PROFILE, library=f"mocapgraph/{mocapgraph_version()} (recovered)")
-            started = True
 
-    def add_schema(s: Schema) -> None:
-        if s.id not in schema_map:
-            schema_map[s.id] = w.register_schema(s.name, s.encoding, s.data)
+def _walk(mm, size: int) -> Iterator[Event]:
+    """Every record of the file in order, skipping damage to the next plausible chunk."""
+    pos = len(MCAP_MAGIC)
+    while True:
+        if pos + REC.size > size:
+            yield ("end", size, size - pos, "the file ends inside a record header" if size > pos else "")
+            return
+        opcode, length = REC.unpack_from(mm, pos)
+        if opcode not in OPCODES or length > size - pos - REC.size:
+            nxt = next_chunk(mm, pos + 1, size)
+            if nxt is not None:  # damage in the middle: skip to the next intact-looking chunk
+                yield ("damaged", nxt, pos, nxt)
+                pos = nxt
+                continue
+            if opcode == Opcode.CHUNK:  # a chunk the file ends inside
+                content = read_chunk(bytes(mm[pos + REC.size:size]), cut=True)
+                if content is not None:
+                    yield ("chunk", size, content, size - pos)
+                yield ("end", size, 0 if content is not None else size - pos,
+                       "the file ends inside a chunk (the recorder stopped while writing it)")
+            else:
+                yield ("end", size, size - pos, f"the file ends inside a record (opcode 0x{opcode:02x})")
+            return
+        body = bytes(mm[pos + REC.size:pos + REC.size + length])
+        nxt = pos + REC.size + length
+        if opcode == Opcode.CHUNK:
+            content = read_chunk(body, cut=False)
+            if content is None:
+                content = ChunkContent(0, 0, 0, why="chunk header damaged")
+            yield ("chunk", nxt, content, REC.size + length)
+            pos = nxt
+            continue
+        if opcode == Opcode.MESSAGE_INDEX:
+            n = message_index_count(body)
+            if n is not None:
+                yield ("index", nxt, n)
+                pos = nxt
+                continue
+        try:
+            rec = _parse(opcode, body, length)
+        except READ_ERRORS as exc:
+            skip = next_chunk(mm, pos + 1, size)
+            yield ("damaged", skip or size, pos, skip or size)
+            if skip is None:
+                yield ("end", size, size - pos, f"a damaged record at byte {pos} ({type(exc).__name__})")
+                return
+            pos = skip
+            continue
+        yield ("rec", nxt, opcode, rec)
+        if opcode == Opcode.FOOTER:
+            return
+        pos = nxt
 
-    def add_channel(c: Channel) -> None:
-        if c.id not in channel_map:
-            sid = 0
-            if c.schema_id:
-                if c.schema_id not in schema_map and c.schema_id in pending_schemas:
-                    add_schema(pending_schemas[c.schema_id])
-                sid = schema_map.get(c.schema_id, 0)
-            channel_map[c.id] = w.register_channel(c.topic, c.message_encoding, sid, dict(c.metadata))
-            channels[c.id] = c
 
-    def add_message(m: Message) -> None:
-        cid = channel_map.get(m.channel_id)
+def _parse(opcode: int, body: bytes, length: int):
+    stream = ReadDataStream(io.BytesIO(body))
+    kinds = {Opcode.HEADER: Header, Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel, Opcode.METADATA: Metadata,
+             Opcode.ATTACHMENT: Attachment}
+    if opcode == Opcode.MESSAGE:
+        return Message.read(stream, length)
+    if opcode in kinds:
+        return kinds[opcode].read(stream)
+    return None  # DataEnd, indexes, statistics...: rebuilt by the writer
+
+
+@dataclass
+class _Known:
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+
+    def take(self, rec) -> None:
+        if isinstance(rec, Schema):
+            self.schemas.setdefault(rec.id, rec)
+        elif isinstance(rec, Channel):
+            self.channels.setdefault(rec.id, rec)
+
+
+def _known_records(mm, size: int, summary: Summary | None, rep: RecoveryReport) -> _Known:
+    """Schemas and channels from the summary, or, without one, from a first pass over every record."""
+    known = _Known()
+    if summary is not None and summary.channels:
+        for r in summary.schemas + summary.channels:
+            known.take(r)
+        rep.channels_from = "summary"
+        return known
+    for ev in _walk(mm, size):
+        if ev[0] == "rec":
+            known.take(ev[3])
+        elif ev[0] == "chunk":
+            for r in ev[2].records:
+                known.take(r)
+    rep.channels_from = "records"
+    return known
+
+
+class _Copier:
+    """Second pass: writes what the walk yields and keeps the books of what was lost."""
+
+    def __init__(self, w: Writer, rep: RecoveryReport, known: _Known, summary: Summary | None) -> None:
+        self.w, self.rep, self.known, self.summary = w, rep, known, summary
+        self.schema_map: dict[int, int] = {}
+        self.channel_map: dict[int, int] = {}
+        self.saved_by_channel: dict[int, int] = {}
+        self.meta: list[Metadata] = []
+        self.started = False
+        self.footer = False
+        # to estimate what damaged chunks held: compressed bytes of whole chunks, then uncompressed
+        # bytes and messages of whole chunks and of the decoded fronts of cut ones
+        self.sizes = [0, 0, 0]
+        self.whole_msgs = 0
+        self.lost: list[dict] = []  # per damaged chunk / region: bytes, uncompressed bytes, counted
+        self.last_lost: dict | None = None  # the damaged chunk MessageIndex records may count
+
+    def start(self, profile: str = PROFILE) -> None:
+        if not self.started:
+            self.w.start(profile=profile or PROFILE, library=f"mocapgraph/{mocapgraph_version()} (recovered)")
+            self.started = True
+
+    def channel(self, cid: int) -> int | None:
+        if cid in self.channel_map:
+            return self.channel_map[cid]
+        c = self.known.channels.get(cid)
+        if c is None:
+            return None
+        sid = 0
+        if c.schema_id and c.schema_id in self.known.schemas:
+            if c.schema_id not in self.schema_map:
+                s = self.known.schemas[c.schema_id]
+                self.schema_map[s.id] = self.w.register_schema(s.name, s.encoding, s.data)
+            sid = self.schema_map[c.schema_id]
+        self.channel_map[cid] = self.w.register_channel(c.topic, c.message_encoding, sid, dict(c.metadata))
+        return self.channel_map[cid]
+
+    def message(self, m: Message) -> bool:
+        cid = self.channel(m.channel_id)
         if cid is None:
-            return  # a message whose channel record was in a lost chunk
-        w.add_message(cid, m.log_time, m.data, m.publish_time, m.sequence)
+            self.rep.orphans += 1
+            return False
+        self.w.add_message(cid, m.log_time, m.data, m.publish_time, m.sequence)
+        rep = self.rep
         rep.saved += 1
-        topic = channels[m.channel_id].topic
+        self.saved_by_channel[m.channel_id] = self.saved_by_channel.get(m.channel_id, 0) + 1
+        topic = self.known.channels[m.channel_id].topic
         rep.saved_by_topic[topic] = rep.saved_by_topic.get(topic, 0) + 1
         rep.start_ns = m.log_time if rep.saved == 1 else min(rep.start_ns, m.log_time)
         rep.end_ns = max(rep.end_ns, m.log_time)
+        return True
 
-    saved_compressed = 0  # compressed bytes of saved chunks, to estimate what a damaged region held
+    def chunk(self, c: ChunkContent, nbytes: int) -> None:
+        self.start()
+        saved = sum(self.message(r) for r in c.records if isinstance(r, Message))
+        if c.whole:
+            self.rep.chunks_saved += 1
+            self.sizes[0] += nbytes
+            self.sizes[1] += c.uncompressed_size
+            self.sizes[2] += saved
+            self.whole_msgs += saved
+            self.last_lost = None
+            return
+        self.rep.chunks_bad += 1
+        self.rep.lost_span_s += max(0, c.end_ns - c.start_ns) / 1e9
+        self.rep.reason = c.why
+        if saved:
+            self.rep.chunks_partial += 1
+            self.rep.salvaged += saved
+            self.sizes[1] += c.decoded  # the decoded front tells bytes per message as well
+            self.sizes[2] += saved
+        self.last_lost = {"bytes": nbytes, "usize": max(c.uncompressed_size - c.decoded, 0), "counted": None,
+                          "kept": saved}
+        self.lost.append(self.last_lost)
 
-    def lose_region(nbytes: int, why: str) -> None:
-        rep.chunks_bad += 1
-        rep.reason = why
-        if saved_compressed and rep.saved:
-            rep.lost_estimate += max(1, round(nbytes / (saved_compressed / rep.saved)))
+    def run(self, events: Iterator[Event], size: int, progress) -> None:
+        last_report = 0
+        for ev in events:
+            kind, pos = ev[0], ev[1]
+            if kind == "rec":
+                self.record(ev[2], ev[3])
+            elif kind == "chunk":
+                self.chunk(ev[2], ev[3])
+            elif kind == "index":
+                if self.last_lost is not None:  # the index of a damaged chunk says what it held
+                    self.last_lost["counted"] = (self.last_lost["counted"] or 0) + ev[2]
+            elif kind == "damaged":
+                self.rep.chunks_bad += 1
+                self.rep.reason = f"damaged bytes {ev[2]}..{ev[3]} were skipped"
+                self.last_lost = {"bytes": ev[3] - ev[2], "usize": 0, "counted": None, "kept": 0}
+                self.lost.append(self.last_lost)
+                self.last_lost = None  # a region's index records are not told apart from the next chunk's
+            elif kind == "end":
+                self.rep.tail_bytes = ev[2]
+                self.rep.reason = ev[3] or self.rep.reason
+            if progress is not None and pos - last_report > (1 << 20):
+                progress(pos, size)
+                last_report = pos
+        self.finish(size, progress)
 
-    while True:
-        rec_start = pos
-        head = f.read(_REC.size)
-        if len(head) < _REC.size:
-            rep.tail_bytes = len(head)
-            if head:
-                rep.reason = rep.reason or "the file ends inside a record header"
-            break
-        opcode, length = _REC.unpack(head)
-        if opcode not in _OPCODES or length > size - pos - _REC.size:
-            nxt = _resync(f, rec_start + 1, size)
-            if nxt is not None:  # damage in the middle: skip to the next intact chunk
-                lose_region(nxt - rec_start, f"damaged bytes {rec_start}..{nxt} were skipped")
-                f.seek(nxt)
-                pos = nxt
+    def record(self, opcode: int, rec) -> None:
+        if opcode == Opcode.HEADER:
+            self.start(rec.profile)
+        elif opcode == Opcode.MESSAGE:
+            self.start()
+            if message_ok(rec):
+                self.message(rec)
+        elif opcode == Opcode.METADATA:
+            self.start()
+            self.meta.append(rec)
+        elif opcode == Opcode.ATTACHMENT:
+            self.start()
+            self.w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
+        elif opcode == Opcode.FOOTER:
+            self.footer = True
+
+    def finish(self, size: int, progress) -> None:
+        rep = self.rep
+        self.count_losses()
+        rep.was_complete = self.footer and not self.lost and not rep.orphans and not rep.tail_bytes
+        self.start()
+        for m in self.meta:
+            self.w.add_metadata(m.name, dict(m.metadata))
+        self.w.add_metadata("mocapgraph.recovery", {
+            "source": str(rep.source), "saved": str(rep.saved), "chunks_saved": str(rep.chunks_saved),
+            "chunks_bad": str(rep.chunks_bad), "chunks_partial": str(rep.chunks_partial),
+            "lost_estimate": str(rep.lost_estimate), "lost_counted": str(rep.lost_counted).lower(),
+            "orphans": str(rep.orphans), "tail_bytes": str(rep.tail_bytes),
+            "reason": rep.reason or ("complete" if rep.was_complete else "")})
+        if progress is not None:
+            progress(size, size)
+
+    def count_losses(self) -> None:
+        """Messages lost: the summary's Statistics when it has them (exact), else per damaged
+        chunk its MessageIndex count (exact) or its size over the saved chunks' bytes per message."""
+        rep = self.rep
+        stats = self.summary.statistics if self.summary is not None else None
+        if stats is not None and stats.message_count >= rep.saved:
+            rep.lost_estimate = stats.message_count - rep.saved
+            rep.lost_counted = True
+            for cid, n in stats.channel_message_counts.items():
+                c = self.known.channels.get(cid)
+                if c is not None and n > self.saved_by_channel.get(cid, 0):
+                    rep.lost_by_topic[c.topic] = n - self.saved_by_channel.get(cid, 0)
+            return
+        comp, unc, msgs = self.sizes
+        lost, counted = rep.orphans, True  # orphans: readable, so counted
+        for region in self.lost:
+            if region["counted"] is not None:
+                lost += max(region["counted"] - region["kept"], 0)
                 continue
-            # a record cut short by the end of the file
-            rep.tail_bytes = size - pos
-            f.seek(pos + _REC.size)
-            body = f.read(min(length, 64))
-            if opcode == Opcode.CHUNK and len(body) >= _CHUNK_HEAD.size:
-                t0, t1, usize, _crc = _CHUNK_HEAD.unpack_from(body)
-                rep.chunks_bad += 1
-                rep.lost_span_s += max(0, t1 - t0) / 1e9
-                rep.lost_estimate += _estimate(usize, saved_bytes, rep.saved)
-                rep.reason = "the file ends inside a chunk (the recorder stopped while writing it)"
-            else:
-                rep.reason = rep.reason or f"the file ends inside a record (opcode 0x{opcode:02x})"
-            break
-        body = f.read(length)
-        pos += _REC.size + length
-        if progress is not None and pos - last_report > (1 << 20):
-            progress(pos, size)
-            last_report = pos
-        stream = ReadDataStream(io.BytesIO(body))
-        try:
-            if opcode == Opcode.HEADER:
-                header_seen = True
-                h = Header.read(stream)
-                start(h.profile, h.library)
-            elif opcode == Opcode.SCHEMA:
-                start()
-                sc = Schema.read(stream)
-                pending_schemas[sc.id] = sc
-                add_schema(sc)
-            elif opcode == Opcode.CHANNEL:
-                start()
-                add_channel(Channel.read(stream))
-            elif opcode == Opcode.MESSAGE:
-                start()
-                add_message(Message.read(stream, length))
-            elif opcode == Opcode.CHUNK:
-                start()
-                chunk = Chunk.read(stream)
-                try:
-                    records = breakup_chunk(chunk, validate_crc=True)
-                except READ_ERRORS:
-                    rep.chunks_bad += 1
-                    rep.lost_span_s += max(0, chunk.message_end_time - chunk.message_start_time) / 1e9
-                    rep.lost_estimate += _estimate(chunk.uncompressed_size, saved_bytes, rep.saved)
-                    rep.reason = "a chunk failed its checksum or would not decompress"
-                    continue
-                for r in records:
-                    if isinstance(r, Schema):
-                        pending_schemas[r.id] = r
-                        add_schema(r)
-                    elif isinstance(r, Channel):
-                        add_channel(r)
-                    elif isinstance(r, Message):
-                        add_message(r)
-                rep.chunks_saved += 1
-                saved_bytes += chunk.uncompressed_size
-                saved_compressed += length
-            elif opcode == Opcode.METADATA:
-                start()
-                meta_records.append(Metadata.read(stream))
-            elif opcode == Opcode.ATTACHMENT:
-                start()
-                a = Attachment.read(stream)
-                w.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
-            elif opcode == Opcode.FOOTER:
-                rep.was_complete = rep.chunks_bad == 0
-                break
-            # DataEnd, indexes, statistics and summary records are rebuilt by the writer
-        except READ_ERRORS as exc:
-            nxt = _resync(f, rec_start + 1, size)
-            if nxt is not None:
-                lose_region(nxt - rec_start, f"a damaged record at byte {rec_start} ({type(exc).__name__}); "
-                                             f"skipped to byte {nxt}")
-                f.seek(nxt)
-                pos = nxt
-                continue
-            rep.reason = f"a damaged record at byte {rec_start} ({type(exc).__name__})"
-            rep.tail_bytes = size - rec_start
-            break
-    if not header_seen:
-        rep.reason = rep.reason or "no MCAP header record"
-    start()
-    for m in meta_records:
-        w.add_metadata(m.name, dict(m.metadata))
-    w.add_metadata("mocapgraph.recovery", {
-        "source": str(rep.source), "saved": str(rep.saved), "chunks_saved": str(rep.chunks_saved),
-        "chunks_bad": str(rep.chunks_bad), "lost_estimate": str(rep.lost_estimate),
-        "tail_bytes": str(rep.tail_bytes), "reason": rep.reason or ("complete" if rep.was_complete else "")})
-    if progress is not None:
-        progress(size, size)
-
-
-_OPCODES = {int(o) for o in Opcode}
-_CHUNK_FIXED = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
-
-
-def _chunk_at(mm, off: int, size: int) -> bool:
-    """True when the bytes at ``off`` frame a plausible chunk record (lengths agree to the byte)."""
-    if off + _REC.size + _CHUNK_FIXED.size > size:
-        return False
-    length = struct.unpack_from("<Q", mm, off + 1)[0]
-    if length < _CHUNK_FIXED.size + 8 or off + _REC.size + length > size:
-        return False
-    *_, clen = _CHUNK_FIXED.unpack_from(mm, off + _REC.size)
-    if clen > 16:
-        return False
-    at = off + _REC.size + _CHUNK_FIXED.size
-    if bytes(mm[at:at + clen]) not in (b"", b"lz4", b"zstd"):
-        return False
-    data_len = struct.unpack_from("<Q", mm, at + clen)[0]
-    return _CHUNK_FIXED.size + clen + 8 + data_len == length
-
-
-def _resync(f, start: int, size: int) -> int | None:
-    """Offset of the next plausible chunk record at or after ``start`` (its CRC is checked when read)."""
-    import mmap
-
-    try:
-        mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-    except (ValueError, OSError):
-        return None
-    try:
-        off = start
-        while True:
-            off = mm.find(bytes([Opcode.CHUNK]), off, size)
-            if off < 0:
-                return None
-            if _chunk_at(mm, off, size):
-                return off
-            off += 1
-    finally:
-        mm.close()
-
-
-def _estimate(uncompressed: int, saved_bytes: int, saved_count: int) -> int:
-    if saved_count and saved_bytes:
-        return max(1, round(uncompressed / (saved_bytes / saved_count)))
-    return 0
+            counted = False
+            if msgs and region["usize"] and unc:
+                lost += max(1, round(region["usize"] / (unc / msgs)))
+            elif self.whole_msgs and comp:
+                lost += max(1, round(region["bytes"] / (comp / self.whole_msgs)))
+        rep.lost_estimate = lost
+        rep.lost_counted = counted

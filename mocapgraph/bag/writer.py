@@ -30,6 +30,7 @@ from mcap.writer import CompressionType, Writer
 from ..messages import Envelope, Message, decode_envelope, encode
 from ..messages.codec import DecodeError
 from ..messages.registry import UnknownTypeError, lookup
+from ..bus.file_places import PathRefused, own_folder_path
 from .errors import BagError
 from .framing import MESSAGE_ENCODING, pack_frames
 
@@ -108,6 +109,8 @@ class BagWriter:
         self._latched: dict[str, tuple[list, int, int, int]] = {}  # topic -> (frames, log, pub, seq)
         self._file = None
         self._w: Writer | None = None
+        self.failed = ""  # why writing stopped (disk full...); '' while it works
+        self._in_file = self._safe_in_file = 0  # messages in the open file; of them, flushed to the OS
         self._open_next()
 
     # ----- files --------------------------------------------------------------------------------
@@ -121,10 +124,14 @@ class BagWriter:
         path = self._next_path()
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = open(path, "wb")
+            # a regular file in the folder named (a symlink planted there to elsewhere, a device or a fifo: no)
+            self._file = open(own_folder_path(path, "bag"), "wb")
+        except PathRefused as exc:
+            raise BagError(path, str(exc)) from None
         except OSError as exc:
             raise BagError(path, f"cannot write ({exc.strerror or exc})") from None
         self.paths.append(path)
+        self._in_file = self._safe_in_file = 0
         self._w = Writer(self._file, chunk_size=self.chunk_bytes, compression=COMPRESSIONS[self.compression])
         self._w.start(profile=PROFILE, library=f"mocapgraph/{mocapgraph_version()}")
         self._w.add_metadata(META_INFO, {**self.metadata, "split_index": str(len(self.paths) - 1)})
@@ -140,12 +147,35 @@ class BagWriter:
         self._finish_file()
         self._open_next()
 
+    def _failure(self, exc: OSError) -> BagError:
+        """Stop writing after ``exc`` (disk full, folder gone): the open file is closed as it is (what
+        reached the disk stays, ``bag recover`` reads it), removed when none of its messages did."""
+        path = self.paths[-1]
+        if not self.failed:
+            kept = self.count - (self._in_file - self._safe_in_file)
+            why = f"cannot write ({exc.strerror or exc})"
+            self.failed = (f"{why}; {max(0, kept)} messages written before are kept in {', '.join(map(str, self.paths))} "
+                           "('mocapgraph bag recover' gives it its index)" if self._safe_in_file or len(self.paths) > 1
+                           else f"{why}; nothing reached the disk (no file left behind)")
+            try:
+                self._file.close()  # (its buffered rest cannot be written: the disk is full)
+            except OSError:
+                pass
+            if not self._safe_in_file:
+                path.unlink(missing_ok=True)   # nothing of it reached the disk: no empty bag left behind
+                self.paths.pop()
+            self._w = None
+        return BagError(path, self.failed)
+
     def _finish_file(self) -> None:
         if self._w is None:
             return
-        self._write_losses(force=True)
-        self._w.finish()
-        self._file.close()
+        try:
+            self._write_losses(force=True)
+            self._w.finish()
+            self._file.close()
+        except OSError as exc:
+            raise self._failure(exc) from None
         self._w = None
 
     # ----- records --------------------------------------------------------------------------------
@@ -170,11 +200,15 @@ class BagWriter:
         self._w.add_message(cid, log_ns, pack_frames(frames), pub_ns, seq & 0xFFFFFFFF)
         if count:
             self.count += 1
+            self._in_file += 1
             self.count_by_topic[topic] = self.count_by_topic.get(topic, 0) + 1
 
     def write_frames(self, frames: Sequence[bytes | memoryview], log_ns: int | None = None,
                      env: Envelope | None = None) -> None:
-        """Store one bus message as received. ``log_ns`` defaults to now; ``env`` saves a decode."""
+        """Store one bus message as received. ``log_ns`` defaults to now; ``env`` saves a decode.
+        BagError (one line) once the disk refuses (see ``failed``)."""
+        if self.failed:
+            raise BagError(self.paths[-1] if self.paths else self.base, self.failed)
         if env is None:
             try:
                 env = decode_envelope(frames)
@@ -192,7 +226,10 @@ class BagWriter:
         pub = max(0, env.publish_ns)
         if env.latched:
             self._latched[topic] = ([bytes(f) for f in frames], log_ns, pub, env.seq)
-        self._add(topic, frames, env, log_ns, pub, env.seq)
+        try:
+            self._add(topic, frames, env, log_ns, pub, env.seq)
+        except OSError as exc:
+            raise self._failure(exc) from None
 
     def _size_due(self) -> bool:
         if not self.split_bytes:
@@ -223,13 +260,20 @@ class BagWriter:
     def flush(self) -> None:
         """Close the current chunk and hand everything to the OS (survives a SIGKILL)."""
         if self._w is not None:
-            self._w.flush()
-            self._write_losses()
-            self._file.flush()
+            try:
+                self._w.flush()
+                self._write_losses()
+                self._file.flush()
+            except OSError as exc:
+                raise self._failure(exc) from None
+            self._safe_in_file = self._in_file
 
     def close(self) -> list[Path]:
-        """Finish every file (summary, indexes, footer). Returns the files written."""
+        """Finish every file (summary, indexes, footer). Returns the files written; BagError (one
+        line, the files kept named) when the disk refused, now or before."""
         self._finish_file()
+        if self.failed:
+            raise BagError(self.paths[-1] if self.paths else self.base, self.failed)
         return list(self.paths)
 
     def __enter__(self) -> "BagWriter":

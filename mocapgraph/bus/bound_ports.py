@@ -250,7 +250,7 @@ class InputPort:
         if edge is None:
             self._unexpected(env.sender)
             return newest
-        if not edge.accept(env.seq, env.publish_ns, now):
+        if not edge.accept(env.seq, env.publish_ns, now, env.stream):
             return newest
         if self.decl.raw:
             self.envelope = env

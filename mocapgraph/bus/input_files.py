@@ -38,6 +38,8 @@ def check_input_file(value: str) -> Path:
     p = resolve_input_file(value)
     if p.is_dir():
         raise InputFileError(f"{value}: is a directory, not a file")
+    if not p.is_file():  # a device (/dev/zero: endless) or a fifo (the open blocks): never a capture
+        raise InputFileError(f"{value}: is a device, fifo or socket, not a regular file")
     try:
         with open(p, "rb") as fh:
             fh.read(1)

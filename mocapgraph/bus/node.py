@@ -5,7 +5,8 @@ A node subclasses `Node`, declares `Input`/`Output`/`Param` class attributes, an
 
 - binds one XPUB socket for all of the node's outputs; the XPUB sees every subscription, which
   is how latched values reach late joiners and how the start-up handshake knows that every
-  subscriber in the graph is connected before the first frame is sent (no slow-joiner loss);
+  subscriber in the graph is connected before the first frame is sent (no slow-joiner loss); it
+  applies only subscriptions to the node's own topics (manual mode, `subscriptions`);
 - opens one SUB socket per input (so queue depth is per subscription) connected to every
   publisher of its topic (`bound_ports`);
 - counts per edge: rate from sender stamps, latency, sequence gaps, rejected frames, and
@@ -37,6 +38,7 @@ from ..messages import Diagnostics, Message
 from ..messages.codec import topic_frame
 from .bound_ports import InputPort, OutputPort
 from .curve import CurveKeys, make_server, release_authenticator, start_authenticator
+from .peer_guard import PeerGuard, limit_inbound
 from .subscriptions import Subscriptions
 from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, EdgeRecord, build_diagnostics,
                           input_edge_records)
@@ -47,6 +49,25 @@ from .protocol import READY, START, STARTED, STOP, LauncherLink, ParentWatchdog,
 SEND_QUEUE = 1000  # messages per subscriber held by a publisher before it drops (counted downstream)
 LOG_FORMAT = "%(levelname)s %(message)s"
 _DIAGNOSTICS_PORT = "__diagnostics__"
+
+
+def _publisher(ctx: zmq.Context, curve: CurveKeys | None, keys: list[bytes],
+               later: Callable[[float, Callable[[], None]], object]) -> tuple[zmq.Socket, PeerGuard]:
+    """A node's XPUB socket, not yet bound (``keys``: its output topics' frames), and its peer guard."""
+    pub = ctx.socket(zmq.XPUB)
+    if curve is not None:
+        start_authenticator(ctx, curve)
+        make_server(pub, curve)
+    pub.setsockopt(zmq.XPUB_VERBOSE, 1)
+    # subscriptions in our hands: only those to our own topics are applied (`subscriptions`) ...
+    pub.setsockopt(zmq.XPUB_MANUAL, 1)
+    limit_inbound(pub, max(map(len, keys + [topic_frame(DIAGNOSTICS_TOPIC)])), curve is not None)
+    # ... and a bounded share of them per peer (`peer_guard`); bounded per subscriber too, so a
+    # stalled viewer cannot grow this process without limit; a subscriber with no receive limit
+    # (a recorder) drains into its own memory and loses nothing
+    pub.setsockopt(zmq.SNDHWM, SEND_QUEUE)
+    pub.setsockopt(zmq.LINGER, 500)
+    return pub, PeerGuard(pub, later)
 
 
 class NodeConfigError(ValueError):
@@ -72,8 +93,10 @@ class Node:
         self._t0 = time.monotonic()
         self._ctx = zmq.Context.instance()
         self._pub: zmq.Socket | None = None
+        self._guard: PeerGuard | None = None
         self._subs = Subscriptions(lambda: [p for p in self._ports.values() if isinstance(p, OutputPort)],
-                                   self.call_later, lambda: self._loop.timers_on)
+                                   self.call_later, lambda: self._loop.timers_on,
+                                   lambda: self._guard is not None and self._guard.check())
         self._ready_sent = False
         self._launcher: LauncherLink | None = None
         self._watchdog = ParentWatchdog()
@@ -169,15 +192,9 @@ class Node:
         """Bind, connect and subscribe according to the wiring."""
         w = self.wiring
         self._curve = CurveKeys.load(w.curve["key"], w.curve["authorized"]) if w.curve else None
-        self._pub = pub = self._ctx.socket(zmq.XPUB)
-        if self._curve is not None:
-            start_authenticator(self._ctx, self._curve)
-            make_server(pub, self._curve)
-        pub.setsockopt(zmq.XPUB_VERBOSE, 1)
-        # Bounded per subscriber, so a stalled viewer cannot grow this process without limit; a
-        # subscriber with no receive limit (a recorder) drains into its own memory and loses nothing.
-        pub.setsockopt(zmq.SNDHWM, SEND_QUEUE)
-        pub.setsockopt(zmq.LINGER, 500)
+        keys = [topic_frame(w.outputs.get(n, {}).get("topic", d.topic)) for n, d in self._iface.outputs.items()]
+        self._pub, self._guard = pub, guard = _publisher(self._ctx, self._curve, keys, self.call_later)
+        self._loop.watch(guard.monitor, guard.on_monitor, owner=self)
         if w.pub_endpoint:
             pub.bind(w.pub_endpoint)
         else:
@@ -298,6 +315,8 @@ class Node:
                     port.socket.close(0)
         if self._launcher is not None:
             self._launcher.close()
+        if self._guard is not None:
+            self._guard.close()
         if self._pub is not None:
             self._pub.close()
         if self._curve is not None:

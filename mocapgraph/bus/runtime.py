@@ -11,6 +11,7 @@ import importlib
 import json
 import logging
 import sys
+from pathlib import Path
 from typing import Any
 
 from .node import LOG_FORMAT, Node, NodeConfigError
@@ -18,10 +19,33 @@ from .process import install_stop_handlers, serve
 from .protocol import Wiring, die_with_parent  # noqa: F401  (die_with_parent: the launcher's preexec hook)
 
 
+def _file_module(path: str) -> Any:
+    """The module in the ``.py`` file ``path`` (its folder first on sys.path, as for a script)."""
+    import importlib.util
+
+    name = "mocapgraph_graph_node_" + "".join(c if c.isalnum() else "_" for c in path)
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"cannot load {path}")
+    folder = str(Path(path).parent)
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    return module
+
+
 def load_class(spec: str) -> type[Node]:
-    """``package.module:ClassName`` -> the class."""
-    module, _, attr = spec.partition(":")
-    cls = getattr(importlib.import_module(module), attr)
+    """``package.module:ClassName`` or ``/path/to/file.py:ClassName`` -> the class."""
+    module, _, attr = spec.rpartition(":")
+    cls = getattr(_file_module(module) if module.endswith(".py") else importlib.import_module(module), attr)
     if not (isinstance(cls, type) and issubclass(cls, Node)):
         raise TypeError(f"{spec} is not a mocapgraph Node")
     return cls

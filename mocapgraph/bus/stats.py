@@ -9,17 +9,19 @@ together as "unexpected", so junk with a fresh sender name per frame costs no me
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import Iterable
 
 import numpy as np
 
-from ..messages.sequence import ANOMALY, DUPLICATE, RESTART, sequence_gap
+from ..messages.sequence import DUPLICATE, RESTART, StreamTracker
 
 WINDOW = 512
 #: in the wiring's sender list: senders not named are allowed too (up to MAX_FREE_EDGES of them)
 ANY_SENDER = "*"
 MAX_FREE_EDGES = 8
+RESTART_LOG_S = 5.0  # at most one line per edge per this many seconds about restarts (after the first 3)
 # The launcher prefixes each line with the receiving node's name.
 log = logging.getLogger("mocapgraph.bus")
 
@@ -30,43 +32,65 @@ class EdgeStats:
 
     topic: str
     sender: str
-    last_seq: int = 0
-    last_publish_ns: int = 0
     received: int = 0
-    gaps: int = 0
-    duplicates: int = 0
-    restarts: int = 0
-    #: jumps beyond the believable (forged numbers, missed restarts): resynchronised, not counted as loss
-    anomalies: int = 0
+    #: the sequence rule's state and counts (gaps, duplicates, restarts, anomalies)
+    seq: StreamTracker = field(default_factory=StreamTracker)
     # Plain lists: one store per message is cheaper than a numpy element store; numpy is used
     # once a second when the figures are read.
     _pub: list = field(default_factory=lambda: [0] * WINDOW)
     _lat: list = field(default_factory=lambda: [0] * WINDOW)
     _n: int = 0
+    _restart_logged: float = -RESTART_LOG_S
 
-    def accept(self, seq: int, publish_ns: int, now_ns: int) -> bool:
-        """Record one arrival; False when it is a duplicate (a latched resend) to be dropped."""
-        if seq != self.last_seq + 1:   # (the next number, the usual case, is no loss: sequence_gap's 0)
-            lost = sequence_gap(self.last_seq, seq, publish_ns == self.last_publish_ns)
-            if lost == DUPLICATE:
-                self.duplicates += 1
+    @property
+    def gaps(self) -> int:
+        return self.seq.gaps
+
+    @property
+    def duplicates(self) -> int:
+        """Frames dropped: resends and suspected duplicates (at most one in a row)."""
+        return self.seq.duplicates
+
+    @property
+    def restarts(self) -> int:
+        return self.seq.restarts
+
+    @property
+    def anomalies(self) -> int:
+        """Jumps beyond the believable (forged numbers, missed restarts): resynchronised, not loss."""
+        return self.seq.anomalies
+
+    @property
+    def last_seq(self) -> int:
+        return self.seq.last
+
+    def accept(self, seq: int, publish_ns: int, now_ns: int, stream: int = 0) -> bool:
+        """Record one arrival (``stream``: the sender's stream id); False when it is a duplicate
+        to be dropped."""
+        t = self.seq
+        if seq == t.last + 1 and stream == t.stream:   # the usual case: the next number of the stream
+            t.last, t.last_stamp, t.suspect, t.jump = seq, publish_ns, False, 0
+        else:
+            before = t.last
+            code = t.take(stream, seq, publish_ns)
+            if code == DUPLICATE:
                 return False
-            if lost == RESTART:
-                self.restarts += 1
-                log.info("%s from %s: the sender restarted (sequence %d after %d): a new stream, not loss",
-                         self.topic, self.sender, seq, self.last_seq)
-            elif lost == ANOMALY:
-                self.anomalies += 1
-            else:
-                self.gaps += lost
-        self.last_seq = seq
-        self.last_publish_ns = publish_ns
+            if code == RESTART:
+                self._log_restart(seq, before)
         self.received += 1
         i = self._n % WINDOW
         self._pub[i] = publish_ns
         self._lat[i] = now_ns - publish_ns
         self._n += 1
         return True
+
+    def _log_restart(self, seq: int, before: int) -> None:
+        now = time.monotonic()
+        n = self.seq.restarts
+        if n <= 3 or now - self._restart_logged >= RESTART_LOG_S:   # a flood of forged streams is no log flood
+            self._restart_logged = now
+            log.info("%s from %s: the sender restarted (sequence %d after %d): a new stream, not loss "
+                     "(%d restart(s))", self.topic, self.sender, seq, before, n)
 
     def rate_hz(self) -> float:
         """Rate over the window from the sender's own publish stamps (immune to our jitter)."""

@@ -1,7 +1,8 @@
 """``mocapgraph calibrate`` and ``mocapgraph solve``: the actor pipeline on files, batch.
 
 The same code as the live nodes: label matching (:mod:`mocapgraph.adapters.model_messages`),
-:func:`~mocapgraph.kinematics.calibration.calibrate`, :class:`~mocapgraph.kinematics.solver.FrameSolver`
+:func:`~mocapgraph.kinematics.calibration.calibrate.calibrate`,
+:class:`~mocapgraph.kinematics.solving.solver.FrameSolver`
 (batch ``solve`` runs the very temporal stage ``step`` runs live) and the ActorPose conversion.
 
 Inputs: C3D, TRC, or a bag (.mcap, its MarkerFrame topic + latched MarkerLayout).
@@ -19,6 +20,7 @@ import math
 import warnings
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -121,8 +123,18 @@ def _definition(layout: str):
 
 
 # ----- calibrate ---------------------------------------------------------------------------------
+def _print_centre_inputs(model: Any) -> None:
+    """What each anatomical or regression centre was built from (landmarks; regression inputs, mm)."""
+    for j, inp_j in enumerate(model.quality.inputs):
+        if "landmarks" in inp_j:
+            print(f"  {model.joint_names[j]}: midpoint of {' and '.join(inp_j['landmarks'])}")
+        elif "regression" in inp_j:
+            vals = ", ".join(f"{k[:-2]} {1000 * v:.1f} mm" for k, v in inp_j.items() if k.endswith("_m") and isinstance(v, float))
+            print(f"  {model.joint_names[j]}: {inp_j['regression']} ({vals}; subject from {inp_j.get('subject', '?')})")
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from ..kinematics.calibration import CalibrationError, CalibrationWarning, calibrate, layout_markers
+    from ..kinematics.calibration.calibrate import CalibrationError, CalibrationWarning, calibrate, layout_markers
     from ..kinematics.model import save_model
     from ..adapters.model_messages import quality_table
 
@@ -132,7 +144,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UserError(f"--frames given {len(frames)} times for {len(args.files)} files "
                         "(give it once for all files, or once per file)")
     order = tuple(m.strip() for m in args.centres.split(",") if m.strip())
-    from ..kinematics.centres import METHODS
+    from ..kinematics.calibration.centres import METHODS
 
     bad = [m for m in order if m not in METHODS]
     if bad or not order:
@@ -198,12 +210,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     bar.advance()
     print(f"layout {definition.name}: {len(model.joint_names)} joints from {len(markers)} frames")
     print(quality_table(model))
-    for j, inp_j in enumerate(model.quality.inputs):
-        if "landmarks" in inp_j:
-            print(f"  {model.joint_names[j]}: midpoint of {' and '.join(inp_j['landmarks'])}")
-        elif "regression" in inp_j:
-            vals = ", ".join(f"{k[:-2]} {1000 * v:.1f} mm" for k, v in inp_j.items() if k.endswith("_m") and isinstance(v, float))
-            print(f"  {model.joint_names[j]}: {inp_j['regression']} ({vals}; subject from {inp_j.get('subject', '?')})")
+    _print_centre_inputs(model)
     for w in caught:
         if issubclass(w.category, CalibrationWarning):
             print(f"warning: {w.message}")
@@ -260,7 +267,7 @@ def _subject(args: argparse.Namespace, first: MarkerInput):
 # ----- solve -------------------------------------------------------------------------------------
 def cmd_solve(args: argparse.Namespace) -> int:
     from ..kinematics.model import ModelFileError, load_model
-    from ..kinematics.solver import FrameSolver
+    from ..kinematics.solving.solver import FrameSolver
     from ..adapters.model_messages import marker_index
 
     out = Path(args.output)
@@ -323,7 +330,7 @@ SOLVE_CHUNK = 500  # frames per solver call: a bar that moves, same result as on
 
 def _solve_chunks(solver, x: np.ndarray, times: np.ndarray):
     """``solver.solve`` over float[T,M,3] in chunks (the solver carries its state across calls)."""
-    from ..kinematics.solver import SolverResult
+    from ..kinematics.solving.solver import SolverResult
 
     parts = []
     with Progress("solving", total=len(x)) as bar:

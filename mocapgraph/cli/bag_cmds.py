@@ -11,7 +11,7 @@ import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zmq
 
@@ -19,23 +19,45 @@ from ..bag.errors import BagError
 from .progress import Progress
 from . import UserError
 
+if TYPE_CHECKING:
+    from ..bag.player import Playback
+    from ..bag.recorder import Recorder
+    from ..bag.writer import BagWriter
+    from ..bus.manifest import Manifest, ManifestServer
+    from ..bus.ports import Interface
+    from ..nodes.bag_player import BagPlayer
+
 
 def _fail(exc: BagError) -> UserError:
     return UserError(str(exc))
 
 
-# ----- record ------------------------------------------------------------------------------------
-def cmd_record(args: argparse.Namespace) -> int:
-    from ..bag.recorder import Recorder
-    from ..bag.writer import BagWriter, base_metadata
-    from ..launch.manifest import NoGraphError, fetch_manifest, subscribe
-    from ..nodes.bag_recorder import default_bag_name
+class _StopSignals:
+    """SIGINT and SIGTERM turned into a flag the command's loop polls, until :meth:`restore`."""
 
-    try:
-        manifest = fetch_manifest(args.master)
-    except NoGraphError as exc:
-        raise UserError(str(exc)) from None
-    known = manifest.get("topics", {})
+    def __init__(self) -> None:
+        self.flag = False
+        self._old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        self.flag = True
+
+    def restore(self) -> None:
+        """Put back the handlers that were there before."""
+        for s, h in self._old.items():
+            signal.signal(s, h)
+
+
+def _status_to_terminal(line: str) -> None:
+    """Overwrite the terminal's last line with ``line`` (stderr, so stdout stays a log)."""
+    sys.stderr.write(f"\r{line}   ")
+    sys.stderr.flush()
+
+
+# ----- record ------------------------------------------------------------------------------------
+def _record_topics(args: argparse.Namespace, known: dict[str, Any]) -> list[str]:
+    """The topics to record: ``--all`` or those named (each must be in the running graph),
+    less those matching ``--exclude``; UserError when none are left."""
     if args.all:
         topics = sorted(known)
     elif args.topics:
@@ -53,73 +75,129 @@ def cmd_record(args: argparse.Namespace) -> int:
         topics = [t for t in topics if not rx.search(t)]
     if not topics:
         raise UserError("nothing to record: every topic was excluded")
+    return topics
+
+
+def _open_bag(args: argparse.Namespace, manifest: dict[str, Any], topics: list[str]) -> BagWriter:
+    """The bag to record into, its metadata saying which graph, command, topics and nodes."""
+    from ..bag.writer import BagWriter, base_metadata
+    from ..nodes.bag_recorder import default_bag_name
+
     out = args.output or default_bag_name()
     meta = base_metadata("bag record", graph=str(manifest.get("graph", "")), command=" ".join(sys.argv),
                          topics_json=json.dumps(topics),
                          nodes_json=json.dumps([{k: n.get(k) for k in ("name", "type", "params")}
                                                 for n in manifest.get("nodes", [])]))
     try:
-        writer = BagWriter(out, compression=args.compression, chunk_kb=args.chunk_kb, split_mb=args.split_mb,
-                           split_s=args.split_s, metadata=meta, on_exists="overwrite" if args.force else "error")
+        return BagWriter(out, compression=args.compression, chunk_kb=args.chunk_kb, split_mb=args.split_mb,
+                         split_s=args.split_s, metadata=meta, on_exists="overwrite" if args.force else "error")
     except BagError as exc:
         raise _fail(exc) from None
-    rec = Recorder(writer, args.flush_s)
-    sock = subscribe(manifest, topics, hwm=0)
-    stop = {"flag": False}
 
-    def on_signal(signum: int, frame: Any) -> None:
-        stop["flag"] = True
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    tty = sys.stderr.isatty()
-    print(f"recording {len(topics)} topic(s) to {writer.paths[0]}: {', '.join(topics)}", flush=True)
+def _drain(sock: zmq.Socket, rec: Recorder) -> BagError | None:
+    """Hand the waiting messages to the recorder, at most 2000 so the loop still looks at the
+    clock; the disk's refusal (full, gone) if it gave one."""
+    for _ in range(2000):
+        try:
+            frames = sock.recv_multipart(zmq.NOBLOCK)
+        except zmq.Again:
+            break
+        try:
+            rec.receive(frames)
+        except BagError as exc:
+            return exc
+    return None
+
+
+def _graph_gone(master: str | None) -> bool:
+    """True when no graph answers at ``master`` any more (asked with a 0.5 s timeout)."""
+    from ..bus.manifest import NoGraphError, fetch_manifest
+
+    try:
+        fetch_manifest(master, timeout_s=0.5)
+    except NoGraphError:
+        return True
+    return False
+
+
+def _record_until_stopped(args: argparse.Namespace, sock: zmq.Socket, rec: Recorder,
+                          stop: _StopSignals, tty: bool) -> BagError | None:
+    """Record until a signal, ``--duration`` s, the graph stopping or the disk refusing (the
+    refusal is returned: what was written is kept)."""
     t_end = time.monotonic() + args.duration if args.duration else None
     next_status = time.monotonic() + 1.0
     last_msg = time.monotonic()
-    try:
-        while not stop["flag"]:
-            if sock.poll(20):
-                for _ in range(2000):
-                    try:
-                        frames = sock.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    rec.receive(frames)
-                last_msg = time.monotonic()
-            now = time.monotonic()
-            rec.tick(now)
-            if now - last_msg > 2.0:  # quiet: is the graph still there?
-                last_msg = now
-                try:
-                    fetch_manifest(args.master, timeout_s=0.5)
-                except NoGraphError:
-                    print("the graph has stopped", flush=True)
-                    break
-            if now >= next_status:
-                next_status = now + 1.0
-                if tty:
-                    sys.stderr.write(f"\r{rec.status()}   ")
-                    sys.stderr.flush()
-            if t_end is not None and now >= t_end:
+    failure: BagError | None = None
+    while not stop.flag and failure is None:
+        if sock.poll(20):
+            failure = _drain(sock, rec)
+            last_msg = time.monotonic()
+        now = time.monotonic()
+        try:
+            if failure is None:
+                rec.tick(now)
+        except BagError as exc:
+            failure = exc
+        if now - last_msg > 2.0:  # quiet: is the graph still there?
+            last_msg = now
+            if _graph_gone(args.master):
+                print("the graph has stopped", flush=True)
                 break
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-        sock.close(0)
-        paths = rec.close()
-        if tty:
-            sys.stderr.write("\n")
+        if now >= next_status:
+            next_status = now + 1.0
+            if tty:
+                _status_to_terminal(rec.status())
+        if t_end is not None and now >= t_end:
+            break
+    return failure
+
+
+def _report_recording(rec: Recorder, paths: list[Path]) -> None:
+    """What was recorded where, and the sequence gaps seen upstream."""
     print(f"recorded {rec.status()} to {', '.join(map(str, paths))}")
     if rec.lost:
         print("lost upstream (sequence gaps, written into the bag): "
               + ", ".join(f"{t} {n}" for t, n in sorted(rec.lost.items())))
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from ..bag.recorder import Recorder
+    from ..bus.manifest import NoGraphError, fetch_manifest, subscribe
+
+    try:
+        manifest = fetch_manifest(args.master)
+    except NoGraphError as exc:
+        raise UserError(str(exc)) from None
+    topics = _record_topics(args, manifest.get("topics", {}))
+    writer = _open_bag(args, manifest, topics)
+    rec = Recorder(writer, args.flush_s)
+    sock = subscribe(manifest, topics, hwm=0)
+    stop = _StopSignals()
+    tty = sys.stderr.isatty()
+    print(f"recording {len(topics)} topic(s) to {writer.paths[0]}: {', '.join(topics)}", flush=True)
+    failure: BagError | None = None
+    try:
+        failure = _record_until_stopped(args, sock, rec, stop, tty)
+    finally:
+        stop.restore()
+        sock.close(0)
+        try:
+            paths = rec.close()
+        except BagError as exc:
+            failure = failure or exc
+        if tty:
+            sys.stderr.write("\n")
+    if failure is not None:
+        raise _fail(failure)
+    _report_recording(rec, paths)
     return 0
 
 
 # ----- play --------------------------------------------------------------------------------------------
-def _player_manifest(node, file: str) -> "Manifest":
+def _player_manifest(node: BagPlayer, file: str) -> Manifest:
     """The manifest a standalone player serves, so topic echo / bag record find it."""
-    from ..launch.manifest import Manifest, NodeEntry
+    from ..bus.manifest import Manifest, NodeEntry
 
     ep = node.wiring.pub_endpoint
     m = Manifest(graph=f"bag play {file}")
@@ -157,11 +235,9 @@ class _Keys:
             termios.tcsetattr(self.fd, termios.TCSADRAIN, self.saved)
 
 
-def cmd_play(args: argparse.Namespace) -> int:
+def _player_params(args: argparse.Namespace) -> tuple[dict[str, str], dict[str, Any]]:
+    """(bag topic -> topic to play it on, the bag_player node's params) from the command line."""
     from ..bag.player import parse_remaps
-    from ..bus.node import NodeConfigError, Wiring
-    from ..launch.manifest import ManifestBusyError, ManifestServer, NoGraphError, default_master, fetch_manifest
-    from ..nodes.bag_player import BagPlayer
 
     try:
         remap = parse_remaps(args.remap or [])
@@ -172,6 +248,15 @@ def cmd_play(args: argparse.Namespace) -> int:
               "stop_at_end": not args.stay, "realtime": args.realtime}
     if not args.rate > 0:
         raise UserError(f"--rate must be positive, got {args.rate}")
+    return remap, params
+
+
+def _player_interface(params: dict[str, Any], remap: dict[str, str]) -> Interface:
+    """The player's ports for the bag (it opens the file), with the params and every remapped
+    topic checked against them."""
+    from ..bus.node import NodeConfigError
+    from ..nodes.bag_player import BagPlayer
+
     try:
         iface = BagPlayer.interface(params)
         BagPlayer.check_params(params, iface)
@@ -181,6 +266,11 @@ def cmd_play(args: argparse.Namespace) -> int:
     if unknown:
         raise UserError(f"--remap {unknown[0]}: the bag plays no topic {unknown[0]!r} "
                         f"(topics: {', '.join(n for n in iface.outputs if n != 'status')})")
+    return iface
+
+
+def _check_bind(args: argparse.Namespace) -> None:
+    """A ``--bind`` other machines can reach needs ``--insecure``: bag play has no CurveZMQ keys."""
     if args.bind and args.bind.startswith("tcp://") and not args.insecure:
         from ..launch.check import _loopback
 
@@ -188,39 +278,114 @@ def cmd_play(args: argparse.Namespace) -> int:
         if host in ("*", "") or not _loopback(host):
             raise UserError(f"--bind {args.bind} is reachable from other machines and bag play has no keys: "
                             "bind a loopback address, or pass --insecure to publish plaintext knowingly")
+
+
+def _start_player(args: argparse.Namespace, params: dict[str, Any], iface: Interface,
+                  remap: dict[str, str]) -> tuple[BagPlayer, dict[str, dict[str, Any]]]:
+    """(the player node, bound and set up, its wiring's outputs: port -> topic and subscribers)."""
+    from ..bus.node import NodeConfigError, Wiring
+    from ..nodes.bag_player import BagPlayer
+
     outputs = {name: {"topic": remap.get(name, decl.topic), "subscribers": 0} for name, decl in iface.outputs.items()}
     wiring = Wiring(node="bag_play", pub_endpoint=args.bind or "", outputs=outputs)
     try:
         node = BagPlayer("bag_play", params, wiring)
     except NodeConfigError as exc:
         raise UserError(str(exc)) from None
-    pb = node.playback
     try:
         node.setup()
     except zmq.ZMQError as exc:
         raise UserError(f"cannot bind {args.bind}: {exc}") from None
-    server = None
+    return node, outputs
+
+
+def _serve_manifest(args: argparse.Namespace, node: BagPlayer) -> tuple[ManifestServer | None, Manifest | None]:
+    """(server, manifest) answering topic echo / bag record at the master address, unless
+    ``--no-manifest`` or a graph already serves it (server None when another process took the
+    address meanwhile)."""
+    from ..bus.manifest import ManifestBusyError, ManifestServer, NoGraphError, default_master, fetch_manifest
+
+    if args.no_manifest:
+        return None, None
     master = args.master or default_master()
-    if not args.no_manifest:
-        try:
-            fetch_manifest(master, timeout_s=0.3)
-            print(f"note: a graph already serves {master}; this player is reachable at {wiring.pub_endpoint} only")
-        except NoGraphError:
-            try:
-                server = ManifestServer(master)
-            except ManifestBusyError:
-                server = None
-            manifest = _player_manifest(node, args.file)
+    try:
+        fetch_manifest(master, timeout_s=0.3)
+        print(f"note: a graph already serves {master}; this player is reachable at {node.wiring.pub_endpoint} only")
+        return None, None
+    except NoGraphError:
+        pass
+    try:
+        server = ManifestServer(master)
+    except ManifestBusyError:
+        server = None
+    return server, _player_manifest(node, args.file)
+
+
+def _announce_playback(args: argparse.Namespace, node: BagPlayer, outputs: dict[str, dict[str, Any]]) -> None:
+    """Which bag topics are skipped and why, and what plays where at which rate."""
+    pb = node.playback
     for topic, why in pb.skipped.items():
         print(f"not playing {topic}: {why}")
     played = ", ".join(f"{outputs[t]['topic']} [{i.type_name}]" for t, i in pb.topics.items())
-    print(f"playing {args.file} ({pb.duration_s:.2f} s) at {pb.rate:g}x on {wiring.pub_endpoint}: {played}", flush=True)
-    stop = {"flag": False}
+    print(f"playing {args.file} ({pb.duration_s:.2f} s) at {pb.rate:g}x on {node.wiring.pub_endpoint}: {played}",
+          flush=True)
 
-    def on_signal(signum: int, frame: Any) -> None:
-        stop["flag"] = True
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+def _on_key(node: BagPlayer, key: str, start_s: float) -> bool:
+    """Act on one key press (see :class:`_Keys`); True when it asks to quit."""
+    pb = node.playback
+    if key == " ":
+        node.handle("toggle")
+    elif key == "s":
+        node.handle("step")
+    elif key == "+":
+        node.handle("rate", {"rate": pb.rate * 2})
+    elif key == "-":
+        node.handle("rate", {"rate": pb.rate / 2})
+    elif key == "r":
+        node.handle("seek", {"position_s": start_s})
+    elif key == "q":
+        return True
+    return False
+
+
+def _play_until_stopped(args: argparse.Namespace, node: BagPlayer, server: ManifestServer | None,
+                        manifest: Manifest | None, keys: _Keys, stop: _StopSignals, tty: bool) -> None:
+    """Spin the player until a signal, ``q`` or the player's own stop (bag end without --stay),
+    serving the manifest, reading keys and showing a status line each second."""
+    next_status = time.monotonic() + 1.0
+    while not stop.flag and not node.stopping:
+        node.spin_once(0.02)
+        if server is not None:
+            server.serve(lambda: manifest)
+        for k in keys.read():
+            if _on_key(node, k, args.start):
+                stop.flag = True
+        now = time.monotonic()
+        if now >= next_status and node.started:
+            next_status = now + 1.0
+            line = _status_line(node)
+            if tty:
+                _status_to_terminal(line)
+            elif not args.quiet:
+                print(line, flush=True)
+
+
+def _report_playback(pb: Playback) -> None:
+    """Messages played, loops, where it ended, the rate achieved and the lag behind schedule."""
+    p50, p99, pmax = pb.lag_ms()
+    print(f"played {pb.sent} messages ({pb.loops} loops), position {pb.position_s:.2f} s; achieved rate "
+          f"{pb.achieved_rate:.3f}x; lag behind schedule p50 {p50:.3f} ms, p99 {p99:.3f} ms, max {pmax:.3f} ms")
+
+
+def cmd_play(args: argparse.Namespace) -> int:
+    remap, params = _player_params(args)
+    iface = _player_interface(params, remap)
+    _check_bind(args)
+    node, outputs = _start_player(args, params, iface, remap)
+    server, manifest = _serve_manifest(args, node)
+    _announce_playback(args, node, outputs)
+    stop = _StopSignals()
     keys = _Keys()
     if keys.fd is not None:
         print("keys: space pause/resume, s step, + / - rate x2 / x0.5, r restart, q quit", flush=True)
@@ -228,39 +393,12 @@ def cmd_play(args: argparse.Namespace) -> int:
         node.announce_ready()
     else:
         print("waiting for a subscriber (--no-wait starts at once)", flush=True)
-    next_status = time.monotonic() + 1.0
     tty = sys.stderr.isatty()
     try:
-        while not stop["flag"] and not node.stopping:
-            node.spin_once(0.02)
-            if server is not None:
-                server.serve(lambda: manifest)
-            for k in keys.read():
-                if k == " ":
-                    node.handle("toggle")
-                elif k == "s":
-                    node.handle("step")
-                elif k == "+":
-                    node.handle("rate", {"rate": pb.rate * 2})
-                elif k == "-":
-                    node.handle("rate", {"rate": pb.rate / 2})
-                elif k == "r":
-                    node.handle("seek", {"position_s": args.start})
-                elif k == "q":
-                    stop["flag"] = True
-            now = time.monotonic()
-            if now >= next_status and node.started:
-                next_status = now + 1.0
-                line = _status_line(node)
-                if tty:
-                    sys.stderr.write("\r" + line + "   ")
-                    sys.stderr.flush()
-                elif not args.quiet:
-                    print(line, flush=True)
+        _play_until_stopped(args, node, server, manifest, keys, stop, tty)
     finally:
         keys.close()
-        for s, h in old.items():
-            signal.signal(s, h)
+        stop.restore()
         if tty:
             sys.stderr.write("\n")
         try:
@@ -271,9 +409,7 @@ def cmd_play(args: argparse.Namespace) -> int:
                 server.close()
     if node.error:
         raise UserError(node.error)
-    p50, p99, pmax = pb.lag_ms()
-    print(f"played {pb.sent} messages ({pb.loops} loops), position {pb.position_s:.2f} s; achieved rate "
-          f"{pb.achieved_rate:.3f}x; lag behind schedule p50 {p50:.3f} ms, p99 {p99:.3f} ms, max {pmax:.3f} ms")
+    _report_playback(node.playback)
     return 0
 
 

@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _character(name: str, height: float | None = None):
     from ..formats.character_file import CharacterFileError, load_character
-    from ..kinematics.character import standard_20
+    from ..retarget.character import standard_20
     if name == "standard_20" and height:
         return standard_20(height)
     try:
@@ -70,8 +70,8 @@ def cmd_mjcf(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     Path(args.output).write_text(world.xml)
     m = world.model
-    print(f"{args.output}: {ch.name}, {len(world.b_body)} bodies, {len(world.bodies[0].bone_child)} capsules, "
-          f"{m.nv} DOF, {m.body_mass[world.b_body].sum():.1f} kg; open with: python -m mujoco.viewer --mjcf {args.output}")
+    print(f"{args.output}: {ch.name}, {len(world.index.b_body)} bodies, {len(world.bodies[0].bone_child)} capsules, "
+          f"{m.nv} DOF, {m.body_mass[world.index.b_body].sum():.1f} kg; open with: python -m mujoco.viewer --mjcf {args.output}")
     return 0
 
 
@@ -112,15 +112,15 @@ def bag_clip(path: str, character, topic: str | None):
 def bvh_clip(path: str, character):
     """A BVH performance retargeted onto ``character`` (mapping derived from the two rest poses)."""
     from ..formats.bvh_file import bvh_to_skeleton, read_bvh
-    from ..kinematics.retarget import RetargetOptions, Retargeter
-    from ..kinematics.retarget_mapping import derive_mapping
-    from ..kinematics.retarget_source import skeleton_source
+    from ..formats.skeleton_trial import offsets_from_rest
+    from ..retarget.retargeter import RetargetOptions, Retargeter
+    from ..retarget.mapping import derive_mapping
+    from ..retarget.source import skeleton_source
     try:
         motion = read_bvh(path)
         trial = bvh_to_skeleton(motion)
-        rest = motion.rest_positions()
         par = trial.parents
-        offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+        offs = offsets_from_rest(motion.rest_positions(), par)
         src = skeleton_source(trial.names, par, offs, has_orientations=True, kind_hint="bvh")
         res = Retargeter(character, derive_mapping(character, src), src, RetargetOptions()).process(
             trial.positions, None, trial.orientations)

@@ -50,7 +50,7 @@ def _skeleton_frames(names, parents, rest_offsets, positions, orientations, stat
 
 def _actor_frames(model_msg_like, joints, jq, limbs, lq, times, rate, label):
     from ..formats.retarget_setup import source_from_model
-    from ..kinematics.retarget_source import optical_points
+    from ..retarget.source import optical_points
     m = model_msg_like
     src = source_from_model(m.joint_names, m.joint_parent, m.joint_limbs, m.limb_names, m.joint_base, m.layout)
     pts = optical_points(joints, m.joint_names)
@@ -70,16 +70,16 @@ def read_source(path: str, model: str | None, topic: str | None) -> SourceFrames
     try:
         if kind == ".bvh":
             from ..formats.bvh_file import bvh_to_skeleton, read_bvh
+            from ..formats.skeleton_trial import offsets_from_rest
             motion = read_bvh(p)
             tr = bvh_to_skeleton(motion)
-            rest = motion.rest_positions()
             par = tr.parents
-            offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+            offs = offsets_from_rest(motion.rest_positions(), par)
             t = np.arange(motion.n_frames) / motion.rate_hz
             return _skeleton_frames(tr.names, par, offs, tr.positions, tr.orientations, None, t, motion.rate_hz, p.name)
         if kind == ".csv":
             from ..formats.kinect_csv import read_kinect_csv
-            from ..kinematics.retarget_source import observed_bone_lengths
+            from ..retarget.source import observed_bone_lengths
             tr = read_kinect_csv(p, ground="feet")
             t = (tr.timestamps_ns - tr.timestamps_ns[0]) * 1e-9
             lengths = observed_bone_lengths(np.where((tr.tracking_state == 2)[..., None], tr.positions, np.nan), tr.parents)
@@ -99,7 +99,7 @@ def read_source(path: str, model: str | None, topic: str | None) -> SourceFrames
 
 def _solve_markers(p: Path, model_path: str | None, topic: str | None) -> SourceFrames:
     from ..kinematics.model import ModelFileError, load_model
-    from ..kinematics.solver import FrameSolver
+    from ..kinematics.solving.solver import FrameSolver
     from .actor_cmds import _place, read_marker_input
     if not model_path:
         raise UserError(f"{p.name}: markers need an actor model: --model model.json (mocapgraph calibrate)")
@@ -171,7 +171,7 @@ def _bag_source(p: Path, model_path: str | None, topic: str | None) -> SourceFra
 
 
 def _options(args):
-    from ..kinematics.retarget import RetargetOptions
+    from ..retarget.retargeter import RetargetOptions
     return RetargetOptions(foot_planting=not args.no_foot_planting, spread=not args.no_spread, aim=not args.no_aim,
                            roll=not args.no_roll, root_scale=not args.no_root_scale, scale=args.scale,
                            follow_tolerance_deg=getattr(args, "follow_tolerance", 10.0))
@@ -180,7 +180,7 @@ def _options(args):
 def cmd_retarget(args: argparse.Namespace) -> int:
     from ..formats.character_file import CharacterFileError
     from ..formats.retarget_setup import build
-    from ..kinematics.retarget_mapping import MappingError
+    from ..retarget.mapping import MappingError
     out = Path(args.output)
     if out.suffix.lower() not in OUTPUTS:
         raise UserError(f"{out}: unknown output type {out.suffix or '(none)'!r} (expected .bvh, .mcap or .csv)")
@@ -268,7 +268,7 @@ def _write_csv(out: Path, ch, res, frames: SourceFrames) -> None:
 def cmd_mapping(args: argparse.Namespace) -> int:
     from ..formats.character_file import CharacterFileError, load_character
     from ..formats.mapping_file import write_mapping
-    from ..kinematics.retarget_mapping import derive_mapping
+    from ..retarget.mapping import derive_mapping
     frames = read_source(args.trial, args.model, args.topic)
     try:
         ch = load_character(args.character, height_m=args.height)

@@ -8,10 +8,10 @@ import time
 import numpy as np
 import zmq
 
-from ..launch.manifest import NoGraphError, fetch_manifest, subscribe, topic_entry
+from ..bus.manifest import NoGraphError, fetch_manifest, subscribe, topic_entry
 from ..messages import DecodeError, decode, decode_envelope
 from ..messages.registry import UnknownTypeError, lookup
-from ..messages.sequence import DUPLICATE, sequence_gap
+from ..messages.sequence import StreamTracker
 from . import UserError
 
 
@@ -97,8 +97,7 @@ def cmd_hz(args: argparse.Namespace) -> int:
     _entry(m, args.topic)
     sock = subscribe(m, [args.topic])
     stamps: list[int] = []
-    last_seq: dict[str, int] = {}
-    gaps = 0
+    streams: dict[str, StreamTracker] = {}
     t_end = time.monotonic() + args.duration
     next_report = time.monotonic() + 1.0
     while time.monotonic() < t_end:
@@ -107,16 +106,17 @@ def cmd_hz(args: argparse.Namespace) -> int:
                 env = decode_envelope(sock.recv_multipart())
             except DecodeError:
                 continue
-            lost = sequence_gap(last_seq.get(env.sender, 0), env.seq)
-            if lost != DUPLICATE:
-                gaps += max(lost, 0)
-                last_seq[env.sender] = env.seq
+            if env.sender not in streams and len(streams) < 64:   # a few senders; bounded against junk names
+                streams[env.sender] = StreamTracker()
+            if env.sender in streams:
+                streams[env.sender].take(env.stream, env.seq, env.publish_ns)
             stamps.append(env.publish_ns)
             stamps = stamps[-args.window:]
         if time.monotonic() >= next_report:
             next_report += 1.0
             if len(stamps) > 2:
                 d = np.diff(np.asarray(stamps, np.float64)) / 1e9
+                gaps = sum(t.gaps for t in streams.values())
                 print(f"rate {1 / d.mean():.2f} Hz  min {d.min() * 1e3:.3f} ms  max {d.max() * 1e3:.3f} ms  "
                       f"std {d.std() * 1e3:.3f} ms  window {len(stamps)}  gaps {gaps}", flush=True)
             else:

@@ -42,6 +42,11 @@ BVH_TO_WORLD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 UNIT_CANDIDATES: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254,
                                      "CMU units": (1.0 / 0.45) * 2.54 / 100.0}
 HUMAN_HEIGHT_M = 1.7
+# bounds on what a BVH may declare (a flipped digit or a hostile file must not size the arrays):
+# the richest rigs (faces and fingers) have a few hundred joints
+MAX_JOINTS = 4096
+MAX_HIERARCHY_CHARS = 8 << 20  # 2 KB per joint at MAX_JOINTS: room for deep tab indentation
+MAX_FRAME_TIME_S = 3600.0  # an hour per frame; above this no motion is meant
 _CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 
 
@@ -184,85 +189,8 @@ def guess_scale(offsets: np.ndarray, parents: np.ndarray) -> tuple[float, str, f
     return best[1], best[0], height
 
 
-def read_bvh(path: str | Path, *, scale: float | None = None) -> BvhMotion:
-    """Parse a BVH file. ``scale``: metres per file unit (None = guess, see module doc).
-
-    Raises FormatError (one line naming the file) for a broken hierarchy or motion block.
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as e:
-        raise FormatError(path, f"cannot read file ({e.strerror or e})") from None
-    head, sep, motion = text.partition("MOTION")
-    if not sep:
-        raise FormatError(path, "BVH has no MOTION section")
-    tok = head.split()
-    if not tok or tok[0] != "HIERARCHY":
-        raise FormatError(path, "not a BVH file (does not start with HIERARCHY)")
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[list[str]] = []
-    end_site: list[bool] = []
-    stack: list[int] = []
-    pending: int | None = None  # joint whose "{" is expected
-    i = 1
-
-    def fail(msg: str) -> FormatError:
-        return FormatError(path, f"BVH hierarchy is broken ({msg})")
-
-    try:
-        while i < len(tok):
-            t = tok[i]
-            if t in ("ROOT", "JOINT") or (t == "End" and tok[i + 1] == "Site"):
-                if t == "End":
-                    if not stack:
-                        raise fail("End Site outside a joint")
-                    name = names[stack[-1]] + "_End"
-                    i += 2
-                else:
-                    name = tok[i + 1]
-                    i += 2
-                    if t == "JOINT" and not stack:
-                        raise fail(f"JOINT {name} outside the root")
-                names.append(name)
-                parents.append(stack[-1] if stack else -1)
-                offsets.append([0.0, 0.0, 0.0])
-                channels.append([])
-                end_site.append(t == "End")
-                pending = len(names) - 1
-            elif t == "{":
-                if pending is None:
-                    raise fail("'{' without a joint")
-                stack.append(pending)
-                pending = None
-                i += 1
-            elif t == "}":
-                if not stack:
-                    raise fail("unbalanced '}'")
-                stack.pop()
-                i += 1
-            elif t == "OFFSET":
-                offsets[stack[-1]] = [float(x) for x in tok[i + 1:i + 4]]
-                i += 4
-            elif t == "CHANNELS":
-                n = int(tok[i + 1])
-                ch = tok[i + 2:i + 2 + n]
-                bad = [c for c in ch if c not in _CHANNELS]
-                if bad or len(ch) != n:
-                    raise fail(f"joint {names[stack[-1]]} has bad channels {bad or ch}")
-                channels[stack[-1]] = ch
-                i += 2 + n
-            else:
-                raise fail(f"unexpected token {t!r}")
-    except (IndexError, ValueError) as e:
-        raise fail(f"near token {i}: {e}") from None
-    if stack or not names:
-        raise fail("unbalanced braces" if stack else "no joints")
-    if len([p for p in parents if p < 0]) != 1:
-        raise fail("more than one ROOT")
-
+def _read_motion(path: Path, motion: str, C: int) -> tuple[np.ndarray, float, list[str]]:
+    """(values [T, C], frame time s, notes) of the text after MOTION; FormatError when broken."""
     lines = motion.strip().splitlines()
     try:
         n_frames = int(lines[0].split(":")[1])
@@ -270,9 +198,11 @@ def read_bvh(path: str | Path, *, scale: float | None = None) -> BvhMotion:
     except (IndexError, ValueError):
         raise FormatError(path, "BVH motion header is broken (expected 'Frames:' and "
                                 "'Frame Time:')") from None
-    if frame_time <= 0:
-        raise FormatError(path, f"BVH Frame Time {frame_time} is not positive")
-    C = sum(len(c) for c in channels)
+    if not (0 < frame_time <= MAX_FRAME_TIME_S):  # NaN fails too
+        raise FormatError(path, f"BVH Frame Time {frame_time} is not a positive number of seconds "
+                                f"(at most {MAX_FRAME_TIME_S:g})")
+    if n_frames < 0:
+        raise FormatError(path, f"BVH declares {n_frames} frames")
     try:
         flat = np.array(" ".join(lines[2:]).split(), dtype=np.float64)
     except ValueError as e:
@@ -281,26 +211,193 @@ def read_bvh(path: str | Path, *, scale: float | None = None) -> BvhMotion:
         raise FormatError(path, f"BVH motion data holds {flat.size} values, not a multiple of "
                                 f"the {C} channels")
     vals = flat.reshape(-1, C)
+    bad = ~np.isfinite(vals)
+    if bad.any():
+        t, c = np.argwhere(bad)[0]
+        raise FormatError(path, f"BVH motion data holds {int(bad.sum())} non-finite values (first: frame "
+                                f"{t}, channel {c} = {vals[t, c]})")
     notes: list[str] = []
     if vals.shape[0] < n_frames:
         raise FormatError(path, f"BVH is truncated: declares {n_frames} frames, holds "
                                 f"{vals.shape[0]}")
     if vals.shape[0] > n_frames:
         notes.append(f"declares {n_frames} frames but holds {vals.shape[0]}; kept all")
+    return vals, frame_time, notes
 
-    off = np.array(offsets)
-    par = np.array(parents)
+
+def _read_text(path: Path) -> str:
+    """The whole file as text (bad UTF-8 bytes replaced); FormatError when it cannot be read."""
+    try:
+        return path.read_text(encoding="utf-8", errors="replace")
+    except OSError as e:
+        raise FormatError(path, f"cannot read file ({e.strerror or e})") from None
+
+
+def _hierarchy_tokens(path: Path, text: str) -> tuple[list[str], str]:
+    """(tokens of the HIERARCHY block, text after MOTION); FormatError when either is missing."""
+    head, sep, motion = text.partition("MOTION")
+    if not sep:
+        raise FormatError(path, "BVH has no MOTION section")
+    if len(head) > MAX_HIERARCHY_CHARS:  # checked before tokenising: a token list costs ~10x the text
+        raise FormatError(path, f"BVH hierarchy is {len(head) / 2**20:.0f} MB of text, more than any skeleton "
+                                f"(at most {MAX_JOINTS} joints, {MAX_HIERARCHY_CHARS >> 20} MB)")
+    tok = head.split()
+    if not tok or tok[0] != "HIERARCHY":
+        raise FormatError(path, "not a BVH file (does not start with HIERARCHY)")
+    return tok, motion
+
+
+@dataclass
+class _Hierarchy:
+    """The joints of a HIERARCHY block in file order: offsets in file units, BVH axes."""
+
+    names: list[str] = field(default_factory=list)
+    parents: list[int] = field(default_factory=list)
+    offsets: list[list[float]] = field(default_factory=list)
+    channels: list[list[str]] = field(default_factory=list)
+    end_site: list[bool] = field(default_factory=list)
+
+    @property
+    def n_channels(self) -> int:
+        return sum(len(c) for c in self.channels)
+
+
+class _HierarchyParser:
+    """Walks the HIERARCHY tokens once into a :class:`_Hierarchy`; FormatError when broken."""
+
+    def __init__(self, path: Path, tok: list[str]) -> None:
+        self.path = path
+        self.tok = tok
+        self.joints = _Hierarchy()
+        self.stack: list[int] = []      # joints whose "{" is open, innermost last
+        self.pending: int | None = None  # joint whose "{" is expected
+        self.i = 1                       # next token; tok[0] is "HIERARCHY"
+
+    def fail(self, msg: str) -> FormatError:
+        return FormatError(self.path, f"BVH hierarchy is broken ({msg})")
+
+    def parse(self) -> _Hierarchy:
+        """The joints read, checked to form one tree with unique names."""
+        try:
+            while self.i < len(self.tok):
+                self._step(self.tok[self.i])
+        except (IndexError, ValueError) as e:  # a keyword cut short or a word where a number belongs
+            raise self.fail(f"near token {self.i}: {e}") from None
+        self._check_tree()
+        return self.joints
+
+    def _step(self, t: str) -> None:
+        """Consume the keyword ``t`` at token ``self.i`` and its arguments."""
+        if t in ("ROOT", "JOINT") or (t == "End" and self.tok[self.i + 1] == "Site"):
+            self._add_joint(t)
+        elif t == "{":
+            self._open_brace()
+        elif t == "}":
+            self._close_brace()
+        elif t == "OFFSET":
+            self._read_offset()
+        elif t == "CHANNELS":
+            self._read_channels()
+        else:
+            raise self.fail(f"unexpected token {t!r}")
+
+    def _add_joint(self, t: str) -> None:
+        """A ROOT, JOINT or End Site: a new joint under the open one, awaiting its "{"."""
+        j, stack = self.joints, self.stack
+        if t == "End":
+            if not stack:
+                raise self.fail("End Site outside a joint")
+            name = j.names[stack[-1]] + "_End"
+        else:
+            name = self.tok[self.i + 1]
+            if t == "JOINT" and not stack:
+                raise self.fail(f"JOINT {name} outside the root")
+        self.i += 2
+        if len(j.names) >= MAX_JOINTS:
+            raise self.fail(f"more than {MAX_JOINTS} joints")
+        j.names.append(name)
+        j.parents.append(stack[-1] if stack else -1)
+        j.offsets.append([0.0, 0.0, 0.0])
+        j.channels.append([])
+        j.end_site.append(t == "End")
+        self.pending = len(j.names) - 1
+
+    def _open_brace(self) -> None:
+        if self.pending is None:
+            raise self.fail("'{' without a joint")
+        self.stack.append(self.pending)
+        self.pending = None
+        self.i += 1
+
+    def _close_brace(self) -> None:
+        if not self.stack:
+            raise self.fail("unbalanced '}'")
+        self.stack.pop()
+        self.i += 1
+
+    def _read_offset(self) -> None:
+        """OFFSET x y z of the open joint (file units, parent frame)."""
+        args = self.tok[self.i + 1:self.i + 4]
+        off = [float(x) for x in args]
+        if len(off) != 3 or not all(math.isfinite(v) for v in off):
+            raise self.fail(f"joint {self.joints.names[self.stack[-1]]} has OFFSET {' '.join(args)}, "
+                            "not three finite numbers")
+        self.joints.offsets[self.stack[-1]] = off  # IndexError outside a joint
+        self.i += 4
+
+    def _read_channels(self) -> None:
+        """CHANNELS n name... of the open joint, each one of the six BVH channel names."""
+        n = int(self.tok[self.i + 1])
+        ch = self.tok[self.i + 2:self.i + 2 + n]
+        bad = [c for c in ch if c not in _CHANNELS]
+        if bad or len(ch) != n:
+            raise self.fail(f"joint {self.joints.names[self.stack[-1]]} has bad channels {bad or ch}")
+        self.joints.channels[self.stack[-1]] = ch  # IndexError outside a joint
+        self.i += 2 + n
+
+    def _check_tree(self) -> None:
+        """Braces closed, exactly one ROOT, no joint name twice."""
+        names = self.joints.names
+        if self.stack or not names:
+            raise self.fail("unbalanced braces" if self.stack else "no joints")
+        if len([p for p in self.joints.parents if p < 0]) != 1:
+            raise self.fail("more than one ROOT")
+        seen: dict[str, int] = {}
+        for k, nm in enumerate(names):
+            if nm in seen:  # joints are looked up by name (retarget maps, skeleton_info): refuse
+                raise self.fail(f"joint name {nm!r} is used twice (joints {seen[nm]} and {k})")
+            seen[nm] = k
+
+
+def _unit_conversions(offsets: np.ndarray, parents: np.ndarray,
+                      scale: float | None) -> tuple[float, list[str]]:
+    """(metres per file unit, the conversions to note): ``scale`` if given, else guessed."""
     conversions: list[str] = []
     if scale is None:
-        scale, unit, height = guess_scale(off, par)
+        scale, unit, height = guess_scale(offsets, parents)
         conversions.append(f"units {unit} -> m (guessed from the rest-pose height "
                            f"{height:.4g} units = {height * scale:.2f} m; pass scale= to override)")
     else:
         conversions.append(f"units -> m with scale {scale:g} m per unit (given)")
     conversions.append("Y-up, +Z-facing BVH -> Z-up, X-forward world "
                        "(x, y, z)_bvh -> (z, x, y); orientations conjugated likewise")
-    return BvhMotion(names, par, off, channels, np.array(end_site), frame_time, vals,
-                     float(scale), str(path), conversions, notes)
+    return float(scale), conversions
+
+
+def read_bvh(path: str | Path, *, scale: float | None = None) -> BvhMotion:
+    """Parse a BVH file. ``scale``: metres per file unit (None = guess, see module doc).
+
+    Raises FormatError (one line naming the file) for a broken hierarchy or motion block.
+    """
+    path = Path(path)
+    tok, motion = _hierarchy_tokens(path, _read_text(path))
+    joints = _HierarchyParser(path, tok).parse()
+    vals, frame_time, notes = _read_motion(path, motion, joints.n_channels)
+    off = np.array(joints.offsets)
+    par = np.array(joints.parents)
+    scale, conversions = _unit_conversions(off, par, scale)
+    return BvhMotion(joints.names, par, off, joints.channels, np.array(joints.end_site), frame_time,
+                     vals, scale, str(path), conversions, notes)
 
 
 def write_bvh(path: str | Path, motion: BvhMotion, *, decimals: int = 6) -> None:

@@ -45,6 +45,7 @@ import numpy as np
 
 from .axes import (axis_name, default_forward, describe_rotation, optional_axis, parse_axis,
                    to_world_rotation, up_option)
+from .capped_call import CappedCallError, capped_call
 from .errors import FormatError
 from .labels import unique_labels
 from .marker_trial import MarkerTrial
@@ -61,6 +62,9 @@ _OUTPUT_UNIT_PARAM = {"angle": "ANGLE_UNITS", "force": "FORCE_UNITS", "moment": 
                       "power": "POWER_UNITS", "scalar": "SCALAR_UNITS",
                       "reaction": "REACTION_UNITS"}
 _UNLABELLED = re.compile(r"^\*\d+$")
+_MAX_RATE_HZ = 1e6  # beyond any capture system (a flipped exponent bit gives 1e30 or 1e-38)
+_MIN_RATE_HZ = 1e-3  # one frame per 1000 s: slower is no capture (and its ns stamps overflow soon)
+_MAX_DIMS = 7  # the C3D spec's limit; ezc3d loops for minutes on a parameter claiming 127
 _MAX_HEADER_FRAMES = 65535  # header frame numbers are uint16; longer files need parameters
 
 
@@ -95,7 +99,9 @@ class C3DLayout:
 def inspect_c3d(path: str | Path) -> C3DLayout:
     """Check a C3D file's header, parameter section and data size; FormatError on a fault.
 
-    Runs in time linear in the number of parameters and never reads the data block.
+    Runs in time linear in the number of parameters, never reads the data block, and bounds
+    every count the file states (points, analog channels, segments, frames) by what its size
+    can hold, so no reader is asked to allocate for data that is not there.
     """
     path = Path(path)
     try:
@@ -120,11 +126,34 @@ def inspect_c3d(path: str | Path) -> C3DLayout:
     # sign bit of the header scale factor: negative scale = float32 data
     sign_byte = {84: raw[15], 85: raw[13], 86: raw[12]}[proc]
     float_data = bool(sign_byte & 0x80)
+    params, scalars = _walk_parameters(path, raw, poff + 4, end, proc)
 
+    if data_start_block < 1:
+        raise FormatError(path, "header gives no data start block")
+    data_start = (data_start_block - 1) * 512
+    frame_bytes = (4 * n_points + n_analog) * (4 if float_data else 2)
+    avail = max(size - data_start, 0)
+    frames_in_file = avail // frame_bytes if frame_bytes else 0
+    layout = C3DLayout(n_points, n_analog, first, last, float_data, data_start, frame_bytes,
+                       frames_in_file, params, scalars=scalars)
+    _choose_frame_count(path, layout, avail)
+    _check_counts(path, layout, avail)
+    return layout
+
+
+def _walk_parameters(path: Path, raw: bytes, i: int, end: str, proc: int) -> tuple[list[str], dict[str, float]]:
+    """("GROUP:NAME" in file order, scalar values) of the parameter section starting at ``i``.
+
+    Groups are named after the walk: the C3D spec lets a parameter come before its group's
+    record (an Optotrak export does), so a name is only known once the whole section is read.
+    """
+    size = len(raw)
     groups: dict[int, str] = {}
-    params: list[str] = []
-    scalars: dict[str, float] = {}
-    i = poff + 4
+    entries: list[tuple[int, str, float | None]] = []  # (group id, name, scalar value)
+
+    def label(gid: int, name: str) -> str:
+        return f"{groups.get(gid, f'GROUP{gid}')}:{name}"
+
     while True:
         if i + 2 > size:
             raise FormatError(path, "file is truncated inside its parameter section")
@@ -141,48 +170,78 @@ def inspect_c3d(path: str | Path) -> C3DLayout:
         if gid < 0:
             groups[-gid] = name
         else:
-            full = f"{groups.get(gid, f'GROUP{gid}')}:{name}"
             if j + 4 > size:
-                raise FormatError(path, f"file is truncated inside parameter {full}")
+                raise FormatError(path, f"file is truncated inside parameter {label(gid, name)}")
             ptype = struct.unpack("b", raw[j + 2:j + 3])[0]
             ndim = raw[j + 3]
+            if ndim > _MAX_DIMS:
+                raise FormatError(path, f"{label(gid, name)} parameter is broken ({ndim} dimensions; "
+                                        f"C3D allows {_MAX_DIMS})")
             dims = list(raw[j + 4:j + 4 + ndim])
             n = 1
             for d in dims:
                 n *= d
             content_end = j + 4 + ndim + abs(ptype) * n
             if content_end >= size:
-                raise FormatError(path, f"file is truncated inside parameter {full}")
+                raise FormatError(path, f"file is truncated inside parameter {label(gid, name)}")
+            value = None
             if n == 1 and ptype in (1, 2, 4):
                 at = j + 4 + ndim
                 fmt = {1: "B", 2: "H", 4: "f"}[ptype]
-                val = float(struct.unpack(end + fmt, raw[at:at + abs(ptype)])[0])
+                value = float(struct.unpack(end + fmt, raw[at:at + abs(ptype)])[0])
                 # DEC floats share IEEE's layout with an exponent bias larger by 2
-                scalars[full] = val / 4.0 if (ptype == 4 and proc == 85) else val
+                value = value / 4.0 if (ptype == 4 and proc == 85) else value
             content_end += 1 + raw[content_end]  # description
             if ptype not in (-1, 1, 2, 4):
-                raise FormatError(path, f"{full} parameter is broken (unknown data type {ptype})")
+                raise FormatError(path, f"{label(gid, name)} parameter is broken (unknown data type {ptype})")
             if off != 0 and content_end > nxt:
                 shape = "x".join(map(str, dims)) or "scalar"
-                raise FormatError(path, f"{full} parameter is broken (its {shape} values "
+                raise FormatError(path, f"{label(gid, name)} parameter is broken (its {shape} values "
                                         f"overrun the next entry by {content_end - nxt} bytes)")
-            params.append(full)
+            entries.append((gid, name, value))
         if off == 0:
             break
         if off < 0 or nxt <= i:
             raise FormatError(path, f"parameter section is broken (entry {name!r} points backwards)")
         i = nxt
+    params = [label(gid, name) for gid, name, _ in entries]
+    scalars = {label(gid, name): v for gid, name, v in entries if v is not None}
+    return params, scalars
 
-    if data_start_block < 1:
-        raise FormatError(path, "header gives no data start block")
-    data_start = (data_start_block - 1) * 512
-    frame_bytes = (4 * n_points + n_analog) * (4 if float_data else 2)
-    avail = max(size - data_start, 0)
-    frames_in_file = avail // frame_bytes if frame_bytes else 0
-    layout = C3DLayout(n_points, n_analog, first, last, float_data, data_start, frame_bytes,
-                       frames_in_file, params, scalars=scalars)
+
+def _check_counts(path: Path, layout: C3DLayout, avail: int) -> None:
+    """Refuse counts in the parameters that the data block could not hold (a flipped byte in
+    POINT:USED, ANALOG:USED or ROTATION:USED would otherwise size a reader's arrays)."""
+    word = 4 if layout.float_data else 2
+    frames = max(layout.n_frames, 1)
+    sc = layout.scalars
+    used = sc.get("POINT:USED")
+    if used is not None and int(used) != layout.n_points:
+        need = frames * 4 * int(used) * word
+        if need > avail:
+            raise FormatError(path, f"POINT:USED {int(used)} disagrees with the header's {layout.n_points} "
+                                    f"points, and {frames} frames of {int(used)} points need {need} bytes "
+                                    f"where the data block holds {avail}")
+        layout.notes.append(f"POINT:USED {int(used)} disagrees with the header's {layout.n_points} points")
+    channels = sc.get("ANALOG:USED")
+    if channels is not None and frames * int(channels) * word > avail:
+        raise FormatError(path, f"ANALOG:USED {int(channels)} channels over {frames} frames need more "
+                                f"than the {avail} bytes of the data block")
+    segments = sc.get("ROTATION:USED", 0.0)
+    ratio = sc.get("ROTATION:RATIO", 1.0)
+    ratio = int(ratio) if np.isfinite(ratio) and ratio >= 1 else 1
+    need = int(segments) * 12 * 4 * frames * ratio  # at least a float 3x4 pose per segment and sample
+    if segments > 0 and need > avail:
+        raise FormatError(path, f"ROTATION:USED {int(segments)} segments over {frames} frames need {need} "
+                                f"bytes where the data block holds {avail}")
+
+
+def _choose_frame_count(path: Path, layout: C3DLayout, avail: int) -> None:
+    """Set ``layout.last_frame`` from the header or POINT:FRAMES; FormatError for a cut data block."""
+    first, last, frame_bytes = layout.first_frame, layout.last_frame, layout.frame_bytes
+    frames_in_file = layout.frames_in_file
     header_n = last - first + 1
-    param_n = scalars.get("POINT:FRAMES")
+    param_n = layout.scalars.get("POINT:FRAMES")
     expected = header_n
     if param_n is not None and param_n >= 1 and int(param_n) == param_n and int(param_n) != header_n \
             and frame_bytes:
@@ -198,7 +257,7 @@ def inspect_c3d(path: str | Path) -> C3DLayout:
                 layout.notes.append(f"header frames {first}..{last} ({header_n}) disagree with "
                                     f"POINT:FRAMES {pn}; used POINT:FRAMES (the data block holds "
                                     f"{frames_in_file} frames)")
-            return layout
+            return
         if frames_in_file < header_n:
             raise FormatError(path, f"file is truncated: data block holds {frames_in_file} frames, "
                                     f"POINT:FRAMES promises {pn} and the header {header_n}")
@@ -214,7 +273,6 @@ def inspect_c3d(path: str | Path) -> C3DLayout:
         if frames_in_file == expected - 1:
             layout.notes.append(f"header promises {expected} frames but the data block holds "
                                 f"{frames_in_file}; the last frame is missing")
-    return layout
 
 
 # ---------------------------------------------------------------------------------------
@@ -286,17 +344,30 @@ def _read_c3dpkg(path: Path) -> _Raw:
     return _Raw(labels, pts, res, rate, first, strings, "c3d", notes)
 
 
+def library_budget(path: Path) -> tuple[int, float]:
+    """(bytes, seconds) a C3D library may use to read ``path``: what its size allows.
+
+    ezc3d needs up to 9x the file size to read the shared captures (C++ objects per sample,
+    then float64 arrays); 24x plus 128 MB leaves room for any honest file and stops a flipped
+    count long before gigabytes. It reads them in 0.1-0.3 s; 10 s + 2 s per MB leaves room for a
+    loaded machine and ends the loops some damaged files send it into.
+    """
+    size = path.stat().st_size
+    return 24 * size + (128 << 20), 10.0 + 2.0 * size / (1 << 20)
+
+
 def _load(path: Path) -> tuple[_Raw, list[str]]:
+    """Read through ezc3d, else the c3d package, each in a capped child (formats.capped_call)."""
     notes: list[str] = []
+    budget, timeout = library_budget(path)
     try:
-        return _read_ezc3d(path), notes
-    except Exception as e1:  # noqa: BLE001 - any refusal sends us to the fallback
-        first_error = " ".join(str(e1).split()) or type(e1).__name__
+        return capped_call(_read_ezc3d, path, budget_bytes=budget, timeout_s=timeout, what="ezc3d"), notes
+    except CappedCallError as e1:  # any refusal or crash sends us to the fallback
+        first_error = str(e1) or "refused"
     try:
-        raw = _read_c3dpkg(path)
-    except Exception as e2:  # noqa: BLE001
-        second = " ".join(str(e2).split()) or type(e2).__name__
-        raise FormatError(path, f"unreadable C3D (ezc3d: {first_error}; c3d: {second})") from None
+        raw = capped_call(_read_c3dpkg, path, budget_bytes=budget, timeout_s=timeout, what="the c3d package")
+    except CappedCallError as e2:
+        raise FormatError(path, f"unreadable C3D (ezc3d: {first_error}; c3d: {e2})") from None
     notes.append(f"read with the c3d package because ezc3d refused the file ({first_error})")
     return raw, notes
 
@@ -364,6 +435,133 @@ def _resolve_up(raw: _Raw, pts_marker: np.ndarray, up_axis: str | None,
     return up, default_forward(up), why
 
 
+def _drop_padding(raw: _Raw, layout: C3DLayout, notes: list[str]) -> None:
+    """Cut ``raw`` to the frame count the layout chose (the c3d package goes by the header;
+    what is past the chosen count is padding)."""
+    if raw.points.shape[0] > layout.n_frames > 0:
+        notes.append(f"{raw.backend} returned {raw.points.shape[0]} frames; kept the "
+                     f"{layout.n_frames} of {layout.frames_source}")
+        raw.points, raw.residuals = raw.points[:layout.n_frames], raw.residuals[:layout.n_frames]
+
+
+def _point_labels(raw: _Raw, n_points: int, notes: list[str]) -> list[str]:
+    """One unique label per point: POINT:LABELS, ``*k`` for point k where it names none."""
+    labels = list(raw.labels[:n_points]) + [""] * max(0, n_points - len(raw.labels))
+    if len(raw.labels) < n_points:
+        notes.append(f"POINT:LABELS names {len(raw.labels)} of {n_points} points; the rest are unlabelled")
+    labels = [lab if lab else f"*{k}" for k, lab in enumerate(labels)]
+    labels, dup_notes = unique_labels(labels)
+    notes += dup_notes
+    return labels
+
+
+def _check_points(path: Path, raw: _Raw, layout: C3DLayout, notes: list[str]) -> None:
+    """FormatError unless the file holds point frames at a usable rate; notes segment poses."""
+    T, M = raw.points.shape[:2]
+    if T == 0:
+        raise FormatError(path, "file holds no point frames")
+    if not (_MIN_RATE_HZ <= raw.rate <= _MAX_RATE_HZ):  # NaN fails too
+        raise FormatError(path, f"point rate {raw.rate:g} Hz (POINT:RATE / header) is not a usable rate "
+                                f"({_MIN_RATE_HZ:g}..{_MAX_RATE_HZ:g} Hz)")
+    n_seg = int(layout.scalars.get("ROTATION:USED", 0))
+    if M == 0:
+        if n_seg > 0:
+            raise FormatError(path, f"holds no markers, only {n_seg} segment poses in its ROTATION group: "
+                                    "read it as a skeleton (node c3d_segment_reader; bag convert writes "
+                                    "skeleton_pose)")
+        raise FormatError(path, "holds no 3-D points (POINT:USED is 0)")
+    if n_seg > 0:
+        notes.append(f"also holds {n_seg} segment poses in its ROTATION group (node c3d_segment_reader "
+                     "reads them)")
+
+
+def _mask_missing(raw: _Raw, conversions: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """(points [T, M, 3], residuals [T, M]) in file units, NaN wherever a sample is missing:
+    zero-coded (0,0,0), NaN, or a negative residual."""
+    pts = raw.points.copy()
+    res = raw.residuals.copy()
+    zero = np.all(pts == 0.0, axis=2)
+    if zero.any():
+        conversions.append(f"{int(zero.sum())} zero-coded samples (0,0,0) -> NaN")
+    missing = zero | np.isnan(pts).any(axis=2) | ~(res >= 0)
+    pts[missing] = np.nan
+    res[missing] = np.nan
+    return pts, res
+
+
+def _length_unit(path: Path, raw: _Raw, notes: list[str], conversions: list[str]) -> tuple[str, float]:
+    """(POINT:UNITS name, metres per file unit); mm when the file names none."""
+    unit = (raw.strings.get("UNITS") or ["mm"])[0].strip().lower() or "mm"
+    if unit not in UNIT_TO_M:
+        raise FormatError(path, f"POINT:UNITS {unit!r} is not a length unit")
+    scale = UNIT_TO_M[unit]
+    if not raw.strings.get("UNITS"):
+        notes.append("no POINT:UNITS; assumed mm")
+    if scale != 1.0:
+        conversions.append(f"units {unit} -> m")
+    return unit, scale
+
+
+@dataclass
+class _PointColumns:
+    """Which point columns are what: unlabelled, model outputs, and those kept as markers."""
+
+    unlabelled: list[int]
+    outputs: list[int]
+    markers: list[int]
+
+    @classmethod
+    def sort(cls, labels: list[str], kinds: dict[str, str], include_unlabelled: bool,
+             include_model_outputs: bool) -> "_PointColumns":
+        unlabelled = [k for k, lab in enumerate(labels) if _UNLABELLED.match(lab)]
+        outputs = [k for k, lab in enumerate(labels) if lab in kinds]
+        markers = [k for k in range(len(labels))
+                   if (include_unlabelled or k not in unlabelled)
+                   and (include_model_outputs or labels[k] not in kinds)]
+        return cls(unlabelled, outputs, markers)
+
+    def real_markers(self, n_points: int) -> list[int]:
+        """Columns that are labelled markers whatever the options: the ones whose heights
+        tell the up axis."""
+        return [k for k in range(n_points) if k not in self.outputs and k not in self.unlabelled]
+
+
+def _file_to_world(raw: _Raw, pts: np.ndarray, columns: _PointColumns, up_axis: str | None,
+                   notes: list[str], conversions: list[str]) -> tuple[str, str, np.ndarray]:
+    """(file up axis, file forward axis, R [3, 3]) with world = R @ file (Z up, X forward)."""
+    up, fwd, why = _resolve_up(raw, pts[:, columns.real_markers(pts.shape[1])], up_axis, notes)
+    R = to_world_rotation(up, fwd)
+    if not np.allclose(R, np.eye(3)):
+        conversions.append(f"{up}-up -> Z-up ({why}; {describe_rotation(R)})")
+    return up, fwd, R
+
+
+def _model_outputs(raw: _Raw, labels: list[str], kinds: dict[str, str], columns: list[int],
+                   pts: np.ndarray, world: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """(label -> [T, 3] values, label -> "kind [unit, frame]") of the model-output points.
+
+    Positions are in metres in the world like markers; the other kinds stay in file units and
+    axes, except angles in degrees, which become radians.
+    """
+    values: dict[str, np.ndarray] = {}
+    described: dict[str, str] = {}
+    for k in columns:
+        lab, kind = labels[k], kinds[labels[k]]
+        if kind == "position":
+            values[lab] = world[:, k].copy()
+            described[lab] = "position [m, world]"
+            continue
+        unit_param = _OUTPUT_UNIT_PARAM.get(kind)
+        u = (raw.strings.get(unit_param) or [""])[0] if unit_param else ""
+        v = pts[:, k].copy()
+        if kind == "angle" and u.lower().startswith("deg"):
+            v = np.deg2rad(v)
+            u = "rad"
+        values[lab] = v
+        described[lab] = f"{kind} [{u or 'file units'}, file axes]"
+    return values, described
+
+
 def read_c3d(path: str | Path, *, include_unlabelled: bool = False, up_axis: str | None = None,
              include_model_outputs: bool = False) -> MarkerTrial:
     """Read a C3D file's 3-D points into a :class:`MarkerTrial` (metres, Z-up world).
@@ -377,91 +575,29 @@ def read_c3d(path: str | Path, *, include_unlabelled: bool = False, up_axis: str
     layout = inspect_c3d(path)
     raw, notes = _load(path)
     notes = layout.notes + notes + raw.notes
-    if raw.points.shape[0] > layout.n_frames > 0:
-        # the c3d package goes by the header; what is past the chosen count is padding
-        notes.append(f"{raw.backend} returned {raw.points.shape[0]} frames; kept the "
-                     f"{layout.n_frames} of {layout.frames_source}")
-        raw.points, raw.residuals = raw.points[:layout.n_frames], raw.residuals[:layout.n_frames]
-    T = raw.points.shape[0]
-    M = raw.points.shape[1]
-    labels = list(raw.labels[:M]) + [""] * max(0, M - len(raw.labels))
-    if len(raw.labels) < M:
-        notes.append(f"POINT:LABELS names {len(raw.labels)} of {M} points; the rest are unlabelled")
-    labels = [lab if lab else f"*{k}" for k, lab in enumerate(labels)]
-    labels, dup_notes = unique_labels(labels)
-    notes += dup_notes
-    if T == 0:
-        raise FormatError(path, "file holds no point frames")
-    n_seg = int(layout.scalars.get("ROTATION:USED", 0))
-    if M == 0:
-        if n_seg > 0:
-            raise FormatError(path, f"holds no markers, only {n_seg} segment poses in its ROTATION group: "
-                                    "read it as a skeleton (node c3d_segment_reader; bag convert writes "
-                                    "skeleton_pose)")
-        raise FormatError(path, "holds no 3-D points (POINT:USED is 0)")
-    if n_seg > 0:
-        notes.append(f"also holds {n_seg} segment poses in its ROTATION group (node c3d_segment_reader "
-                     "reads them)")
+    _drop_padding(raw, layout, notes)
+    labels = _point_labels(raw, raw.points.shape[1], notes)
+    _check_points(path, raw, layout, notes)
 
     conversions: list[str] = []
-    pts = raw.points.copy()
-    res = raw.residuals.copy()
-    zero = np.all(pts == 0.0, axis=2)
-    if zero.any():
-        conversions.append(f"{int(zero.sum())} zero-coded samples (0,0,0) -> NaN")
-    missing = zero | np.isnan(pts).any(axis=2) | ~(res >= 0)
-    pts[missing] = np.nan
-    res[missing] = np.nan
-
-    unit = (raw.strings.get("UNITS") or ["mm"])[0].strip().lower() or "mm"
-    if unit not in UNIT_TO_M:
-        raise FormatError(path, f"POINT:UNITS {unit!r} is not a length unit")
-    scale = UNIT_TO_M[unit]
-    if not raw.strings.get("UNITS"):
-        notes.append("no POINT:UNITS; assumed mm")
-    if scale != 1.0:
-        conversions.append(f"units {unit} -> m")
-
+    pts, res = _mask_missing(raw, conversions)
+    unit, scale = _length_unit(path, raw, notes, conversions)
     kinds = _classify(raw)
-    unlabelled = [k for k, lab in enumerate(labels) if _UNLABELLED.match(lab)]
-    is_output = [k for k, lab in enumerate(labels) if lab in kinds]
-    marker_cols = [k for k in range(M)
-                   if (include_unlabelled or k not in unlabelled)
-                   and (include_model_outputs or labels[k] not in kinds)]
-
-    up, fwd, why = _resolve_up(raw, pts[:, [k for k in range(M) if k not in is_output
-                                            and k not in unlabelled]], up_axis, notes)
-    R = to_world_rotation(up, fwd)
-    if not np.allclose(R, np.eye(3)):
-        conversions.append(f"{up}-up -> Z-up ({why}; {describe_rotation(R)})")
-
+    columns = _PointColumns.sort(labels, kinds, include_unlabelled, include_model_outputs)
+    up, fwd, R = _file_to_world(raw, pts, columns, up_axis, notes, conversions)
     world = np.einsum("ij,tmj->tmi", R * scale, pts)
-    model_outputs: dict[str, np.ndarray] = {}
-    model_kinds: dict[str, str] = {}
-    for k in is_output:
-        lab, kind = labels[k], kinds[labels[k]]
-        if kind == "position":
-            model_outputs[lab] = world[:, k].copy()
-            model_kinds[lab] = "position [m, world]"
-            continue
-        unit_param = _OUTPUT_UNIT_PARAM.get(kind)
-        u = (raw.strings.get(unit_param) or [""])[0] if unit_param else ""
-        v = pts[:, k].copy()
-        if kind == "angle" and u.lower().startswith("deg"):
-            v = np.deg2rad(v)
-            u = "rad"
-        model_outputs[lab] = v
-        model_kinds[lab] = f"{kind} [{u or 'file units'}, file axes]"
-    if is_output:
-        conversions.append(f"{len(is_output)} model-output points put aside in model_outputs"
+    model_outputs, model_kinds = _model_outputs(raw, labels, kinds, columns.outputs, pts, world)
+    if columns.outputs:
+        conversions.append(f"{len(columns.outputs)} model-output points put aside in model_outputs"
                            + (" (also kept as markers)" if include_model_outputs else ""))
-    if unlabelled and not include_unlabelled:
-        conversions.append(f"{len(unlabelled)} unlabelled points left out")
+    if columns.unlabelled and not include_unlabelled:
+        conversions.append(f"{len(columns.unlabelled)} unlabelled points left out")
 
+    keep = columns.markers
     return MarkerTrial(
-        labels=[labels[k] for k in marker_cols],
-        positions=world[:, marker_cols],
-        residuals=res[:, marker_cols] * scale,
+        labels=[labels[k] for k in keep],
+        positions=world[:, keep],
+        residuals=res[:, keep] * scale,
         rate_hz=raw.rate,
         first_frame=raw.first_frame,
         source=str(path),
@@ -470,7 +606,7 @@ def read_c3d(path: str | Path, *, include_unlabelled: bool = False, up_axis: str
         model_outputs=model_outputs,
         model_output_kinds=model_kinds,
         extra={"backend": raw.backend, "file_units": unit, "file_up": up, "file_forward": fwd,
-               "file_to_world": R, "n_unlabelled": len(unlabelled)},
+               "file_to_world": R, "n_unlabelled": len(columns.unlabelled)},
     )
 
 

@@ -23,7 +23,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .axes import describe_rotation, to_world_rotation
-from .c3d_file import UNIT_TO_M, _Raw, _resolve_up, _str_list, inspect_c3d
+from .c3d_file import (_MAX_RATE_HZ, _MIN_RATE_HZ, UNIT_TO_M, _Raw, _resolve_up, _str_list, inspect_c3d,
+                       library_budget)
+from .capped_call import CappedCallError, capped_call
 from .errors import FormatError
 from .labels import unique_labels
 from .skeleton_trial import NOT_TRACKED, TRACKED, SkeletonTrial
@@ -34,6 +36,17 @@ def c3d_segment_count(path: str | Path) -> int:
     return int(inspect_c3d(path).scalars.get("ROTATION:USED", 0))
 
 
+def _read_rotations(path: Path) -> tuple[np.ndarray, dict, dict, float]:
+    """(rotations [4, 4, S, T], ROTATION and POINT parameters, header rate) through ezc3d;
+    run in a capped child (formats.capped_call), so it returns plain data only."""
+    import ezc3d
+
+    c = ezc3d.c3d(str(path))
+    params = c["parameters"]
+    return (np.asarray(c["data"]["rotations"], dtype=np.float64), dict(params.get("ROTATION", {})),
+            dict(params.get("POINT", {})), float(c["header"]["points"]["frame_rate"]))
+
+
 def read_c3d_segments(path: str | Path, *, up_axis: str | None = None) -> SkeletonTrial:
     """Segment poses of a C3D's ROTATION group as a world-frame SkeletonTrial (see module doc).
 
@@ -41,21 +54,17 @@ def read_c3d_segments(path: str | Path, *, up_axis: str | None = None) -> Skelet
     Raises FormatError (one line naming the file) when the file has no ROTATION group or it
     cannot be read.
     """
-    import ezc3d
-
     path = Path(path)
     layout = inspect_c3d(path)
     n_seg = int(layout.scalars.get("ROTATION:USED", 0))
     if n_seg <= 0:
         raise FormatError(path, "has no segment poses (no ROTATION group, or ROTATION:USED is 0)")
+    budget, timeout = library_budget(path)
     try:
-        c = ezc3d.c3d(str(path))
-        rot = np.asarray(c["data"]["rotations"], dtype=np.float64)  # [4, 4, S, T]
-    except Exception as e:  # noqa: BLE001 - any library refusal becomes one line
-        raise FormatError(path, f"unreadable ROTATION group (ezc3d: {' '.join(str(e).split())})") from None
-    params = c["parameters"]
-    group = params.get("ROTATION", {})
-    point = params.get("POINT", {})
+        rot, group, point, header_rate = capped_call(_read_rotations, path, budget_bytes=budget,
+                                                     timeout_s=timeout, what="ezc3d")
+    except CappedCallError as e:  # any library refusal or crash becomes one line
+        raise FormatError(path, f"unreadable ROTATION group (ezc3d: {e})") from None
     labels: list[str] = []
     for key in ["LABELS"] + [f"LABELS{k}" for k in range(2, 100)]:
         if key not in group:
@@ -120,11 +129,12 @@ def read_c3d_segments(path: str | Path, *, up_axis: str | None = None) -> Skelet
     if (~good).any():
         conversions.append(f"{int((~good).sum())} invalid segment poses -> NaN, not tracked")
 
-    point_rate = float(layout.scalars.get("POINT:RATE", 0.0)) or float(c["header"]["points"]["frame_rate"])
+    point_rate = float(layout.scalars.get("POINT:RATE", 0.0)) or header_rate
     ratio = float(layout.scalars.get("ROTATION:RATIO", 1.0)) or 1.0
     rate = float(layout.scalars.get("ROTATION:RATE", 0.0)) or point_rate * ratio
-    if not rate > 0:
-        raise FormatError(path, "gives no rate (ROTATION:RATE and POINT:RATE are 0)")
+    if not (_MIN_RATE_HZ <= rate <= _MAX_RATE_HZ):  # NaN fails too
+        raise FormatError(path, f"gives no usable rate ({rate:g} Hz from ROTATION:RATE / POINT:RATE; "
+                                f"{_MIN_RATE_HZ:g}..{_MAX_RATE_HZ:g} Hz)")
     t0 = (layout.first_frame - 1) / point_rate if point_rate > 0 else 0.0
     ts = np.round((t0 + np.arange(T) / rate) * 1e9).astype(np.int64)
     notes.append("the ROTATION group gives no hierarchy: every segment is a root")

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..kinematics.character import Character, CharacterError, standard_20
+from ..retarget.character import MAX_OFFSET_M, Character, CharacterError, standard_20
 from .yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 from .bvh_file import BVH_TO_WORLD, BvhMotion, read_bvh
 from .errors import FormatError
@@ -198,6 +198,9 @@ def _joints_from_yaml(doc: LinedDict, file: str, name: str) -> Character:
         if "offset" not in j:
             raise _err(file, j.line, key, "missing `offset` (metres from the parent, or the root's rest position)")
         off = _vec(j, "offset", j["offset"], 3, file, key) * UNITS[units]
+        if np.abs(off).max() > MAX_OFFSET_M:   # finite but absurd (1e300): named here, not by MuJoCo later
+            raise _err(file, j.line_of("offset"), f"{key}.offset", f"{np.abs(off).max():.3g} m is beyond "
+                       f"{MAX_OFFSET_M:g} m: not a body (wrong units?)")
         if parents[-1] >= 0 and np.linalg.norm(off) < 1e-6 and doc.get("allow_zero_bones") is not True:
             raise _err(file, j.line_of("offset"), f"{key}.offset", f"zero-length bone to {names[parents[-1]]!r} "
                        "(set `allow_zero_bones: true` if the rig stacks joints on purpose)")

@@ -162,8 +162,8 @@ def load_device_config(name_or_path: str | Path) -> DeviceConfig:
             raise _fail(doc, path, str(key), f"unknown key (expected one of {', '.join(TOP_KEYS)})")
     cfg = DeviceConfig(name=str(doc["name"]), description=str(doc.get("description", "")), source=str(path))
     rate = doc.get("rate_hz", 0)
-    if not isinstance(rate, (int, float)) or isinstance(rate, bool) or rate < 0:
-        raise _fail(doc, path, "rate_hz", f"wants a rate in Hz >= 0, got {rate!r}")
+    if not _finite(rate) or rate < 0:  # (.nan passes every comparison; .inf: frames 0 s apart)
+        raise _fail(doc, path, "rate_hz", f"wants a finite rate in Hz >= 0, got {rate!r}")
     cfg.rate_hz = float(rate)
     units = str(doc.get("units", "m"))
     if units not in UNITS_TO_M:
@@ -197,8 +197,8 @@ def _parse_world(world: Any, path: Path, doc: LinedDict) -> tuple[np.ndarray, np
     except ValueError as exc:
         raise _fail(world, path, "to_world.up", str(exc)) from None
     yaw = world.get("yaw_deg", 0.0)
-    if not isinstance(yaw, (int, float)) or isinstance(yaw, bool):
-        raise _fail(world, path, "to_world.yaw_deg", f"wants degrees, got {yaw!r}")
+    if not _finite(yaw):   # .nan would turn every marker into NaN
+        raise _fail(world, path, "to_world.yaw_deg", f"wants a finite angle in degrees, got {yaw!r}")
     # scipy (a third of a second to import) only for a device that is turned: every marker reader
     # imports this module for its errors, most never turn. A node turning one imports it here,
     # building its config, so quats_to_world never imports it on a frame.
@@ -206,10 +206,14 @@ def _parse_world(world: Any, path: Path, doc: LinedDict) -> tuple[np.ndarray, np
     R = Rotation.from_euler("z", float(yaw), degrees=True).as_matrix() @ R
     R[np.abs(R) < 1e-15] = 0.0
     t = world.get("translation_m", [0.0, 0.0, 0.0])
-    if (not isinstance(t, list) or len(t) != 3
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in t)):
-        raise _fail(world, path, "to_world.translation_m", f"wants [x, y, z] in metres, got {t!r}")
+    if not isinstance(t, list) or len(t) != 3 or not all(_finite(v) for v in t):
+        raise _fail(world, path, "to_world.translation_m", f"wants [x, y, z], finite, in metres, got {t!r}")
     return R, np.asarray(t, dtype=np.float64)
+
+
+def _finite(v: Any) -> bool:
+    """A real number that is not NaN or infinite (YAML's .nan and .inf are floats)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and bool(np.isfinite(v))
 
 
 def device_or_default(name_or_path: str, up_axis: str | None = None) -> DeviceConfig:

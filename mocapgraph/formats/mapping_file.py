@@ -14,7 +14,7 @@
       LeftForeArmRoll: {roll: {of: LeftHand, fraction: 0.5}}
       SpineShoulder: {rotation: SpineShoulder, D: [SpineMid, SpineBase]}
 
-Quaternions are (w, x, y, z); Q_r = A·Q_k·D·R⁻¹·A⁻¹ (see kinematics/retarget_mapping.py).
+Quaternions are (w, x, y, z); Q_r = A·Q_k·D·R⁻¹·A⁻¹ (see retarget/mapping.py).
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..kinematics.retarget_mapping import MODES, JointMap, Mapping, MappingError
+from ..retarget.mapping import MODES, JointMap, Mapping, MappingError
 from .yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
 MAPPINGS_DIR = Path(__file__).resolve().parents[2] / "graph_configs" / "mappings"

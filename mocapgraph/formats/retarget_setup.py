@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..kinematics.character import Character
-from ..kinematics.joint_roles import rig_of
-from ..kinematics.retarget import RetargetOptions, Retargeter
-from ..kinematics.retarget_mapping import Mapping, MappingError, derive_mapping
-from ..kinematics.retarget_source import SourceSkeleton, kinect_source, optical_source, skeleton_source
+from ..retarget.character import Character
+from ..retarget.joint_roles import rig_of
+from ..retarget.retargeter import RetargetOptions, Retargeter
+from ..retarget.mapping import Mapping, MappingError, derive_mapping
+from ..retarget.source import SourceSkeleton, kinect_source, optical_source, skeleton_source
 from .character_file import load_character
 from .mapping_file import load_mapping, write_mapping
 

@@ -99,6 +99,14 @@ class SkeletonTrial:
         return [int(k) for k in np.flatnonzero(self.parents == j)]
 
 
+def offsets_from_rest(rest_positions: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """[J, 3] each joint's rest offset from its parent (a root: its rest position), m, from the rest
+    pose's positions [J, 3] (a BVH's): the SkeletonInfo.rest_offsets of a file with a rest pose."""
+    rest = np.asarray(rest_positions, dtype=np.float64)
+    par = np.asarray(parents)
+    return np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+
+
 def topological_order(parents: np.ndarray) -> np.ndarray:
     """Joint indices with every parent before its children; ValueError if not a forest."""
     J = len(parents)

@@ -47,19 +47,19 @@ Rules (each broken rule is a one-line :class:`LayoutError` naming file, line and
   joint's two limbs; their midpoint in a static trial is the joint's anatomical centre. Markers
   seen only in the static (medial ones) need not be in later trials;
 - ``joint.regression`` names a regression (``method`` one of ``REGRESSIONS``), the ``side``
-  (left/right) and the ``markers`` it reads by role (see :mod:`mocapgraph.kinematics.regression`).
+  (left/right) and the ``markers`` it reads by role (see :mod:`mocapgraph.kinematics.solving.regression`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, NoReturn
 
 import yaml
 
 LAYOUT_DIR = Path(__file__).resolve().parents[2] / "graph_configs" / "marker_layouts"
 JOINT_TYPES = ("ball", "hinge")
-# Regression centres and the marker roles each reads (kinematics/regression.py computes them).
+# Regression centres and the marker roles each reads (kinematics/solving/regression.py computes them).
 REGRESSIONS = {
     "pig_hip": ("lasi", "rasi", "lpsi", "rpsi"),        # Davis 1991, as Plug-in Gait
     "harrington_hip": ("lasi", "rasi", "lpsi", "rpsi"),  # Harrington 2007 (pelvis width and depth)
@@ -69,6 +69,7 @@ REGRESSIONS = {
 MIN_FIT_POINTS = 3
 
 LineOf = Callable[[tuple], "int | None"]
+Fail = Callable[[tuple, str], NoReturn]   # raises LayoutError naming the key at path
 
 
 class LayoutError(ValueError):
@@ -168,13 +169,7 @@ class ParsedLayout:
 
 def parse_layout(data: Any, source: str = "<dict>", line_of: LineOf | None = None) -> ParsedLayout:
     """Validate a layout mapping and return limbs in tree order; raises LayoutError."""
-
-    def fail(path: tuple, msg: str) -> None:
-        line = line_of(path) if line_of is not None else None
-        where = f"{source}:{line}" if line else source
-        key = ".".join(str(k) for k in path) if path else "<top>"
-        raise LayoutError(f"{where}: key `{key}`: {msg}")
-
+    fail = _failer(source, line_of)
     if not isinstance(data, dict):
         fail((), "a layout must be a mapping with `name` and `limbs`")
     unknown = set(data) - {"name", "description", "units", "limbs", "notes", "source"}
@@ -187,67 +182,96 @@ def parse_layout(data: Any, source: str = "<dict>", line_of: LineOf | None = Non
     limbs_raw = data.get("limbs")
     if not isinstance(limbs_raw, list) or not limbs_raw:
         fail(("limbs",), "missing or not a non-empty list of limbs")
+    parsed = [_parse_limb(i, item, fail) for i, item in enumerate(limbs_raw)]
+    index, order = _tree_order(parsed, fail)
+    _check_markers(parsed, index, fail)
+    limbs = tuple(parsed[i] for i in order)
+    return ParsedLayout(name.strip(), str(desc).strip(), limbs)
 
-    def str_list(i: int, key: str, item: dict) -> tuple[str, ...]:
-        val = item.get(key, [])
-        if val is None:
-            val = []
-        if not isinstance(val, list) or not all(isinstance(v, str) and v.strip() for v in val):
-            fail(("limbs", i, key), "must be a list of non-empty strings")
-        return tuple(v.strip() for v in val)
 
-    parsed: list[ParsedLimb] = []
-    for i, item in enumerate(limbs_raw):
-        if not isinstance(item, dict):
-            fail(("limbs", i), "each limb must be a mapping with `name` and `markers`")
-        extra = set(item) - {"name", "parent", "joint", "markers", "shared", "joint_points"}
-        if extra:
-            fail(("limbs", i, sorted(extra)[0]), "unknown limb key (allowed: name, parent, joint, markers, shared, joint_points)")
-        lname = item.get("name")
-        if not isinstance(lname, str) or not lname.strip():
-            fail(("limbs", i, "name"), "limb name missing or not a string")
-        parent = item.get("parent")
-        jname = jtype = None
-        landmarks, regression = (), None
-        if parent is not None:
-            if not isinstance(parent, str):
-                fail(("limbs", i, "parent"), f"limb `{lname}`: parent must be a limb name")
-            joint = item.get("joint")
-            if not isinstance(joint, dict) or not isinstance(joint.get("name"), str):
-                fail(("limbs", i, "joint"), f"limb `{lname}` has a parent so needs `joint: {{name: ..., type: ball|hinge}}`")
-            jname = joint["name"].strip()
-            jtype = joint.get("type", "ball")
-            if jtype not in JOINT_TYPES:
-                fail(("limbs", i, "joint", "type"), f"joint `{jname}`: type must be one of {JOINT_TYPES}, got {jtype!r}")
-            jextra = set(joint) - {"name", "type", "landmarks", "regression"}
-            if jextra:
-                fail(("limbs", i, "joint", sorted(jextra)[0]),
-                     f"joint `{jname}`: unknown key (allowed: name, type, landmarks, regression)")
-            lm = joint.get("landmarks", [])
-            if not (isinstance(lm, list) and (len(lm) in (0, 2)) and all(isinstance(v, str) and v.strip() for v in lm)):
-                fail(("limbs", i, "joint", "landmarks"), f"joint `{jname}`: landmarks must be a list of two marker labels")
-            landmarks = tuple(v.strip() for v in lm)
-            regression = None
-            reg = joint.get("regression")
-            if reg is not None:
-                if not isinstance(reg, dict) or reg.get("method") not in REGRESSIONS:
-                    fail(("limbs", i, "joint", "regression"),
-                         f"joint `{jname}`: regression needs `method:` one of {', '.join(REGRESSIONS)}")
-                side = reg.get("side")
-                if side not in ("left", "right"):
-                    fail(("limbs", i, "joint", "regression", "side"), f"joint `{jname}`: side must be left or right")
-                roles = reg.get("markers")
-                need = REGRESSIONS[reg["method"]]
-                if not isinstance(roles, dict) or set(roles) != set(need) or not all(isinstance(v, str) for v in roles.values()):
-                    fail(("limbs", i, "joint", "regression", "markers"),
-                         f"joint `{jname}`: regression {reg['method']} needs markers for {', '.join(need)}")
-                regression = Regression(reg["method"], side, {k: v.strip() for k, v in roles.items()})
-        elif "joint" in item:
-            fail(("limbs", i, "joint"), f"root limb `{lname}` has no parent, so it cannot declare a joint")
-        parsed.append(ParsedLimb(lname.strip(), parent.strip() if parent else None, jname, jtype,
-                                 str_list(i, "markers", item), str_list(i, "shared", item),
-                                 str_list(i, "joint_points", item), landmarks, regression))
+def _failer(source: str, line_of: LineOf | None) -> Fail:
+    """``fail(path, msg)``: raise LayoutError naming the file, the line (when known) and the key."""
 
+    def fail(path: tuple, msg: str) -> NoReturn:
+        line = line_of(path) if line_of is not None else None
+        where = f"{source}:{line}" if line else source
+        key = ".".join(str(k) for k in path) if path else "<top>"
+        raise LayoutError(f"{where}: key `{key}`: {msg}")
+
+    return fail
+
+
+def _str_list(i: int, key: str, item: dict, fail: Fail) -> tuple[str, ...]:
+    """``limbs[i].key``, a list of non-empty strings (stripped); absent or null = empty."""
+    val = item.get(key, [])
+    if val is None:
+        val = []
+    if not isinstance(val, list) or not all(isinstance(v, str) and v.strip() for v in val):
+        fail(("limbs", i, key), "must be a list of non-empty strings")
+    return tuple(v.strip() for v in val)
+
+
+def _parse_limb(i: int, item: Any, fail: Fail) -> ParsedLimb:
+    """``limbs[i]``: its name, parent, joint, markers, shared markers and joint points."""
+    if not isinstance(item, dict):
+        fail(("limbs", i), "each limb must be a mapping with `name` and `markers`")
+    extra = set(item) - {"name", "parent", "joint", "markers", "shared", "joint_points"}
+    if extra:
+        fail(("limbs", i, sorted(extra)[0]), "unknown limb key (allowed: name, parent, joint, markers, shared, joint_points)")
+    lname = item.get("name")
+    if not isinstance(lname, str) or not lname.strip():
+        fail(("limbs", i, "name"), "limb name missing or not a string")
+    parent = item.get("parent")
+    jname = jtype = None
+    landmarks, regression = (), None
+    if parent is not None:
+        if not isinstance(parent, str):
+            fail(("limbs", i, "parent"), f"limb `{lname}`: parent must be a limb name")
+        jname, jtype, landmarks, regression = _parse_joint(i, lname, item.get("joint"), fail)
+    elif "joint" in item:
+        fail(("limbs", i, "joint"), f"root limb `{lname}` has no parent, so it cannot declare a joint")
+    return ParsedLimb(lname.strip(), parent.strip() if parent else None, jname, jtype,
+                      _str_list(i, "markers", item, fail), _str_list(i, "shared", item, fail),
+                      _str_list(i, "joint_points", item, fail), landmarks, regression)
+
+
+def _parse_joint(i: int, lname: str, joint: Any, fail: Fail) -> tuple[str, str, tuple[str, ...], Regression | None]:
+    """``limbs[i].joint`` of a limb with a parent: (name, type, landmarks, regression)."""
+    if not isinstance(joint, dict) or not isinstance(joint.get("name"), str):
+        fail(("limbs", i, "joint"), f"limb `{lname}` has a parent so needs `joint: {{name: ..., type: ball|hinge}}`")
+    jname = joint["name"].strip()
+    jtype = joint.get("type", "ball")
+    if jtype not in JOINT_TYPES:
+        fail(("limbs", i, "joint", "type"), f"joint `{jname}`: type must be one of {JOINT_TYPES}, got {jtype!r}")
+    jextra = set(joint) - {"name", "type", "landmarks", "regression"}
+    if jextra:
+        fail(("limbs", i, "joint", sorted(jextra)[0]),
+             f"joint `{jname}`: unknown key (allowed: name, type, landmarks, regression)")
+    lm = joint.get("landmarks", [])
+    if not (isinstance(lm, list) and (len(lm) in (0, 2)) and all(isinstance(v, str) and v.strip() for v in lm)):
+        fail(("limbs", i, "joint", "landmarks"), f"joint `{jname}`: landmarks must be a list of two marker labels")
+    landmarks = tuple(v.strip() for v in lm)
+    regression = None
+    reg = joint.get("regression")
+    if reg is not None:
+        if not isinstance(reg, dict) or reg.get("method") not in REGRESSIONS:
+            fail(("limbs", i, "joint", "regression"),
+                 f"joint `{jname}`: regression needs `method:` one of {', '.join(REGRESSIONS)}")
+        side = reg.get("side")
+        if side not in ("left", "right"):
+            fail(("limbs", i, "joint", "regression", "side"), f"joint `{jname}`: side must be left or right")
+        roles = reg.get("markers")
+        need = REGRESSIONS[reg["method"]]
+        if not isinstance(roles, dict) or set(roles) != set(need) or not all(isinstance(v, str) for v in roles.values()):
+            fail(("limbs", i, "joint", "regression", "markers"),
+                 f"joint `{jname}`: regression {reg['method']} needs markers for {', '.join(need)}")
+        regression = Regression(reg["method"], side, {k: v.strip() for k, v in roles.items()})
+    return jname, jtype, landmarks, regression
+
+
+def _tree_order(parsed: list[ParsedLimb], fail: Fail) -> tuple[dict[str, int], list[int]]:
+    """(limb name -> file position, the tree order): one root, known parents, no cycle; a stable
+    preorder from the root (file order among siblings)."""
     index = {}
     for i, lb in enumerate(parsed):
         if lb.name in index:
@@ -278,7 +302,12 @@ def parse_layout(data: Any, source: str = "<dict>", line_of: LineOf | None = Non
     if len(order) != len(parsed):
         lost = min(set(range(len(parsed))) - set(order))
         fail(("limbs", lost, "parent"), f"limb `{parsed[lost].name}` is on a parent cycle, not reachable from root `{parsed[roots[0]].name}`")
+    return index, order
 
+
+def _check_markers(parsed: list[ParsedLimb], index: dict[str, int], fail: Fail) -> None:
+    """Each marker owned by one limb; shared markers from a limb one joint away; joint points,
+    landmarks and regression markers that exist; enough points for every limb's rigid fit."""
     owner: dict[str, int] = {}
     canon: dict[str, str] = {}
     joints: dict[str, int] = {}
@@ -333,5 +362,3 @@ def parse_layout(data: Any, source: str = "<dict>", line_of: LineOf | None = Non
                 if m.lower() not in owner:
                     fail(("limbs", i, "joint", "regression", "markers"),
                          f"joint `{lb.joint_name}`: regression marker {role}: `{m}` is not a marker of this layout")
-    limbs = tuple(parsed[i] for i in order)
-    return ParsedLayout(name.strip(), str(desc).strip(), limbs)

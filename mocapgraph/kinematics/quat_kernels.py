@@ -1,6 +1,6 @@
 """Compiled rotation building blocks that other kernel modules call: a rotation matrix's quaternion, a symmetric matrix's eigenvectors.
 
-Shared by retarget_source_kernels (rotations from points), rigid_kernels (limb fits) and the
+Shared by source_kernels (rotations from points), rigid_kernels (limb fits) and the
 physics state read-out; a module calling these declares it (``kernel = kernel_calling(quat_kernels)``,
 see mocapgraph.jit) so that its cache follows changes here. Quaternions wxyz, w >= 0.
 """

@@ -106,6 +106,24 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      aw * bz + ax * by - ay * bx + az * bw], axis=-1)
 
 
+# The Hamilton product as a bilinear form: (a ⊗ b).reshape(16) @ HAMILTON = a * b (row 4i + j: e_i * e_j);
+# with the 16 pairwise products of each row, a row-wise product is two numpy operations instead of
+# ~30 column operations (the same terms summed: the same result as quat_multiply to one rounding).
+_E4 = np.eye(4)
+HAMILTON = np.stack([quat_multiply(_E4[i], _E4[j]) for i in range(4) for j in range(4)])     # [16, 4]
+HAMILTON_CONJ = HAMILTON * np.tile([1.0, -1.0, -1.0, -1.0], 4)[:, None]                      # a * conj(b)
+
+
+def quat_multiply_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise Hamilton products a * b of [N, 4] wxyz arrays (the per-frame form of quat_multiply)."""
+    return (a[:, :, None] * b[:, None, :]).reshape(-1, 16) @ HAMILTON
+
+
+def quat_multiply_conj_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a * conj(b) of [N, 4] wxyz arrays."""
+    return (a[:, :, None] * b[:, None, :]).reshape(-1, 16) @ HAMILTON_CONJ
+
+
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
     """Inverse of unit wxyz quaternions."""
     out = np.array(q, dtype=np.float64, copy=True)

@@ -93,6 +93,8 @@ def _from_mm(values: dict[str, float], source: str) -> Subject:
 def read_vsk(path: str | Path) -> Subject:
     """Measurements of a Vicon VSK file (its StaticParameter values, millimetres)."""
     p = Path(path)
+    if p.exists() and not p.is_file():  # a device or fifo: the parser would read forever or block
+        raise SubjectError(f"{p}: not a regular file")
     try:
         root = ET.parse(p).getroot()
     except FileNotFoundError:
@@ -112,22 +114,36 @@ def read_vsk(path: str | Path) -> Subject:
     return sub
 
 
-def read_c3d_processing(path: str | Path) -> Subject:
-    """Measurements in a C3D's PROCESSING parameter group (Vicon Nexus writes them; millimetres)."""
+def _processing_values(path: str) -> dict[str, float]:
+    """PROCESSING group scalars through ezc3d (run in a capped child: formats.capped_call)."""
     import ezc3d
 
-    try:
-        c = ezc3d.c3d(str(path), extract_forceplat_data=False)
-    except Exception as exc:  # ezc3d raises bare RuntimeErrors
-        raise SubjectError(f"{path}: cannot read C3D parameters ({exc})") from None
-    group = c["parameters"].get("PROCESSING", {})
+    c = ezc3d.c3d(path, extract_forceplat_data=False)
     vals: dict[str, float] = {}
-    for k, v in group.items():
+    for k, v in c["parameters"].get("PROCESSING", {}).items():
         if isinstance(v, dict) and "value" in v:
             try:
                 vals[k] = float(list(v["value"])[0])
             except (TypeError, ValueError, IndexError):
                 continue
+    return vals
+
+
+def read_c3d_processing(path: str | Path) -> Subject:
+    """Measurements in a C3D's PROCESSING parameter group (Vicon Nexus writes them; millimetres).
+
+    The file is checked first and ezc3d runs in a child capped by the file's size, as for markers.
+    """
+    from ..formats.c3d_file import inspect_c3d, library_budget
+    from ..formats.capped_call import CappedCallError, capped_call
+    from ..formats.errors import FormatError
+
+    try:
+        inspect_c3d(path)
+        budget, timeout = library_budget(Path(path))
+        vals = capped_call(_processing_values, str(path), budget_bytes=budget, timeout_s=timeout, what="ezc3d")
+    except (FormatError, CappedCallError, OSError) as exc:
+        raise SubjectError(f"{path}: cannot read C3D parameters ({exc})") from None
     return _from_mm(vals, f"{Path(path).name} PROCESSING")
 
 

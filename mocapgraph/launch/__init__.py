@@ -1,1 +1,1 @@
-"""Launch graphs: YAML loading (args, includes, remaps, expects), checks, the wiring plan, supervision, the manifest."""
+"""Launch graphs: YAML loading (args, includes, remaps, expects), checks, the wiring plan, supervision, serving the manifest."""

@@ -12,6 +12,7 @@ import os
 import socket
 import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import networkx as nx
@@ -66,14 +67,35 @@ class CheckedGraph:
         return next(n for n in self.nodes if n.name == name)
 
 
+def node_class_path(type_name: str, base: Path) -> str:
+    """Where a node type may be loaded from: a registry name, ``mocapgraph.<module>:Class``, or a
+    ``.py`` file the graph names (``nodes/my_node.py:MyNode``, relative to ``base``, the graph's
+    folder) -> its import path (a file: absolute). KeyError (one line) for anything else: a
+    ``module:Class`` of any other module would run that module's import-time code on a mere check."""
+    if ":" not in type_name:
+        return resolve(type_name)
+    module, _, cls = type_name.rpartition(":")
+    if module.endswith(".py"):
+        file = (base / module).resolve()
+        if not file.is_file():
+            raise KeyError(f"node type {type_name!r}: no file {file}")
+        return f"{file}:{cls}"
+    if module == "mocapgraph" or module.startswith("mocapgraph."):
+        return type_name
+    raise KeyError(f"node type {type_name!r}: only registered types, mocapgraph modules and .py files the graph "
+                   f"names load (write it as path/to/{module.rpartition('.')[2]}.py:{cls}, relative to the graph file)")
+
+
 def load_node_class(type_name: str, spec: NodeSpec | None = None) -> tuple[str, type[Node]]:
-    """Import a node class by registry name or module:Class."""
+    """Import a node class by registry name, mocapgraph module:Class or file.py:Class (node_class_path)."""
     from ..bus.runtime import load_class
 
     try:
-        path = resolve(type_name)
-    except KeyError:
-        msg = f"unknown node type {type_name!r}{did_you_mean(type_name, list(NODE_TYPES))}"
+        path = node_class_path(type_name, Path(spec.file).parent if spec is not None and spec.file else Path.cwd())
+    except KeyError as exc:
+        unknown = ":" not in type_name
+        msg = (f"unknown node type {type_name!r}{did_you_mean(type_name, list(NODE_TYPES))}" if unknown
+               else exc.args[0])
         if spec is None:
             raise KeyError(msg) from None
         raise spec.error("type", msg) from None
@@ -159,71 +181,103 @@ def _check_files(ns: NodeSpec, iface: Interface, params: dict[str, Any]) -> None
             raise ns.error(f"params.{key}", str(exc)) from None
 
 
-def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None = None) -> CheckedGraph:
-    """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault.
+def _check_name(ns: NodeSpec, seen: dict[str, NodeSpec], machine: str | None) -> None:
+    """The node's name is new in the graph, fits an ipc socket path, and (with --machine) it
+    names its machine. Records it in ``seen``."""
+    if ns.name in seen:
+        first = seen[ns.name]
+        raise ns.error("name", f"duplicate node name (first at {first.file}:{first.line})")
+    seen[ns.name] = ns
+    problem = ipc_path_problem(ns.name)
+    if problem:
+        raise ns.error("name", problem)
+    if machine is not None and not ns.machine:
+        raise ns.error("name", "launched with --machine, every node names its machine: (this one does not)")
 
-    machine: the `--machine` this check is for: only its nodes' hosts must be addresses of this
-    machine (the others' must resolve); None checks every node as local.
 
-    check_files: also check that input-file params name readable files (off for drawing a graph).
-    """
-    seen: dict[str, NodeSpec] = {}
-    resolved: list[ResolvedNode] = []
-    for ns in spec.nodes:
-        if ns.name in seen:
-            first = seen[ns.name]
-            raise ns.error("name", f"duplicate node name (first at {first.file}:{first.line})")
-        seen[ns.name] = ns
-        problem = ipc_path_problem(ns.name)
-        if problem:
-            raise ns.error("name", problem)
-        if machine is not None and not ns.machine:
-            raise ns.error("name", "launched with --machine, every node names its machine: (this one does not)")
-        if ns.host and machine is not None and ns.machine != machine:
-            try:
-                socket.getaddrinfo(ns.host, None)
-            except (socket.gaierror, UnicodeError):
-                raise ns.error("host", f"{ns.host[:80]!r} is neither an IP address nor a name that resolves") from None
-            if not _loopback(ns.host) and not (spec.security.curve or spec.security.insecure):
-                raise ns.error("host", f"{ns.host} is reachable from other machines: give the graph a security: "
-                               "section (key:, authorized:) or security: {insecure: true}")
-        elif ns.host:
-            problem = host_problem(ns.host)
-            if problem:
-                raise ns.error("host", problem)
-            if not _loopback(ns.host) and not (spec.security.curve or spec.security.insecure):
-                raise ns.error("host", f"{ns.host} is reachable from other machines: give the graph a security: "
-                               "section (key:, authorized:; see 'mocapgraph keys generate') for CurveZMQ, "
-                               "or security: {insecure: true} to publish plaintext knowingly")
-        path, cls = load_node_class(ns.type, ns)
+def _check_host(ns: NodeSpec, spec: GraphSpec, machine: str | None) -> None:
+    """The node's ``host:`` can be published on: a node of another machine only needs a name
+    that resolves, one of this machine an address it can bind; either, when reachable from
+    other machines, needs the graph's security: section."""
+    if not ns.host:
+        return
+    secured = spec.security.curve or spec.security.insecure
+    if machine is not None and ns.machine != machine:
         try:
-            iface = cls.interface(ns.params)
-        except (NodeConfigError, ValueError, TypeError, OSError) as exc:
-            # A node shaping its ports from params (a bag player reading its file) may refuse them.
-            raise ns.error("params", str(exc)) from None
-        for key in ns.params:
-            if key not in iface.params:
-                raise ns.error(f"params.{key}", f"unknown parameter of {ns.type}{did_you_mean(key, list(iface.params))}")
-        try:
-            params = cls.check_params(ns.params, iface)
-        except NodeConfigError as exc:
-            key = str(exc).split("'")[1] if "'" in str(exc) else ""
-            raise ns.error(f"params.{key}" if key else "params", str(exc)) from None
-        if check_files:
-            _check_files(ns, iface, params)
-        known = set(iface.inputs) | set(iface.outputs) | {p.topic for p in iface.inputs.values()} | {
-            p.topic for p in iface.outputs.values()}
-        for key in ns.remap:
-            if key not in known:
-                raise ns.error("remap", f"{ns.type} has no port or topic {key!r}{did_you_mean(key, sorted(known))}")
-        rn = ResolvedNode(ns, path, cls, params, iface)
-        rn.inputs = {p: _remapped(ns, p, d.topic) for p, d in iface.inputs.items()}
-        rn.outputs = {p: _remapped(ns, p, d.topic) for p, d in iface.outputs.items()}
-        resolved.append(rn)
+            socket.getaddrinfo(ns.host, None)
+        except (socket.gaierror, UnicodeError):
+            raise ns.error("host", f"{ns.host[:80]!r} is neither an IP address nor a name that resolves") from None
+        if not _loopback(ns.host) and not secured:
+            raise ns.error("host", f"{ns.host} is reachable from other machines: give the graph a security: "
+                           "section (key:, authorized:) or security: {insecure: true}")
+        return
+    problem = host_problem(ns.host)
+    if problem:
+        raise ns.error("host", problem)
+    if not _loopback(ns.host) and not secured:
+        raise ns.error("host", f"{ns.host} is reachable from other machines: give the graph a security: "
+                       "section (key:, authorized:; see 'mocapgraph keys generate') for CurveZMQ, "
+                       "or security: {insecure: true} to publish plaintext knowingly")
 
-    _check_processes(resolved)
+
+def _node_interface(ns: NodeSpec, cls: type[Node]) -> Interface:
+    """The ports and params ``cls`` declares for the node's params; every param given is one."""
+    try:
+        iface = cls.interface(ns.params)
+    except (NodeConfigError, ValueError, TypeError, OSError) as exc:
+        # A node shaping its ports from params (a bag player reading its file) may refuse them.
+        raise ns.error("params", str(exc)) from None
+    for key in ns.params:
+        if key not in iface.params:
+            raise ns.error(f"params.{key}", f"unknown parameter of {ns.type}{did_you_mean(key, list(iface.params))}")
+    return iface
+
+
+def _node_params(ns: NodeSpec, cls: type[Node], iface: Interface) -> dict[str, Any]:
+    """The node's params checked and filled with defaults by its class, blamed on the key the
+    class's message names."""
+    try:
+        params = cls.check_params(ns.params, iface)
+        if hasattr(cls, "graph_check"):   # what a node reports when running, the check refuses at once
+            cls.graph_check(params)
+    except NodeConfigError as exc:
+        key = str(exc).split("'")[1] if "'" in str(exc) else ""
+        raise ns.error(f"params.{key}" if key else "params", str(exc)) from None
+    return params
+
+
+def _check_remap(ns: NodeSpec, iface: Interface) -> None:
+    """Every ``remap:`` key is one of the node's ports or default topics."""
+    known = set(iface.inputs) | set(iface.outputs) | {p.topic for p in iface.inputs.values()} | {
+        p.topic for p in iface.outputs.values()}
+    for key in ns.remap:
+        if key not in known:
+            raise ns.error("remap", f"{ns.type} has no port or topic {key!r}{did_you_mean(key, sorted(known))}")
+
+
+def _resolve_node(ns: NodeSpec, check_files: bool) -> ResolvedNode:
+    """The node's class, checked params and concrete (remapped) topics."""
+    path, cls = load_node_class(ns.type, ns)
+    iface = _node_interface(ns, cls)
+    params = _node_params(ns, cls, iface)
+    if check_files:
+        _check_files(ns, iface, params)
+    _check_remap(ns, iface)
+    rn = ResolvedNode(ns, path, cls, params, iface)
+    rn.inputs = {p: _remapped(ns, p, d.topic) for p, d in iface.inputs.items()}
+    rn.outputs = {p: _remapped(ns, p, d.topic) for p, d in iface.outputs.items()}
+    return rn
+
+
+#: topic -> [(who publishes it, message type name)]
+_Publishers = dict[str, list[tuple[str, str]]]
+
+
+def _outside_publishers(spec: GraphSpec) -> _Publishers:
+    """The topics published from outside the graph's nodes: ``external:`` endpoints and what an
+    including graph ``expects:`` to provide; each of a known message type."""
     types = all_types()
-    publishers: dict[str, list[tuple[str, str]]] = {}  # topic -> [(publisher, type)]
+    publishers: _Publishers = {}
     for ext in spec.external:
         if ext.type not in types:
             raise GraphError(ext.file, ext.line, f"external[{ext.topic}].type",
@@ -234,7 +288,12 @@ def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None =
             raise GraphError(exp.file, exp.line, f"expects[{exp.topic}].type",
                              f"unknown message type{did_you_mean(exp.type, list(types))}")
         publishers.setdefault(exp.topic, []).append(("the includer", exp.type))
-    flow = nx.DiGraph()
+    return publishers
+
+
+def _add_outputs(resolved: list[ResolvedNode], publishers: _Publishers, flow: nx.DiGraph) -> None:
+    """Node -> topic edges of ``flow``; adds each output to ``publishers``, refusing a topic
+    published under two types."""
     for rn in resolved:
         flow.add_node(("node", rn.name))
         for port, topic in rn.outputs.items():
@@ -245,6 +304,11 @@ def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None =
                                         f"publishes {topic!r} as {t} but {other} publishes it as {other_t}")
             publishers.setdefault(topic, []).append((rn.name, t))
             flow.add_edge(("node", rn.name), ("topic", topic), type=t)
+
+
+def _add_inputs(resolved: list[ResolvedNode], publishers: _Publishers, flow: nx.DiGraph) -> None:
+    """Topic -> node edges of ``flow``; a required input needs a publisher, and every publisher
+    of an input's topic its type."""
     for rn in resolved:
         for port, topic in rn.inputs.items():
             decl = rn.iface.inputs[port]
@@ -260,10 +324,36 @@ def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None =
                     raise rn.spec.error(_blame_key(rn.spec, port, decl.topic),
                                         f"input {port!r} wants {decl.type_name} on {topic!r}, but {pub} publishes {t}")
             flow.add_edge(("topic", topic), ("node", rn.name), type=decl.type_name)
+
+
+def _check_machine_used(spec: GraphSpec, resolved: list[ResolvedNode], machine: str | None) -> None:
+    """With --machine, at least one node runs on that machine (a typo would launch nothing)."""
     if machine is not None and not any(rn.spec.machine == machine for rn in resolved):
         known = sorted({rn.spec.machine for rn in resolved if rn.spec.machine})
         raise GraphError(spec.file, None, "machine", f"no node runs on machine {machine!r} "
                          f"(machines: {', '.join(known) or 'none named'})")
+
+
+def check_graph(spec: GraphSpec, check_files: bool = True, machine: str | None = None) -> CheckedGraph:
+    """Resolve and check ``spec``; raises GraphError naming file, line and key of the first fault.
+
+    machine: the `--machine` this check is for: only its nodes' hosts must be addresses of this
+    machine (the others' must resolve); None checks every node as local.
+
+    check_files: also check that input-file params name readable files (off for drawing a graph).
+    """
+    seen: dict[str, NodeSpec] = {}
+    resolved: list[ResolvedNode] = []
+    for ns in spec.nodes:  # node by node, so the first fault in file order is the one named
+        _check_name(ns, seen, machine)
+        _check_host(ns, spec, machine)
+        resolved.append(_resolve_node(ns, check_files))
+    _check_processes(resolved)
+    publishers = _outside_publishers(spec)
+    flow = nx.DiGraph()
+    _add_outputs(resolved, publishers, flow)
+    _add_inputs(resolved, publishers, flow)
+    _check_machine_used(spec, resolved, machine)
     return CheckedGraph(spec, resolved, flow)
 
 

@@ -13,7 +13,7 @@ A graph file::
       - {topic: markers, type: MarkerFrame, doc: "labelled markers of the reader"}
     nodes:
       - name: actor
-        type: synthetic_actor   # registry name (mocapgraph node list) or package.module:Class
+        type: synthetic_actor   # registry name (mocapgraph node list), mocapgraph.module:Class, or path/to/file.py:Class (from this file)
         params: {rate_hz: "${rate}"}
         remap: {markers: raw_markers}   # port name or topic -> topic
         respawn: true           # restart with back-off when it dies
@@ -305,55 +305,61 @@ def _load_into(spec: GraphSpec, path: Path, overrides: dict[str, Any], stack: li
     if not isinstance(nodes, list):
         raise GraphError(path, doc.line_of("nodes"), "nodes", "must be a list of nodes")
     for i, raw in enumerate(nodes):
-        line = nodes.item_lines[i]
-        if not isinstance(raw, dict):
-            raise GraphError(path, line, f"nodes[{i}]", "a node is a mapping with name: and type:")
-        _check_keys(raw, NODE_KEYS, f"nodes[{raw.get('name', i)}].")
-        for key in ("name", "type"):
-            if key not in raw:
-                raise GraphError(path, line, f"nodes[{raw.get('name', i)}]", f"needs a '{key}'")
-        name = _substitute(raw["name"], args, str(path), raw.line_of("name"), "name")
-        if not isinstance(name, str) or not NODE_NAME.fullmatch(name):
-            raise GraphError(path, raw.line_of("name"), f"nodes[{i}].name",
-                             f"{str(name)[:80]!r} is not a node name (letters, digits, '_' and '-', at most 64, "
-                             "starting with a letter or '_')")
-        if not _condition(raw, args, str(path), f"nodes[{name}].if"):
-            continue
-        params = raw.get("params") or LinedDict()
-        if not isinstance(params, dict):
-            raise GraphError(path, raw.line_of("params"), f"nodes[{name}].params", "must be a mapping")
-        remap = raw.get("remap") or {}
-        if not isinstance(remap, dict):
-            raise GraphError(path, raw.line_of("remap"), f"nodes[{name}].remap", "must be a mapping port: topic")
-        node = NodeSpec(
-            name=name,
-            type=str(_substitute(raw["type"], args, str(path), raw.line_of("type"), f"nodes[{name}].type")),
-            params=_substitute(params, args, str(path), raw.line_of("params"), f"nodes[{name}].params"),
-            remap={str(k): str(v) for k, v in _substitute(remap, args, str(path), raw.line_of("remap"),
-                                                          f"nodes[{name}].remap").items()},
-            file=str(path),
-            line=line,
-            key_lines=dict(raw.key_lines),
-            param_lines=dict(getattr(params, "key_lines", {})),
-        )
-        for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str),
-                          ("machine", str), ("port", int), ("process", str), ("nice", int)):
-            if key in raw:
-                value = _substitute(raw[key], args, str(path), raw.line_of(key), key)
-                if (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))
-                        or (key == "respawn_delay" and not (math.isfinite(value) and 0 <= value <= 3600))):
-                    raise node.error(key, f"wants {'a finite number of seconds in [0, 3600]' if key == 'respawn_delay' else kind.__name__}, "
-                                     f"got {value!r}")
-                if key == "port" and not 1 <= value <= 65535:
-                    raise node.error(key, f"wants a tcp port in 1..65535, got {value!r}")
-                if key == "nice" and not 0 <= value <= 19:   # (below 0 needs privileges a lab PC should not give)
-                    raise node.error(key, f"wants a niceness in 0..19 (higher: yields the CPU to the other nodes), "
-                                     f"got {value!r}")
-                if key == "process" and value and not NODE_NAME.fullmatch(value):   # '' : its own process
-                    raise node.error(key, f"{value[:80]!r} is not a process name (letters, digits, '_' and '-', "
-                                     "at most 64, starting with a letter or '_')")
-                setattr(node, key, float(value) if key == "respawn_delay" else value)
-        if node.machine and not (node.host and node.port):
-            raise node.error("machine", "a node on a named machine needs host: (that machine's address) and port: "
-                             "so the other machines can connect to it")
-        spec.nodes.append(node)
+        node = _node_spec(path, i, raw, nodes.item_lines[i], args)
+        if node is not None:
+            spec.nodes.append(node)
+
+
+def _node_spec(path: Path, i: int, raw: Any, line: int, args: dict[str, Any]) -> NodeSpec | None:
+    """``nodes[i]`` of ``path`` (at ``line``) with the graph's args substituted; None when its ``if:`` is false."""
+    if not isinstance(raw, dict):
+        raise GraphError(path, line, f"nodes[{i}]", "a node is a mapping with name: and type:")
+    _check_keys(raw, NODE_KEYS, f"nodes[{raw.get('name', i)}].")
+    for key in ("name", "type"):
+        if key not in raw:
+            raise GraphError(path, line, f"nodes[{raw.get('name', i)}]", f"needs a '{key}'")
+    name = _substitute(raw["name"], args, str(path), raw.line_of("name"), "name")
+    if not isinstance(name, str) or not NODE_NAME.fullmatch(name):
+        raise GraphError(path, raw.line_of("name"), f"nodes[{i}].name",
+                         f"{str(name)[:80]!r} is not a node name (letters, digits, '_' and '-', at most 64, "
+                         "starting with a letter or '_')")
+    if not _condition(raw, args, str(path), f"nodes[{name}].if"):
+        return None
+    params = raw.get("params") or LinedDict()
+    if not isinstance(params, dict):
+        raise GraphError(path, raw.line_of("params"), f"nodes[{name}].params", "must be a mapping")
+    remap = raw.get("remap") or {}
+    if not isinstance(remap, dict):
+        raise GraphError(path, raw.line_of("remap"), f"nodes[{name}].remap", "must be a mapping port: topic")
+    node = NodeSpec(
+        name=name,
+        type=str(_substitute(raw["type"], args, str(path), raw.line_of("type"), f"nodes[{name}].type")),
+        params=_substitute(params, args, str(path), raw.line_of("params"), f"nodes[{name}].params"),
+        remap={str(k): str(v) for k, v in _substitute(remap, args, str(path), raw.line_of("remap"),
+                                                      f"nodes[{name}].remap").items()},
+        file=str(path),
+        line=line,
+        key_lines=dict(raw.key_lines),
+        param_lines=dict(getattr(params, "key_lines", {})),
+    )
+    for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str),
+                      ("machine", str), ("port", int), ("process", str), ("nice", int)):
+        if key in raw:
+            value = _substitute(raw[key], args, str(path), raw.line_of(key), key)
+            if (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))
+                    or (key == "respawn_delay" and not (math.isfinite(value) and 0 <= value <= 3600))):
+                raise node.error(key, f"wants {'a finite number of seconds in [0, 3600]' if key == 'respawn_delay' else kind.__name__}, "
+                                 f"got {value!r}")
+            if key == "port" and not 1 <= value <= 65535:
+                raise node.error(key, f"wants a tcp port in 1..65535, got {value!r}")
+            if key == "nice" and not 0 <= value <= 19:   # (below 0 needs privileges a lab PC should not give)
+                raise node.error(key, f"wants a niceness in 0..19 (higher: yields the CPU to the other nodes), "
+                                 f"got {value!r}")
+            if key == "process" and value and not NODE_NAME.fullmatch(value):   # '' : its own process
+                raise node.error(key, f"{value[:80]!r} is not a process name (letters, digits, '_' and '-', "
+                                 "at most 64, starting with a letter or '_')")
+            setattr(node, key, float(value) if key == "respawn_delay" else value)
+    if node.machine and not (node.host and node.port):
+        raise node.error("machine", "a node on a named machine needs host: (that machine's address) and port: "
+                         "so the other machines can connect to it")
+    return node

@@ -37,9 +37,9 @@ from ..bus.diagnostics import DIAGNOSTICS_TOPIC
 from ..bus.protocol import BYE, READY, START, STARTED, STOP
 from .check import CheckedGraph, ResolvedNode, process_groups, shutdown_order
 from ..bus.curve import CurveKeys
-from .liveness import STALL_S, Liveness, diagnostics_socket, drain_senders
+from .liveness import STALL_S, Liveness, OutputWatch, diagnostics_socket, drain_diagnostics, heard_lines
 from .processes import Child, Process, group_processes
-from .manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
+from ..bus.manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
 from .wiring_plan import plan_wiring
 
 READY_TIMEOUT_S = 30.0
@@ -79,6 +79,7 @@ class Supervisor:
         self._out_lock = threading.Lock()
         self.run_dir = Path(tempfile.mkdtemp(prefix=f"mocapgraph-{os.getpid()}-"))
         self.liveness = Liveness()
+        self.outputs = OutputWatch.of_graph(graph)
         self.diag: zmq.Socket | None = None
         self.ctx = zmq.Context.instance()
         self.control_ep = f"ipc://{self.run_dir / 'control'}"
@@ -107,7 +108,8 @@ class Supervisor:
 
     def manifest(self) -> Manifest:
         """Nodes, topics, types and endpoints of the running graph."""
-        return graph_manifest(self.graph, self.endpoints, list(self.children.values()), self.liveness)
+        return graph_manifest(self.graph, self.endpoints, list(self.children.values()), self.liveness,
+                              self.outputs)
 
     # ----- logging --------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -224,10 +226,8 @@ class Supervisor:
     def _check_liveness(self, now: float) -> None:
         if self.diag is None:
             return
-        for sender in drain_senders(self.diag):
-            silent = self.liveness.heard(sender, now) if sender in self.children else None
-            if silent is not None:
-                self.say(f"[launch] node {sender} is responding again after {silent:.1f} s of silence")
+        for line in heard_lines(self.liveness, self.outputs, drain_diagnostics(self.diag), now, self.children):
+            self.say(line)
         running = [n for n, c in self.children.items() if c.proc is not None and c.proc.poll() is None and not c.stopped]
         for name, silent in self.liveness.newly_stalled(now, running):
             self.say(f"[launch] node {name} stalled: no diagnostics for {silent:.1f} s "
@@ -244,6 +244,7 @@ class Supervisor:
                 self._spawn(p)
                 for c in p.members:
                     self.liveness.watch(c.node.name, now + STALL_S)  # start-up time is not silence
+                    self.outputs.forget(c.node.name)
                 continue
             code = p.poll_exit(now, self._stop_requested)
             if code is None:
@@ -317,7 +318,7 @@ class Supervisor:
 
 
 def graph_manifest(graph: CheckedGraph, endpoints: dict[str, str], children: list[Child],
-                   liveness: Liveness) -> Manifest:
+                   liveness: Liveness, outputs: OutputWatch | None = None) -> Manifest:
     """The manifest of a running graph: every node's topics and endpoints (also those on other
     machines), this launcher's processes, the key files of a CurveZMQ bus."""
     types = graph.topic_types()
@@ -339,7 +340,9 @@ def graph_manifest(graph: CheckedGraph, endpoints: dict[str, str], children: lis
     m.nodes = [NodeEntry(c.node.name, c.node.spec.type, c.node.class_path, c.proc.pid if c.proc else None,
                          endpoints[c.node.name], c.node.params, c.node.inputs, c.node.outputs,
                          c.restarts, bool(c.proc and c.proc.poll() is None),
-                         stalled=liveness.is_stalled(c.node.name)) for c in children]
+                         stalled=liveness.is_stalled(c.node.name),
+                         stalled_outputs=outputs.stalled_outputs(c.node.name) if outputs else [])
+                for c in children]
     return m
 
 def _wait(proc: subprocess.Popen, timeout: float) -> bool:

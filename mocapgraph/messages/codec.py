@@ -20,13 +20,16 @@ Frames of one message::
 
 HEADER = magic b"MG", codec version (u8), flags (u8), schema version (u16), type-name length
 (u16), node-name length (u16), sequence number (u64), capture stamp ns (i64), publish stamp ns
-(i64).
+(i64), stream id (u32). The stream id is drawn at random when a process starts (`STREAM_ID`): a
+restarted sender is a new stream whatever its numbers say (`messages.sequence`). Codec version 1
+headers (bags recorded before; no stream id, read as stream 0) are still decoded.
 """
 from __future__ import annotations
 
 import json
 import math
 import operator
+import os
 import struct
 import time
 from dataclasses import dataclass
@@ -34,21 +37,45 @@ from typing import Sequence
 
 import numpy as np
 
+from .bounded_json import loads_bounded
 from .registry import UnknownTypeError, lookup
 from .schema import SCALAR_TYPES as SCALAR_PY
 from .schema import Message, MessageError
 
 MAGIC = b"MG"
-CODEC_VERSION = 1
+CODEC_VERSION = 2
 _HEADER_FIELDS = (("magic", "2s"), ("codec", "B"), ("flags", "B"), ("schema", "H"), ("type_len", "H"),
-                  ("sender_len", "H"), ("seq", "Q"), ("capture_ns", "q"), ("publish_ns", "q"))
+                  ("sender_len", "H"), ("seq", "Q"), ("capture_ns", "q"), ("publish_ns", "q"), ("stream", "I"))
 HEADER = struct.Struct("<" + "".join(f for _, f in _HEADER_FIELDS))
-#: byte offset of each header field, for in-place reads and writes (bag play restamps headers)
+#: the header of codec version 1 (no stream id): read, never written
+HEADER_V1 = struct.Struct("<" + "".join(f for _, f in _HEADER_FIELDS[:-1]))
+#: byte offset of each header field, for in-place reads and writes (bag play restamps headers);
+#: the same in both versions (the stream id was appended)
 HEADER_AT = {name: struct.calcsize("<" + "".join(f for _, f in _HEADER_FIELDS[:i]))
              for i, (name, _) in enumerate(_HEADER_FIELDS)}
+#: fixed header bytes (before the names) by codec version
+HEADER_SIZE = {1: HEADER_V1.size, CODEC_VERSION: HEADER.size}
 _U64 = struct.Struct("<Q")
 _I64 = struct.Struct("<q")
 _LENS = struct.Struct("<HH")
+_U32 = struct.Struct("<I")
+
+
+def _new_stream_id() -> int:
+    """A random non-zero u32 (0 is what a version 1 header reads as)."""
+    return int.from_bytes(os.urandom(4), "little") or 1
+
+
+#: this process's stream id, in every header it encodes (a forked child draws its own)
+STREAM_ID = _new_stream_id()
+
+
+def _after_fork() -> None:
+    global STREAM_ID
+    STREAM_ID = _new_stream_id()
+
+
+os.register_at_fork(after_in_child=_after_fork)
 
 
 def header_seq(head: bytes | bytearray | memoryview) -> int:
@@ -64,7 +91,13 @@ def header_capture_ns(head: bytes | bytearray | memoryview) -> int:
 def header_sender(head: bytes | bytearray | memoryview) -> bytes:
     """The sender's name (UTF-8 bytes) of a header frame."""
     tlen, slen = _LENS.unpack_from(head, HEADER_AT["type_len"])
-    return bytes(head[HEADER.size + tlen:HEADER.size + tlen + slen])
+    at = HEADER_SIZE.get(head[HEADER_AT["codec"]], HEADER.size) + tlen
+    return bytes(head[at:at + slen])
+
+
+def header_stream(head: bytes | bytearray | memoryview) -> int:
+    """The stream id of a header frame (0 for a version 1 header)."""
+    return _U32.unpack_from(head, HEADER_AT["stream"])[0] if head[HEADER_AT["codec"]] == CODEC_VERSION else 0
 
 
 def set_header_seq(head: bytearray, seq: int) -> None:
@@ -96,6 +129,8 @@ class Envelope:
     publish_ns: int
     sender: str
     latched: bool
+    #: the sender process's stream id (`STREAM_ID`; 0: a version 1 header)
+    stream: int = 0
 
 
 def topic_frame(topic: str) -> bytes:
@@ -119,8 +154,7 @@ class _Plan:
         self.text = [sc for sc in info.scalars if sc.kind == "str"] + list(info.strings)
         self.arrays = [(a, np.dtype(a.dtype)) for a in info.arrays]
         self.ranks = [len(a.shape) for a in info.arrays]
-        codes = "".join(_CODES[sc.kind] for sc in self.numeric) + "I" * sum(self.ranks)
-        self.struct = struct.Struct("<" + codes)
+        self.struct = struct.Struct(info.field_block())
         self.py = [SCALAR_PY[sc.kind] for sc in self.numeric]
         self.array_names = [a.name for a in info.arrays]
         self.string_names = [f.name for f in info.strings]
@@ -150,7 +184,7 @@ def _getter(names: list[str]):
     return lambda d: ()
 
 
-_CODES = {"int": "q", "float": "d", "bool": "?"}
+TEXT_BLOCK_DEPTH = 8   # a text block is an object of strings and lists of strings: 3 deep
 _TEXT_CACHE = 256   # distinct text blocks remembered per type (a few names per graph; bounded against garbage)
 _PLAN_CACHE: dict[str, _Plan] = {}
 
@@ -164,7 +198,7 @@ def _plan(info) -> _Plan:
 
 def field_layout(cls: type[Message]) -> str:
     """The struct format string of frame 2 for ``cls`` (numeric scalars, then array dims)."""
-    return _plan(cls._info).struct.format
+    return cls._info.field_block()
 
 
 def encode(topic: str, msg: Message, seq: int, capture_ns: int, sender: str = "", publish_ns: int | None = None,
@@ -221,6 +255,7 @@ def encode_head(
         seq,
         capture_ns,
         time.time_ns() if publish_ns is None else publish_ns,  # stamped last: encoding is not latency
+        STREAM_ID,
     )
     return [topic_frame(topic), header + names[2], block], arrays
 
@@ -241,19 +276,35 @@ def decode_envelope(frames: Sequence[bytes | memoryview]) -> Envelope:
         raise DecodeError(f"{len(frames)} frame(s), a message has at least 3")
     head = bytes(frames[1])
     if len(head) < HEADER.size:
+        return _decode_v1(frames, head)
+    magic, codec, flags, version, tlen, slen, seq, cap, pub, stream = HEADER.unpack_from(head)
+    if magic != MAGIC or codec != CODEC_VERSION:
+        return _decode_v1(frames, head)
+    return _envelope(frames, head, HEADER.size, tlen, slen, version, seq, cap, pub, flags, stream)
+
+
+def _decode_v1(frames: Sequence[bytes | memoryview], head: bytes) -> Envelope:
+    """A version 1 header (no stream id: stream 0), or the reason the header is not one we read."""
+    if len(head) < HEADER_V1.size:
         raise DecodeError(f"header of {len(head)} bytes is truncated")
-    magic, codec, flags, version, tlen, slen, seq, cap, pub = HEADER.unpack_from(head)
+    magic, codec, flags, version, tlen, slen, seq, cap, pub = HEADER_V1.unpack_from(head)
     if magic != MAGIC:
         raise DecodeError("bad magic: not a mocapgraph message")
-    if codec != CODEC_VERSION:
+    if codec != 1:
         raise DecodeError(f"codec version {codec} is not supported (this is {CODEC_VERSION})")
-    if len(head) != HEADER.size + tlen + slen:
+    return _envelope(frames, head, HEADER_V1.size, tlen, slen, version, seq, cap, pub, flags, 0)
+
+
+def _envelope(frames: Sequence[bytes | memoryview], head: bytes, size: int, tlen: int, slen: int, version: int,
+              seq: int, cap: int, pub: int, flags: int, stream: int) -> Envelope:
+    """The envelope of a header whose fixed part (``size`` bytes) is read: names and topic checked."""
+    if len(head) != size + tlen + slen:
         raise DecodeError("header length does not match its name lengths")
-    key = (tlen, head[HEADER.size:])
+    key = (tlen, head[size:])
     names = _NAMES.get(key)
     if names is None:
         try:
-            names = (head[HEADER.size : HEADER.size + tlen].decode(), head[HEADER.size + tlen :].decode())
+            names = (head[size : size + tlen].decode(), head[size + tlen :].decode())
         except UnicodeDecodeError as exc:
             raise DecodeError(f"names are not UTF-8 ({exc.reason})") from None
         if len(_NAMES) < 4096:  # a few (type, sender) pairs per graph; bounded against garbage
@@ -264,13 +315,13 @@ def decode_envelope(frames: Sequence[bytes | memoryview]) -> Envelope:
         topic = (t[:-1] if t.endswith(b"\0") else t).decode()
     except UnicodeDecodeError as exc:
         raise DecodeError(f"names are not UTF-8 ({exc.reason})") from None
-    return Envelope(topic, tname, version, seq, cap, pub, sname, bool(flags & FLAG_LATCHED))
+    return Envelope(topic, tname, version, seq, cap, pub, sname, bool(flags & FLAG_LATCHED), stream)
 
 
 def local_envelope(topic: str, type_name: str, sender: str, head: bytes) -> Envelope:
     """The envelope of a header this process has just encoded: the names are known, nothing to check."""
-    _, _, flags, version, _, _, seq, cap, pub = HEADER.unpack_from(head)
-    return Envelope(topic, type_name, version, seq, cap, pub, sender, bool(flags & FLAG_LATCHED))
+    _, _, flags, version, _, _, seq, cap, pub, stream = HEADER.unpack_from(head)
+    return Envelope(topic, type_name, version, seq, cap, pub, sender, bool(flags & FLAG_LATCHED), stream)
 
 
 def decode(frames: Sequence[bytes | memoryview]) -> tuple[Envelope, Message]:
@@ -310,7 +361,8 @@ def decode_payload(cls: type[Message], env: Envelope, frames: Sequence[bytes | m
             raw = block[st.size:]
             text = plan.text_in.get(raw)
             if text is None:
-                text = json.loads(raw)
+                # bounded before parsing: a forged block of 50 000 '[' is a DecodeError, not a RecursionError
+                text = loads_bounded(raw, len(raw) + 1, TEXT_BLOCK_DEPTH)
                 if not isinstance(text, dict):
                     raise TypeError("not an object")
                 if len(plan.text_in) < _TEXT_CACHE and len(raw) < 1024:

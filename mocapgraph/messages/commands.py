@@ -6,8 +6,13 @@ command's ``args_json`` is a JSON object (empty: ``{}``), read by :func:`parse_c
 """
 from __future__ import annotations
 
-import json
 from typing import Any, Sequence
+
+from .bounded_json import loads_bounded
+
+#: a command's args are a small object: a few names and numbers, a path
+MAX_ARGS_BYTES = 64 * 1024
+MAX_ARGS_DEPTH = 8
 
 CALIBRATION_COMMANDS = ("find_base_pose", "capture_gym", "process", "reset", "save", "load")
 PLAYER_COMMANDS = ("play", "pause", "toggle", "step", "seek", "rate", "stop")
@@ -26,9 +31,10 @@ assert set(VIEWER_COMMANDS["player"]) <= set(PLAYER_COMMANDS)
 
 def parse_command(command: str, args_json: str, allowed: Sequence[str]) -> dict[str, Any]:
     """The args of a NodeCommand named ``command`` as a dict; ValueError (one line) when the
-    args are not a JSON object or the command is not one of ``allowed``."""
+    args are not a JSON object (of at most MAX_ARGS_BYTES, nested at most MAX_ARGS_DEPTH, checked
+    before parsing) or the command is not one of ``allowed``."""
     try:
-        args = json.loads(args_json or "{}")
+        args = loads_bounded(args_json or "{}", MAX_ARGS_BYTES, MAX_ARGS_DEPTH)
     except ValueError as exc:
         raise ValueError(f"command {command!r}: bad args_json ({exc})") from None
     if not isinstance(args, dict):

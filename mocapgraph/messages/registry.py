@@ -1,4 +1,9 @@
-"""Registry of message types by type name (the name written into every header and bag)."""
+"""Registry of message types by type name (the name written into every header and bag).
+
+It imports nothing of ours: a `Message` subclass registers itself when it is defined, and the
+built-in types are defined when the package loads (``messages/__init__`` imports ``types``), which
+is before any of its modules can be used.
+"""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -29,19 +34,9 @@ def lookup(type_name: str) -> type["Message"]:
     try:
         return _TYPES[type_name]
     except KeyError:
-        pass
-    _ensure_builtin_types()
-    try:
-        return _TYPES[type_name]
-    except KeyError:
         raise UnknownTypeError(type_name) from None
 
 
 def all_types() -> dict[str, type["Message"]]:
     """Every registered type by name."""
-    _ensure_builtin_types()
     return dict(_TYPES)
-
-
-def _ensure_builtin_types() -> None:
-    from . import types  # noqa: F401  (registers the built-in types on import)

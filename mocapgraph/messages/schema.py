@@ -18,6 +18,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 SCALAR_TYPES: dict[str, type] = {"int": int, "float": float, "str": str, "bool": bool}
+#: struct code of each numeric scalar kind in the field block (the codec's frame 2): i64, f64, u8
+FIELD_BLOCK_CODES: dict[str, str] = {"int": "q", "float": "d", "bool": "?"}
 
 
 class MessageError(ValueError):
@@ -149,6 +151,12 @@ class _TypeInfo:
     fields: dict[str, FieldSpec] = field(default_factory=dict)
     latched: bool = False
 
+    def field_block(self) -> str:
+        """The struct format of the field block (the codec's frame 2), little-endian: each numeric
+        scalar in declaration order, then a u32 per dimension of each array."""
+        codes = "".join(FIELD_BLOCK_CODES[s.kind] for s in self.scalars if s.kind != "str")
+        return "<" + codes + "I" * sum(len(a.shape) for a in self.arrays)
+
 
 class Message:
     """Base of all message types. Subclass with field declarations and ``type_name``/``version``.
@@ -253,7 +261,7 @@ class Message:
             "description": (cls.__doc__ or "").strip(),
             "type": "object",
             "x-mocapgraph-version": info.version,
-            "x-field-block": _field_block(cls),
+            "x-field-block": info.field_block(),
             "properties": {k: s.json_schema() for k, s in info.fields.items()},
         }
 
@@ -298,12 +306,6 @@ def _field_by_field_init(info: _TypeInfo):
 
 def _unknown_fields(info: _TypeInfo, unknown: dict) -> None:
     raise MessageError(f"{info.name} has no field(s) {sorted(unknown)}")
-
-
-def _field_block(cls: type[Message]) -> str:
-    from .codec import field_layout  # the codec builds on the schema, not the other way round
-
-    return field_layout(cls)
 
 
 class _FieldDescriptor:

@@ -11,9 +11,12 @@ replies to anything it does not support (no capabilities are offered). Payloads 
 encoded from the caller (the SDK's schemas, :mod:`mocapgraph.bag.foxglove_scene`).
 
 Threads: the node thread calls `add_channel`, `subscribed` and `log`; everything else runs on the
-server's loop. Each client has a bounded queue of data messages (the oldest dropped when full,
-counted in ``dropped``) and a control queue of the same size (a client that lets it fill is
-disconnected), as the SDK's ``message_backlog_size`` does.
+server's loop. Each client has a bounded queue of data messages (the oldest dropped when it holds
+``backlog`` messages or CLIENT_BYTES bytes, counted in ``dropped``) and a control queue of
+``backlog`` messages (a client that lets it fill is disconnected), as the SDK's
+``message_backlog_size`` does. At most ``max_clients`` are connected at once (more get a 503 in
+one line), so stalled clients hold a bounded amount of memory, given back when they leave.
+Connection lines (the websockets library's, two per connection or refusal) are rate-limited.
 """
 from __future__ import annotations
 
@@ -30,12 +33,20 @@ from typing import Any, Sequence
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 
+from websockets.http11 import Request, Response
+
+from ..bus.peer_guard import give_back_heap
+from ..messages.bounded_json import loads_bounded
+from .log_limit import limited_logger
 from .ws_gate import GatedServer
 
 SUBPROTOCOL = "foxglove.websocket.v1"
 MESSAGE_DATA = 0x01
+MAX_CLIENT_BYTES, MAX_CLIENT_DEPTH = 256 * 1024, 8  # a client op (subscribe lists: 30 B each): checked before parsing
 _HEADER = struct.Struct("<BIQ")
 STATUS_INFO, STATUS_WARNING, STATUS_ERROR = 0, 1, 2
+#: bytes of data messages queued for one client at most (the oldest dropped beyond)
+CLIENT_BYTES = 4 << 20
 
 
 @dataclass(frozen=True)
@@ -62,6 +73,7 @@ class _Client:
     subs: dict[int, int] = field(default_factory=dict)      # subscription id -> channel id
     by_chan: dict[int, int] = field(default_factory=dict)   # channel id -> subscription id
     dropped: int = 0
+    queued: int = 0   # bytes in ``data``
     wake: Any = None
 
 
@@ -72,10 +84,11 @@ class FoxgloveServer(GatedServer):
     what = "foxglove bridge"
 
     def __init__(self, name: str, host: str, port: int, token: str, origins: Sequence[str],
-                 backlog: int = 1024) -> None:
+                 backlog: int = 1024, max_clients: int = 16) -> None:
         super().__init__(host, port, token, origins)
         self.name = name
         self.backlog = backlog
+        self.max_clients = max_clients
         self.session_id = str(time.time_ns())
         self.channels: dict[int, Channel] = {}      # loop thread's view (advertised)
         self.clients: set[_Client] = set()
@@ -88,7 +101,15 @@ class FoxgloveServer(GatedServer):
 
     def _serve_options(self) -> dict[str, Any]:
         return {"subprotocols": [SUBPROTOCOL], "compression": None, "max_size": 1 << 20,
-                "ping_interval": 10, "ping_timeout": 30}
+                "ping_interval": 10, "ping_timeout": 30, "logger": limited_logger("mocapgraph.foxglove.ws")}
+
+    def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
+        refused = super()._process_request(connection, request)
+        if refused is None and len(self.clients) >= self.max_clients:
+            return self._refuse("full", 503, "Service Unavailable",
+                                f"{self.max_clients} clients are connected, the most this bridge serves "
+                                "(its max_clients); try again when one has left")
+        return refused
 
     # ----- node thread -------------------------------------------------------------------------
     def add_channel(self, topic: str, encoding: str, schema_name: str, schema: bytes, schema_encoding: str) -> int:
@@ -126,10 +147,13 @@ class FoxgloveServer(GatedServer):
                 for c in self.clients:
                     sub = c.by_chan.get(cid)
                     if sub is not None:
-                        if len(c.data) == c.data.maxlen:
+                        frame = _HEADER.pack(MESSAGE_DATA, sub, ns) + data
+                        while c.data and (len(c.data) == c.data.maxlen or c.queued + len(frame) > CLIENT_BYTES):
+                            c.queued -= len(c.data.popleft())
                             c.dropped += 1
                             self.dropped += 1
-                        c.data.append(_HEADER.pack(MESSAGE_DATA, sub, ns) + data)
+                        c.data.append(frame)
+                        c.queued += len(frame)
                         c.wake.set()
             else:
                 ch = item[1]
@@ -180,6 +204,10 @@ class FoxgloveServer(GatedServer):
             sender.cancel()
             await asyncio.gather(sender, return_exceptions=True)
             self._forget(c)
+            c.data.clear()
+            c.control.clear()
+            if not self.clients:   # what stalled clients held goes back to the system
+                self._loop.call_later(0.5, give_back_heap)
 
     async def _send_loop(self, c: _Client) -> None:
         try:
@@ -187,7 +215,9 @@ class FoxgloveServer(GatedServer):
                 if c.control:
                     await c.ws.send(c.control.popleft())
                 elif c.data:
-                    await c.ws.send(c.data.popleft())
+                    frame = c.data.popleft()
+                    c.queued -= len(frame)
+                    await c.ws.send(frame)
                 else:
                     c.wake.clear()
                     await c.wake.wait()
@@ -199,9 +229,9 @@ class FoxgloveServer(GatedServer):
             self._status(c, STATUS_ERROR, "binary client messages are not supported (no clientPublish capability)")
             return
         try:
-            req = json.loads(msg)
-        except ValueError:
-            self._status(c, STATUS_ERROR, "not JSON: " + msg[:60])
+            req = loads_bounded(msg, MAX_CLIENT_BYTES, MAX_CLIENT_DEPTH)
+        except ValueError as exc:  # also too long or too deep (checked before parsing: no RecursionError)
+            self._status(c, STATUS_ERROR, f"not JSON ({str(exc)[:80]}): " + msg[:60])
             return
         op = req.get("op") if isinstance(req, dict) else None
         if op == "subscribe":

@@ -73,7 +73,10 @@ class GatedServer(AsyncServerThread):
         if len(hosts) != 1:
             return self._refuse("host", 400, "Bad Request", "exactly one Host header, please")
         host = hosts[0]
-        name = urlsplit(f"//{host}").hostname or ""
+        try:
+            name = urlsplit(f"//{host}").hostname or ""
+        except ValueError:  # "[" , "[::1" ...: not a host name at all
+            return self._refuse("host", 400, "Bad Request", f"malformed Host {host[:80]!r}")
         if _is_loopback(self.host) and not _is_loopback(name):
             return self._refuse("host", 403, "Forbidden", f"Host {host[:80]!r} is not this loopback server")
         origins = request.headers.get_all("Origin")
@@ -82,7 +85,7 @@ class GatedServer(AsyncServerThread):
         if origins and origins[0] not in self.origins:
             return self._refuse("origin", 403, "Forbidden", f"Origin {origins[0][:80]!r} is not allowed")
         if self.token:
-            given = parse_qs(urlsplit(request.path).query).get("token", [""])[0]
+            given = parse_qs(request.path.partition("?")[2]).get("token", [""])[0]  # (urlsplit: "//[" raises)
             if not hmac.compare_digest(given.encode(), self.token.encode()):
                 return self._refuse("token", 403, "Forbidden", "missing or wrong token (use the URL the node printed)")
         return None

@@ -12,6 +12,7 @@ from ..bag.player import Outgoing, Playback, select_topics, set_publish_stamp
 from ..bag.reader import BagReader
 from ..bus import Input, Interface, Node, Output, Param
 from ..bus.node import NodeConfigError
+from ..bus.file_places import PathRefused, own_folder_path
 from ..messages.commands import PLAYER_COMMANDS, parse_command
 from ..messages import NodeCommand, NodeStatus
 from ..messages.registry import lookup
@@ -51,10 +52,11 @@ class BagPlayer(Node):
         if not path:
             return iface
         try:
+            own_folder_path(path, "bag")  # a regular file: never a device or fifo (which would block)
             with BagReader(path) as r:
                 chosen, _ = select_topics(r.topic_infos(), params.get("topics") or None,
                                           params.get("exclude") or None)
-        except BagError as exc:
+        except (BagError, PathRefused) as exc:
             iface.bag_error = str(exc)  # reported by check_params with the graph's file and line
             return iface
         for topic, info in chosen.items():
@@ -74,7 +76,11 @@ class BagPlayer(Node):
         super().__init__(name, params, wiring)
         if not self.file:
             raise NodeConfigError("parameter 'file' is empty: name the bag to play")
-        self.reader = BagReader(self.file)
+        try:
+            own_folder_path(self.file, "parameter 'file'")
+            self.reader = BagReader(self.file)
+        except (BagError, PathRefused) as exc:
+            raise NodeConfigError(str(exc)) from None
         try:
             self.playback = Playback(self.reader, topics=self.topics or None, exclude=self.exclude or None,
                                      rate=self.rate, start_s=self.start, end_s=self.end or None, loop=self.loop)

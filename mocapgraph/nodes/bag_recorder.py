@@ -48,6 +48,7 @@ class BagRecorder(Node):
         if not self.topics:
             raise NodeConfigError("parameter 'topics' is empty: name at least one topic to record")
         self.recorder: Recorder | None = None
+        self._failed = False
 
     def _open(self) -> Recorder:
         if self.recorder is None:
@@ -68,34 +69,48 @@ class BagRecorder(Node):
         self.add_timer(min(0.05, self.flush_s), self._tick)
 
     def _tick(self) -> None:
-        if self.recorder is not None:
+        if self.recorder is not None and not self.recorder.writer.failed:
             try:
                 self.recorder.tick()
-            except OSError as exc:
-                self.log.error("cannot record: %s", exc)
-                self.request_stop()
+            except (OSError, BagError) as exc:
+                self._cannot(exc)
+
+    def _cannot(self, exc: Exception) -> None:
+        """Disk full, folder gone: one line, stop (the writer keeps what reached the disk, and
+        removes a file that got nothing, so a respawn loop leaves no empty bags)."""
+        if not self._failed:
+            self._failed = True
+            self.exit_code = 1   # a recorder that cannot record has failed (a required one stops the graph)
+            self.log.error("cannot record: %s", exc)
+            self.request_stop()
 
     def input_handler(self, port_name: str):
         return self._record
 
     def _record(self, env, frames) -> None:  # noqa: ANN001 - raw input handler
         # Raw frames straight into the bag: no payload decode, unknown types kept as they came.
+        if self._failed:
+            return
         try:
             self._open().receive(frames, env)
         except (OSError, BagError, NodeConfigError) as exc:  # disk full, folder gone: say so and stop
-            self.log.error("cannot record: %s", exc)
-            self.request_stop()
+            self._cannot(exc)
 
     def on_stop(self) -> None:
         if self.recorder is not None:
-            paths = self.recorder.close()
+            try:
+                paths = self.recorder.close()
+            except BagError as exc:
+                if not self._failed:   # (already said in one line)
+                    self.log.error("cannot record: %s", exc)
+                return
             self.log.info("recorded %s to %s", self.recorder.status(), ", ".join(map(str, paths)))
 
 
 def _graph_metadata() -> dict[str, str]:
     """Graph file and every node's params from the launcher's manifest, when one answers."""
     try:
-        from ..launch.manifest import fetch_manifest
+        from ..bus.manifest import fetch_manifest
 
         m = fetch_manifest(timeout_s=0.5)
     except Exception:  # noqa: BLE001 - metadata is best effort; recording must go on

@@ -7,6 +7,7 @@ import numpy as np
 
 from ..bus import Param
 from ..formats import SkeletonTrial, bvh_to_skeleton, read_bvh
+from ..formats.skeleton_trial import offsets_from_rest
 from .skeleton_source import SkeletonFilePlayer
 
 
@@ -35,6 +36,4 @@ class BVHPlayer(SkeletonFilePlayer):
     def rest_offsets(self, trial: SkeletonTrial) -> np.ndarray:
         rest = self.motion.rest_positions()
         keep = [self.motion.names.index(n) for n in trial.names]
-        rest = rest[keep]
-        p = trial.parents
-        return np.where((p >= 0)[:, None], rest - rest[np.maximum(p, 0)], rest)
+        return offsets_from_rest(rest[keep], trial.parents)

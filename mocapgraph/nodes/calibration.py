@@ -7,7 +7,10 @@ States (``calibration_status``, a NodeStatus on every change and at ``status_rat
 
 Commands (``calibration_command``, NodeCommand with target "" or this node's name):
 ``find_base_pose``, ``capture_gym {"seconds": T, "rate_hz": F}``, ``process``, ``reset``,
-``save {"path": P}``, ``load {"path": P}`` (paths default to the ``model_file`` param).
+``save {"path": P}``, ``load {"path": P}`` (paths default to the ``model_file`` param; a path a
+command names must lie in the ``model_file``'s folder, symlinks followed, and name a regular file:
+:mod:`mocapgraph.bus.file_places`; anything else is refused in one line and counted in the status's
+``commands_refused``, the node carries on).
 
 Time is capture time (the capture stamps of the MarkerFrames, which readers space as the file
 is, whatever the replay speed), so a replay faster or slower than real time captures the same
@@ -15,12 +18,12 @@ frames. The base pose is the first frame in which every
 layout marker is visible; ``base_pose_timeout_s`` of capture without one is an error naming the
 markers never seen (or those missing from the most complete frame). The gym is the ``T`` s after
 the base pose, sampled at ``F`` frames/s (0: every frame). Processing runs
-:func:`mocapgraph.kinematics.calibration.calibrate` on base pose + gym; the result is published
+:func:`mocapgraph.kinematics.calibration.calibrate.calibrate` on base pose + gym; the result is published
 latched on ``skeleton_model`` in its file form (what ``model_file`` holds), so a session
 calibrated now and one loaded from the file later solve identically.
 
 The node is the command state machine; the capture steps live in
-:mod:`mocapgraph.kinematics.capture_steps`, the stream binding in
+:mod:`mocapgraph.kinematics.calibration.capture_steps`, the stream binding in
 :mod:`mocapgraph.adapters.layout_binding`, the status texts in
 :mod:`mocapgraph.adapters.calibration_report`, saving and the message form in
 :mod:`mocapgraph.adapters.model_store`.
@@ -32,7 +35,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..bus import Input, Node, Output, Param
-from ..kinematics.capture_steps import FOUND, TIMED_OUT, CaptureSession, GymSampler
+from ..bus.file_places import PathRefused
+from ..kinematics.calibration.capture_steps import FOUND, TIMED_OUT, CaptureSession, GymSampler
 from ..kinematics.model import ActorModel, ModelFileError, as_saved, load_model
 from ..kinematics.subject import SubjectError, read_vsk
 from ..messages.commands import CALIBRATION_COMMANDS, parse_command
@@ -41,7 +45,7 @@ from ..messages import SkeletonModel
 from ..adapters.calibration_report import (base_pose_failure, gym_detail, model_report, stalled_search,
                                         status_message)
 from ..adapters.layout_binding import BindError, StreamBinding
-from ..adapters.model_store import model_message, save_problem
+from ..adapters.model_store import model_message, model_path, save_problem
 
 IDLE = "idle"
 FINDING = "finding_base_pose"
@@ -89,8 +93,10 @@ class CalibrationNode(Node):
         self.binding = StreamBinding(self.layout, hold=EARLY_FRAMES)
         self.model: ActorModel | None = None
         self._auto_running = False
+        self.commands_refused = 0
         self._reset_capture()
-        from ..kinematics import calibration, solver  # noqa: F401  (its math now: see _process)
+        from ..kinematics.calibration import calibrate  # noqa: F401  (its math now: see _process)
+        from ..kinematics.solving import solver  # noqa: F401
 
     def on_start(self) -> None:
         if self.binding.error:
@@ -113,8 +119,8 @@ class CalibrationNode(Node):
                 and time.monotonic() - self._wall0 > self.base_pose_timeout_s:
             self._error(stalled_search(self.binding.stream is not None, self.base_pose_timeout_s))
             return
-        self.calibration_status.publish(status_message(self.name, self.state, self.detail,
-                                                       self.progress, self.data))
+        self.calibration_status.publish(status_message(self.name, self.state, self.detail, self.progress,
+                                                       dict(self.data, commands_refused=self.commands_refused)))
 
     def _set(self, state: str, detail: str = "", progress: float = float("nan"),
              data: dict[str, Any] | None = None) -> None:
@@ -216,7 +222,7 @@ class CalibrationNode(Node):
     def _process(self) -> None:
         # the math was loaded by __init__, not here (processing races the stream: frames after it are
         # solved with its model) nor with this module (the launcher's check imports it, declarations only)
-        from ..kinematics.calibration import CalibrationError
+        from ..kinematics.calibration.calibrate import CalibrationError
         self._auto_running = False
         try:
             subject = read_vsk(self.subject_file) if self.subject_file else None
@@ -229,7 +235,7 @@ class CalibrationNode(Node):
         # The published model is the file form (rounded as saved), so a later run that loads the
         # file interprets the session exactly as this one does.
         model = as_saved(model)
-        problem = save_problem(model, self.model_file) if self.model_file else ""
+        problem = save_problem(model, self.model_file, self.model_file) if self.model_file else ""
         if problem:
             self.log.error("model not saved: %s", problem)
         saved = "" if problem else self.model_file
@@ -245,8 +251,8 @@ class CalibrationNode(Node):
 
     def _load(self, path: str) -> bool:
         try:
-            model = load_model(path, self.binding.definition)
-        except ModelFileError as exc:
+            model = load_model(model_path(path, self.model_file), self.binding.definition)
+        except (ModelFileError, PathRefused) as exc:
             self._error(str(exc))
             return False
         self._publish_model(model, "loaded " + path, path, [])
@@ -259,6 +265,7 @@ class CalibrationNode(Node):
         try:
             args = parse_command(cmd.command, cmd.args_json, CALIBRATION_COMMANDS)
         except ValueError as exc:
+            self.commands_refused += 1
             self._note(str(exc))
             return
         self._auto_running = False
@@ -287,25 +294,31 @@ class CalibrationNode(Node):
         self._reset_capture()
         self._set(IDLE, "reset")
 
-    def _cmd_save(self, args: dict[str, Any]) -> None:
-        path = str(args.get("path") or self.model_file)
-        if self.model is None or not path:
-            self._note("save: " + ("no model yet" if self.model is None else "no path given"))
-            return
-        problem = save_problem(self.model, path)
-        if not problem:
-            self.data["model_file"] = path
-        self._note(f"save: {problem}" if problem else f"saved to {path}", problem=bool(problem))
-
-    def _cmd_load(self, args: dict[str, Any]) -> None:
-        path = str(args.get("path") or self.model_file)
-        if not path:
-            self._note("load: no path given")
-            return
-        self._load(path)
-
     #: the command table (filled below the class): one handler per name in CALIBRATION_COMMANDS
     _HANDLERS: dict[str, Callable[["CalibrationNode", dict[str, Any]], None]] = {}
 
 
-CalibrationNode._HANDLERS = {name: getattr(CalibrationNode, f"_cmd_{name}") for name in CALIBRATION_COMMANDS}
+def _file_command(node: CalibrationNode, command: str, args: dict[str, Any]) -> None:
+    """``save``/``load {"path"}``: only a file in the folder the graph names (``model_file``'s,
+    symlinks followed: :func:`model_path`); anything else is refused in one line and counted."""
+    if command == "save" and node.model is None:
+        node._note("save: no model yet")
+        return
+    try:
+        path = model_path(args.get("path") or node.model_file, node.model_file, f"{command}: path")
+    except PathRefused as exc:
+        node.commands_refused += 1
+        node._note(f"{exc}; refused")
+        return
+    if command == "load":
+        node._load(path)
+        return
+    problem = save_problem(node.model, path, node.model_file)
+    if not problem:
+        node.data["model_file"] = path
+    node._note(f"save: {problem}" if problem else f"saved to {path}", problem=bool(problem))
+
+
+CalibrationNode._HANDLERS = {name: getattr(CalibrationNode, f"_cmd_{name}", None) for name in CALIBRATION_COMMANDS}
+CalibrationNode._HANDLERS.update(save=lambda node, args: _file_command(node, "save", args),
+                                 load=lambda node, args: _file_command(node, "load", args))

@@ -27,7 +27,7 @@ import zmq
 from ..bus import Param
 from ..formats.wire_protocol import WireFrame, make_decoder
 from ..formats.device_file import DeviceConfig, device_or_default
-from .marker_source import LayoutMap, MarkerSourceNode, device_up_axis
+from .marker_source import LayoutMap, MarkerSourceNode, check_device_param, device_up_axis
 from .source_base import INPUT_ERRORS
 
 RESYNC_S = 0.5
@@ -48,6 +48,11 @@ class WireDeviceSource(MarkerSourceNode):
     def wire_protocol(self) -> str:
         """'text' or 'binary' (see mocapgraph.formats.wire_protocol)."""
         return "binary"
+
+    @classmethod
+    def graph_check(cls, params: dict[str, Any]) -> None:
+        """The graph check refuses a device file this reader would refuse (the node itself reports it)."""
+        check_device_param(params)
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)

@@ -16,34 +16,22 @@ import secrets
 from typing import Any, Callable
 
 from ..bag.foxglove_scene import FoxgloveMessage, SceneBuilder, scene_schema
-from ..bus import Input, Node, Param
-from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
-                        NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel, SkeletonPose)
+from ..bus import Node, Param
+from ..messages import Diagnostics, Message
 from ..net.foxglove_ws import FoxgloveServer
 from ..net.ws_gate import GateStartError
+from .stage_inputs import stage_inputs
 
 QUEUE = 256  # messages per input socket before dropping (counted as gaps)
 FOXGLOVE_APP_ORIGIN = "https://app.foxglove.dev"
 
 
-class FoxgloveBridge(Node):
+class FoxgloveBridge(stage_inputs(QUEUE), Node):
     """Serves markers, actors, skeletons, characters, physics bodies and diagnostics to Foxglove."""
 
     summary = "the live graph in the Foxglove app (Foxglove WebSocket protocol, token on 127.0.0.1)"
 
-    markers = Input.optional("markers", MarkerFrame, "markers: spheres, green seen, red not seen", queue=QUEUE)
-    marker_layout = Input.optional("marker_layout", MarkerLayout, "marker labels", queue=QUEUE, latched=True)
-    actor_pose = Input.optional("actor_pose", ActorPose, "solved actors: joints by quality, bones", queue=QUEUE)
-    skeleton_model = Input.optional("skeleton_model", SkeletonModel, "actor joint parents (bones)", queue=QUEUE, latched=True)
-    skeleton_pose = Input.optional("skeleton_pose", SkeletonPose, "Kinect/BVH skeleton streams", queue=QUEUE)
-    skeleton_info = Input.optional("skeleton_info", SkeletonInfo, "skeleton joint parents", queue=QUEUE, latched=True)
-    character_pose = Input.optional("character_pose", CharacterPose, "retargeted characters", queue=QUEUE)
-    character_info = Input.optional("character_info", CharacterInfo, "character joint parents", queue=QUEUE, latched=True)
-    physics_state = Input.optional("physics_state", PhysicsState, "simulated bodies and stage objects", queue=QUEUE)
-    physics_scene = Input.optional("physics_scene", PhysicsScene, "body shapes and sizes", queue=QUEUE, latched=True)
-    node_diagnostics = Input.optional("diagnostics", Diagnostics, "every node's rates, latency, drops (plots)", queue=QUEUE)
-    calibration_status = Input.optional("calibration_status", NodeStatus, "calibration state (JSON)", queue=QUEUE)
-    player_status = Input.optional("player_status", NodeStatus, "bag player state (JSON)", queue=QUEUE)
+    # inputs: every topic of stage_inputs.STAGE_TOPICS (declared by the base), QUEUE messages each
 
     host = Param("127.0.0.1", "address Foxglove connects to (loopback unless you mean otherwise)")
     port = Param(8766, "WebSocket port; 0 picks a free one (printed at start)", minimum=0, maximum=65535)
@@ -51,6 +39,7 @@ class FoxgloveBridge(Node):
     allowed_origins = Param([FOXGLOVE_APP_ORIGIN], "browser origins allowed to connect (the Foxglove web app); "
                             "the desktop app sends none and is allowed")
     backlog = Param(1024, "messages buffered per client before the oldest are dropped", minimum=16)
+    max_clients = Param(16, "clients connected at once at most (more are refused with 503)", minimum=1)
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring: Any = None) -> None:
         super().__init__(name, params, wiring)
@@ -92,7 +81,7 @@ class FoxgloveBridge(Node):
     def setup(self) -> None:
         token = self.token or secrets.token_urlsafe(18)
         self.server = FoxgloveServer(f"mocapgraph {self.name}", self.host, self.port, token, self.allowed_origins,
-                                     self.backlog)
+                                     self.backlog, self.max_clients)
         try:
             self.server.start()
         except GateStartError as exc:

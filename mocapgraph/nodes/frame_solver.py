@@ -19,16 +19,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..bus import Input, Node, Output, Param
+from ..bus.file_places import PathRefused, own_folder_path
 from ..kinematics.model import ActorModel, ModelFileError, load_model
 from ..messages import ActorPose, MarkerFrame, MarkerLayout
 from ..messages import SkeletonModel
 from ..adapters.model_messages import marker_index, missing_pose, model_from_message, pose_message
 
 if TYPE_CHECKING:   # imported when the node is built (see __init__)
-    from ..kinematics.solver import FrameSolver
+    from ..kinematics.solving.solver import FrameSolver
 
-SOLVER_KERNELS = ("mocapgraph.kinematics.global_fit_kernels", "mocapgraph.kinematics.joint_kernels",
-                  "mocapgraph.kinematics.rigid_kernels")
+SOLVER_KERNELS = ("mocapgraph.kinematics.solving.global_fit_kernels", "mocapgraph.kinematics.solving.joint_kernels",
+                  "mocapgraph.kinematics.solving.rigid_kernels")
 
 FILTERS = ("", "one_euro", "constant_velocity")
 
@@ -69,7 +70,7 @@ class FrameSolverNode(Node):
         # module, which the launcher imports to check a graph against the declarations above (scipy
         # and numba would cost every check of a graph with a solver ~0.3 s)
         from ..jit import warm_all
-        from ..kinematics.solver import FrameSolver
+        from ..kinematics.solving.solver import FrameSolver
 
         self._new_solver = FrameSolver
         warm_all(SOLVER_KERNELS)
@@ -84,8 +85,8 @@ class FrameSolverNode(Node):
             self.log.error("model_file %s does not exist; waiting for skeleton_model", self.model_file)
             return
         try:
-            self._use_model(load_model(self.model_file), self.model_file)
-        except ModelFileError as exc:
+            self._use_model(load_model(own_folder_path(self.model_file, "model_file")), self.model_file)
+        except (ModelFileError, PathRefused) as exc:
             self.log.error("%s; waiting for skeleton_model", exc)
 
     # ----- model and layout ---------------------------------------------------------------------

@@ -12,7 +12,7 @@ from pylsl.util import InternalError, LostError, TimeoutError as LSLTimeoutError
 
 from ..bus import Param
 from ..formats.device_file import DeviceConfig, device_or_default
-from .marker_source import LayoutMap, MarkerSourceNode, device_up_axis
+from .marker_source import LayoutMap, MarkerSourceNode, check_device_param, device_up_axis
 from .source_base import INPUT_ERRORS, SourceError
 
 AXIS_SUFFIXES = ("_x", "_y", "_z", ".x", ".y", ".z", " x", " y", " z", "x", "y", "z")
@@ -70,6 +70,11 @@ class LSLReader(MarkerSourceNode):
     up_axis = device_up_axis()
     poll_s = Param(0.002, "how often to pull samples from the inlet, s", minimum=0.0005)
     resolve_s = Param(0.25, "how often to look for the stream while none fits, s", minimum=0.05)
+
+    @classmethod
+    def graph_check(cls, params: dict[str, Any]) -> None:
+        """The graph check refuses a device file this reader would refuse (the node itself reports it)."""
+        check_device_param(params)
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)

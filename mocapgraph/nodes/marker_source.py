@@ -153,6 +153,18 @@ def device_up_axis() -> Param:
                          "refused)", choices=UP_AXIS_CHOICES)
 
 
+def check_device_param(params: dict[str, Any]) -> None:
+    """The graph check's look at a device reader's ``device`` file (with its ``up_axis``): a file the
+    reader would refuse (NaN or inf in it, a bad key...) fails the check, naming the device file's line."""
+    from ..bus.node import NodeConfigError
+    from ..formats.device_file import DeviceConfigError, device_or_default
+
+    try:
+        device_or_default(str(params.get("device", "")), params.get("up_axis"))
+    except DeviceConfigError as exc:
+        raise NodeConfigError(f"parameter 'device': {exc}") from None
+
+
 class MarkerFilePlayer(FilePlayback, MarkerSourceNode):
     """Replays a MarkerTrial (C3D, TRC) in real time or faster; subclasses only read the file."""
 

@@ -27,7 +27,8 @@ import numpy as np
 
 from ..bus import Input, Node, Output, Param
 from ..jit import warm_all
-from ..kinematics.character import Character, CharacterError
+from ..bus.node import NodeConfigError
+from ..retarget.character import Character, CharacterError, checked_shift
 from ..messages import CharacterInfo, CharacterPose, NodeCommand, NodeStatus, PhysicsScene, PhysicsState
 from ..messages.commands import PHYSICS_COMMANDS, parse_command
 from ..physics.controller import Gains
@@ -39,6 +40,14 @@ from ..physics.world import PhysicsWorld, TrackerParams
 SUFFIX = "/physical"
 PHYSICS_KERNELS = ("mocapgraph.physics.controller_kernels", "mocapgraph.physics.posture_kernels",
                    "mocapgraph.physics.state_kernels")
+
+
+def _check_stage_offset(params: dict) -> None:
+    """A stage shift that is not a place in the room (1e300) is refused by the check, not by MuJoCo."""
+    try:
+        checked_shift(params.get("stage_offset", [0.0, 0.0, 0.0]), "parameter 'stage_offset'")
+    except CharacterError as exc:
+        raise NodeConfigError(str(exc)) from None
 
 
 class PhysicsTrackerNode(Node):
@@ -77,15 +86,16 @@ class PhysicsTrackerNode(Node):
                   "empty: the floor only")
     stage_offset = Param([0.0, 0.0, 0.0], "move the whole stage by this much, m (with a retargeter offset)")
     characters = Param([], "character names to simulate, in world order; empty: every one that appears")
-    compiled = Param(True, "per-frame control, database search and read-out as numba kernels (false: the numpy "
-                     "reference path, same results to ~1e-12)")
     stale_s = Param(0.25, "no frame for this long: keep simulating in wall time (stand and wait), s",
                     minimum=0.01)
     max_lag_s = Param(0.05, "a frame published longer ago than this only updates the target (the node "
                       "was behind: it catches up instead of queueing latency), s", minimum=0.0)
 
+    graph_check = classmethod(lambda cls, params: _check_stage_offset(params))
+
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
+        self.graph_check(self.params)
         self.chars: dict[str, Character] = {}
         self.order: list[str] = []
         self.world: PhysicsWorld | None = None
@@ -105,11 +115,10 @@ class PhysicsTrackerNode(Node):
                                             virtual_joints=self.virtual_joints, dodge=self.dodge,
                                             gravity_compensation=self.gravity_compensation,
                                             foot_max_force=self.foot_max_force,
-                                            trunk_max_force=self.trunk_max_force, compiled=self.compiled)
+                                            trunk_max_force=self.trunk_max_force)
         # load the compiled kernels now (numba's first call in a process costs ~0.5 s even from its
         # cache): on the first frame it would put the node that far behind its stream
-        if self.compiled:
-            warm_all(PHYSICS_KERNELS)
+        warm_all(PHYSICS_KERNELS)
         try:
             self.db = open_posture_db(self.posture_db)
             if self.stage:
@@ -159,12 +168,12 @@ class PhysicsTrackerNode(Node):
             db = self.db if self.db is not None and tuple(self.db.joint_names) == ch.joint_names else None
             if self.db is not None and db is None:
                 self.log.warning("posture database joints do not match %s: no filling for it", ch.name)
-            self.cond.append(TargetConditioner(ch, db, compiled=self.compiled))
+            self.cond.append(TargetConditioner(ch, db))
         self.started_pose = [False] * len(chars)
         # a simulated joint is estimated (1): the body's answer to its target, never a measurement
         self._sim_quality = np.ones(max(c.n_joints for c in chars), dtype=np.int8)
         shapes, sizes = self.world.geom_shapes()
-        self.physics_scene.publish(PhysicsScene(body_names=list(self.world.geom_names), shapes=list(shapes),
+        self.physics_scene.publish(PhysicsScene(body_names=list(self.world.index.geom_names), shapes=list(shapes),
                                                 sizes=sizes))
         for ch in chars:
             self.sim_character_info.publish(CharacterInfo(character=ch.name + SUFFIX, joint_names=list(ch.joint_names),
@@ -244,12 +253,12 @@ class PhysicsTrackerNode(Node):
         data = {"characters": self.order, "frames": self.frames, "skipped_behind": self.skipped}
         if w is not None:
             err = w.tracking_error()
-            data.update(max_force_n=w.max_applied_force, max_torque_nm=w.max_applied_torque,
+            data.update(max_force_n=w.control.max_applied_force, max_torque_nm=w.control.max_applied_torque,
                         force_bound_n=self.max_force, torque_bound_nm=self.max_torque, resets=w.resets,
                         mean_error_m=float(np.nanmean(err)) if np.isfinite(err).any() else None,
                         finite=bool(np.isfinite(w.data.qpos).all()), sim_time_s=float(w.data.time),
                         step_ms_median=float(np.median(self.step_ms)) if self.step_ms else None,
-                        pins=[bool(x) for x in w.pin_on], filled_frames=[c.filled_frames for c in self.cond],
+                        pins=[bool(x) for x in w.pins.on], filled_frames=[c.filled_frames for c in self.cond],
                         held_frames=[c.held_frames for c in self.cond])
         state = "tracking" if w is not None and time.monotonic() - self.last_frame_wall < self.stale_s else "waiting"
         self.physics_status.publish(NodeStatus(node=self.name, state=state, detail=self.failed,

@@ -1,4 +1,4 @@
-"""Node types by registry name. Graph files name a node type either here or as module:Class.
+"""Node types by registry name. Graph files name a node type here, as mocapgraph.module:Class, or as a file.py:Class.
 
 Entries are import paths, so listing the registry imports nothing heavy; a node's module is
 imported only when a graph uses it or `mocapgraph node info` asks for it.

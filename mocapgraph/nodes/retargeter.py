@@ -21,17 +21,28 @@ import numpy as np
 
 from ..bus import Input, Node, Output, Param
 from ..bus.bound_ports import COPY_BELOW
+from ..bus.file_places import PathRefused, own_folder_path
+from ..bus.node import NodeConfigError
 from ..messages import (ActorPose, CharacterInfo, CharacterPose, NodeCommand, NodeStatus, SkeletonInfo,
                         SkeletonModel, SkeletonPose)
 
 from ..messages.commands import RETARGET_COMMANDS as COMMANDS
 
 if TYPE_CHECKING:   # the math (scipy, numba) is imported when the node is built (see __init__)
-    from ..kinematics.retarget import RetargetOptions
+    from ..retarget.retargeter import RetargetOptions
+
+
+def _check_offset(params: dict) -> None:
+    """The ``offset`` param (padded to 3, as the node uses it): finite, within the room."""
+    from ..retarget.character import CharacterError, checked_shift
+    try:
+        checked_shift((list(params.get("offset") or []) + [0.0, 0.0, 0.0])[:3], "parameter 'offset'")
+    except CharacterError as exc:
+        raise NodeConfigError(str(exc)) from None
 
 
 class RetargeterNode(Node):
-    """Source frames in, character frames out (kinematics.retarget does the work)."""
+    """Source frames in, character frames out (retarget.retargeter does the work)."""
 
     summary = "the performer on a character (Kiip/Claro retargeting, foot planting) -> CharacterPose"
     actor_pose = Input("actor_pose", ActorPose, "solved actor frames (source: actor)")
@@ -81,8 +92,24 @@ class RetargeterNode(Node):
                     iface.inputs[k] = replace(iface.inputs[k], latest_only=True)
         return iface
 
+    @classmethod
+    def graph_check(cls, params: dict) -> None:
+        """The check refuses a character file this node would refuse (file:line) and a shift that
+        is not a place in the room (1e300), before MuJoCo or a drawing meets them."""
+        from ..formats.character_file import CharacterFileError, load_character
+        _check_offset(params)
+        try:
+            load_character(str(params.get("character", cls.character.default)))
+        except CharacterFileError as exc:
+            raise NodeConfigError(f"parameter 'character': {exc}") from None
+
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
+        _check_offset(self.params)
+        try:  # written later: a regular file in the folder the graph names, never a device or elsewhere
+            self.mapping_out and own_folder_path(self.mapping_out, "parameter 'mapping_out'")
+        except PathRefused as exc:
+            raise NodeConfigError(str(exc)) from None
         self.rig = None
         self._rg_definition: tuple | None = None     # what the retargeter was built for
         self._rg_refused: str | None = None
@@ -96,10 +123,10 @@ class RetargeterNode(Node):
         # ~0.4 s of frames behind them), nor with this module, which the launcher imports to check a
         # graph against the declarations above (scipy and numba would cost each check ~0.9 s of CPU)
         from ..formats import mapping_file, retarget_setup  # noqa: F401
-        from ..kinematics import retarget_kernels, retarget_source_kernels
-        retarget_kernels.load()
+        from ..retarget import kernels, warmup
+        kernels.load()
         if self.source == "skeleton":   # rotations from a positions-only stream (Kinect)
-            retarget_source_kernels.warm()
+            warmup.warm_source_kernels()
 
     # ----- status -------------------------------------------------------------------------------
     def _status(self, state: str, detail: str, data: dict | None = None, error: bool = False) -> None:
@@ -108,7 +135,7 @@ class RetargeterNode(Node):
                                                 data_json=json.dumps(data or {})))
 
     def _options(self) -> RetargetOptions:
-        from ..kinematics.retarget import RetargetOptions
+        from ..retarget.retargeter import RetargetOptions
         return RetargetOptions(spread=self.spread, aim=self.aim, roll=self.roll, follow_bones=self.follow_bones,
                                follow_tolerance_deg=float(self.follow_tolerance_deg),
                                foot_planting=self.foot_planting, root_scale=self.root_scale,
@@ -118,7 +145,7 @@ class RetargeterNode(Node):
     def _build(self, source, key: tuple, what: str) -> None:
         from ..formats.character_file import CharacterFileError
         from ..formats.retarget_setup import build
-        from ..kinematics.retarget_mapping import MappingError
+        from ..retarget.mapping import MappingError
         if self._rg_definition == key and self.rig is not None:
             return
         self.rig, self._rg_definition = None, key
@@ -234,7 +261,7 @@ class RetargeterNode(Node):
             self._status("waiting", f"{cmd.command}: no source stream yet", error=True)
             return
         from ..formats.mapping_file import write_mapping
-        from ..kinematics.retarget_mapping import MappingError
+        from ..retarget.mapping import MappingError
         rt = self.rig.retargeter
         if cmd.command == "reset":
             rt.reset()

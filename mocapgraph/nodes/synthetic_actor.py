@@ -1,7 +1,7 @@
 """Synthetic actor node: a scripted human performer as live markers, with exact ground truth.
 
 The embedded default source (no download, no hardware). Frames come from
-:class:`mocapgraph.kinematics.synthetic_actor.SyntheticActor` (base pose hold, range-of-motion
+:class:`mocapgraph.kinematics.synthetic.actor.SyntheticActor` (base pose hold, range-of-motion
 gym, walk / reach / turn / kick performance). The whole session is computed before the graph
 starts when it fits in ``precompute_mb`` (the default one-pass session does at any usual rate);
 longer sessions are computed ahead in chunks on a worker thread. Either way the timer that
@@ -23,9 +23,9 @@ import numpy as np
 
 from ..bus import Output, Param
 from ..adapters.model_messages import model_to_message
-from ..kinematics.synthetic_actor import CaptureOptions, SyntheticActor, SyntheticCapture
-from ..kinematics.synthetic_motion import MotionScript
-from ..kinematics.synthetic_truth import exact_model
+from ..kinematics.synthetic.actor import CaptureOptions, SyntheticActor, SyntheticCapture
+from ..kinematics.synthetic.motion import MotionScript
+from ..kinematics.synthetic.truth import exact_model
 from ..messages import QUALITY_GOOD, ActorPose, SkeletonModel
 from .marker_source import LayoutMap, MarkerSourceNode
 from .source_base import INPUT_ERRORS, SourceError

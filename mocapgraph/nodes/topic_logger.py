@@ -6,6 +6,8 @@ import time
 from typing import Any
 
 from ..bus import Input, Interface, Node, Param
+from ..bus.file_places import PathRefused, own_folder_path
+from ..bus.node import NodeConfigError
 from ..messages import Message
 
 
@@ -24,11 +26,18 @@ class TopicLogger(Node):
             iface.inputs[f"in{i}"] = Input(str(topic), None, f"logged topic {topic}", name=f"in{i}")
         return iface
 
+    def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
+        super().__init__(name, params, wiring)
+        try:  # a regular file where the graph says: never a device, a fifo or a symlink elsewhere
+            self._file = open(own_folder_path(self.path, "parameter 'path'"), "a", buffering=1 << 16)
+        except PathRefused as exc:
+            raise NodeConfigError(str(exc)) from None
+        except OSError as exc:
+            raise NodeConfigError(f"parameter 'path': cannot open {self.path}: {exc.strerror or exc}") from None
+        self._lines = 0
+
     def input_handler(self, port_name: str):
         port = self.input_ports[port_name]
-        if not hasattr(self, "_file"):
-            self._file = open(self.path, "a", buffering=1 << 16)
-            self._lines = 0
 
         def write(msg: Message) -> None:
             env = port.envelope
@@ -43,5 +52,4 @@ class TopicLogger(Node):
         return write
 
     def on_stop(self) -> None:
-        if hasattr(self, "_file"):
-            self._file.close()
+        self._file.close()

@@ -21,11 +21,10 @@ import webbrowser
 from typing import Any, Callable
 
 from ..bus import Input, Interface, Node, Output, Param
-from ..messages import (ActorPose, CharacterInfo, CharacterPose, Diagnostics, MarkerFrame, MarkerLayout, Message,
-                        NodeCommand, NodeStatus, PhysicsScene, PhysicsState, SkeletonInfo, SkeletonModel,
-                        SkeletonPose)
-from ..launch.user_dir import UnsafeDirError, secret_file
+from ..bus.user_dir import UnsafeDirError, secret_file
+from ..messages import Message, NodeCommand
 from ..viewer.server import COMMANDS, LatestStore, ViewerServer, ViewerStartError
+from .stage_inputs import stage_inputs
 
 FRAME_QUEUE = 64  # messages a per-frame input's socket holds before dropping (counted as gaps)
 # The field naming a stream inside a topic, per type (several actors on one actor_pose topic).
@@ -33,24 +32,12 @@ _IDENT_FIELD = {"ActorPose": "actor", "SkeletonPose": "source_id", "CharacterPos
                 "CharacterInfo": "character", "Diagnostics": "node", "NodeStatus": "node"}
 
 
-class Visualizer(Node):
+class Visualizer(stage_inputs(FRAME_QUEUE), Node):
     """Serves the live 3D stage page and streams the subscribed topics to it."""
 
     summary = "live 3D stage in the browser (HTTP + WebSocket on 127.0.0.1, port a param)"
 
-    markers = Input.optional("markers", MarkerFrame, "labelled markers, drawn green (seen) or red (not seen)", queue=FRAME_QUEUE)
-    marker_layout = Input.optional("marker_layout", MarkerLayout, "marker labels (names of missing markers)", queue=FRAME_QUEUE, latched=True)
-    actor_pose = Input.optional("actor_pose", ActorPose, "solved actors: joints and bones coloured by quality", queue=FRAME_QUEUE)
-    skeleton_model = Input.optional("skeleton_model", SkeletonModel, "calibrated models: bones and per-joint quality", queue=FRAME_QUEUE, latched=True)
-    skeleton_pose = Input.optional("skeleton_pose", SkeletonPose, "generic joint streams (Kinect, BVH)", queue=FRAME_QUEUE)
-    skeleton_info = Input.optional("skeleton_info", SkeletonInfo, "joint names and parents of skeleton streams", queue=FRAME_QUEUE, latched=True)
-    character_pose = Input.optional("character_pose", CharacterPose, "retargeted characters", queue=FRAME_QUEUE)
-    character_info = Input.optional("character_info", CharacterInfo, "character skeletons (parents for bones)", queue=FRAME_QUEUE, latched=True)
-    physics_state = Input.optional("physics_state", PhysicsState, "simulated bodies", queue=FRAME_QUEUE)
-    physics_scene = Input.optional("physics_scene", PhysicsScene, "body shapes and sizes", queue=FRAME_QUEUE, latched=True)
-    node_diagnostics = Input.optional("diagnostics", Diagnostics, "every node's edge rates, latency and drops", queue=FRAME_QUEUE)
-    calibration_status = Input.optional("calibration_status", NodeStatus, "calibration state machine", queue=FRAME_QUEUE)
-    player_status = Input.optional("player_status", NodeStatus, "bag player state (position, duration)", queue=FRAME_QUEUE)
+    # inputs: every topic of stage_inputs.STAGE_TOPICS (declared by the base), FRAME_QUEUE messages each
 
     calibration_command = Output("calibration_command", NodeCommand, "find_base_pose, capture_gym, process")
     player_command = Output("player_command", NodeCommand, "play, pause, step, seek {position_s: seconds} (the bag player's commands)")

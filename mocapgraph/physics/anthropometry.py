@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics.character import Character
+from ..retarget.character import Character
 
 
 @dataclass(frozen=True)

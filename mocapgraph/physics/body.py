@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics.character import Character
+from ..retarget.character import Character
 from .anthropometry import bone_masses
 
 MAX_CHARACTERS = 30

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from .quat_lean import qmul_conj
+from ..kinematics.quaternion import quat_multiply_conj_rows
 
 
 @dataclass
@@ -80,7 +80,7 @@ def joint_forces(g: Gains, p: np.ndarray, v: np.ndarray, p_t: np.ndarray, v_t: n
 def twist_angle(q_t: np.ndarray, q: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """Twist (rad, in (-pi, pi]) about world ``axis`` [N, 3] of the rotation taking ``q`` to ``q_t``
     (wxyz [N, 4]): the twist part of the swing-twist decomposition of ``q_t q^-1``."""
-    e = qmul_conj(q_t, q)
+    e = quat_multiply_conj_rows(q_t, q)
     ew = e[:, 0]
     s = (e[:, 1:] * axis).sum(1)
     sign = np.copysign(1.0, ew)  # q and -q are one rotation: take the short way round

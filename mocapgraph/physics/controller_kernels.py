@@ -1,28 +1,108 @@
 """Compiled per-frame controller of the physics world: Eq 1 forces, Eq 2 torques, pins, targets.
 
-The same arithmetic as the numpy reference in :mod:`.world` / :mod:`.controller` (tests compare
+The same arithmetic as the numpy reference in :mod:`.reference` (same signatures; tests compare
 them), as numba kernels that read MuJoCo's ``mjData`` arrays in place and write the body wrenches
 straight into ``data.xfrc_applied``: a force ``f`` at point ``p`` on body ``b`` adds
 ``[f, (p - xipos[b]) x f]`` to row ``b``, which is what ``mj_applyFT`` does. Units SI (m, m/s, N,
 N·m, rad), world frame Z up, quaternions wxyz. Point arrays are stacked over every character;
 ``pt_*`` index sites/bodies per point, ``b_*`` per controlled body.
+
+Kernels take groups of arrays as tuples laid out as the ``NamedTuple`` classes below say (and
+unpack them in that order): callers pass ``tuple(group)``, since numba types a plain tuple in its
+C dispatcher but a named one in Python (measured: 4 us more a call for 18 arrays, 10 % of a frame).
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from ..jit import kernel
 
 
+class Sim(NamedTuple):
+    """The ``mjData`` arrays the control reads and writes (views: ``mj_resetData`` keeps them)."""
+
+    site_xpos: np.ndarray     # [nsite, 3] m
+    cvel: np.ndarray          # [nbody, 6] rad/s, m/s (rotation first), about subtree_com
+    subtree_com: np.ndarray   # [nbody, 3] m
+    xipos: np.ndarray         # [nbody, 3] m, body centres of mass
+    xquat: np.ndarray         # [nbody, 4] wxyz
+    xmat: np.ndarray          # [nbody, 9] row-major
+    xfrc_applied: np.ndarray  # [nbody, 6] N, N·m (written)
+
+
+class Points(NamedTuple):
+    """Every controlled joint point, stacked over the characters (int64 ids, float64 bounds)."""
+
+    site: np.ndarray     # [N] MuJoCo site of the point
+    body: np.ndarray     # [N] its body
+    root: np.ndarray     # [N] its body's root (for subtree_com)
+    bound: np.ndarray    # [N] N, Eq 1 bound
+
+
+class Bodies(NamedTuple):
+    """Every controlled body, stacked over the characters."""
+
+    body: np.ndarray     # [B] MuJoCo body id
+    axis: np.ndarray     # [B, 3] twist axis in the body frame, unit
+    scale: np.ndarray    # [B] kg·m^2, inertia about the axis (Eq 2 gains are per unit of it)
+
+
+class Targets(NamedTuple):
+    """The stacked point targets [N]; written by :func:`set_target_into` (the dodge and ``reach``
+    write the constraints)."""
+
+    p_t: np.ndarray             # [N, 3] m, tracked target (lifted above the floor), NaN: none
+    v_t: np.ndarray             # [N, 3] m/s, its velocity (clipped)
+    override: np.ndarray        # [N, 3] m, positional constraints (reach), NaN: none
+    dodge_override: np.ndarray  # [N, 3] m, the dodge's positional targets, NaN: none
+
+
+class Orientations(NamedTuple):
+    """The stacked body orientation targets [B]; written by :func:`set_target_into`."""
+
+    q_t: np.ndarray             # [B, 4] wxyz, world orientation target
+    w_t: np.ndarray             # [B, 3] rad/s, its angular velocity (clipped)
+    has_rot: np.ndarray         # [B] bool, an orientation target is set
+
+
+class Inputs(NamedTuple):
+    """The input targets as given [N], what foot contact is judged by; written by :func:`set_target_into`."""
+
+    p_in: np.ndarray            # [N, 3] m, before lifting; NaN: missing
+    v_in: np.ndarray            # [N, 3] m/s, its velocity (unclipped)
+
+
+class Terms(NamedTuple):
+    """A frame's Eq 1 terms (from :func:`frame_terms`): f = c0 + (i + 1) slope - kp p - kd v."""
+
+    c0: np.ndarray      # [N, 3] N
+    slope: np.ndarray   # [N, 3] N per substep
+    kp: np.ndarray      # [N] N/m (0 without target)
+    kd: np.ndarray      # [N] N·s/m
+
+
+class Pins(NamedTuple):
+    """The foot pins (virtual joints): one per foot point."""
+
+    point: np.ndarray    # [P] stacked point of the foot
+    rest_z: np.ndarray   # [P] m, the foot's rest height (on the floor)
+    on: np.ndarray       # [P] bool, switched on (written)
+    mocap: np.ndarray    # [P] mocap body index of the pin
+    eq: np.ndarray       # [P] MuJoCo equality (connect) id
+
+
 @kernel
-def frame_terms(p_t, v_t, override, dodge_override, kp_pt, kd_pt, span, ts, c0, slope, kp, kd) -> None:
+def frame_terms(tgt, kp_pt, kd_pt, span, ts, terms) -> None:
     """Per-frame Eq 1 terms: with the target moving on at its velocity between frames, the force at
     substep i is ``c0 + (i + 1) slope - kp p - kd v``. A positional constraint (override, then the
     dodge's) replaces the target and holds still; a point without a target gets zero gains.
-    In: p_t, v_t, override, dodge_override [N, 3]; kp_pt, kd_pt [N] (N/m, N·s/m); span = substeps *
-    ts (s). Out: c0, slope [N, 3]; kp, kd [N]."""
+    In: ``tgt`` (:class:`Targets`); kp_pt, kd_pt [N] (N/m, N·s/m); span = substeps * ts (s).
+    Out: ``terms`` (:class:`Terms`)."""
+    p_t, v_t, override, dodge_override = tgt
+    c0, slope, kp, kd = terms
     for i in range(p_t.shape[0]):
         ok = True
         for c in range(3):
@@ -54,12 +134,15 @@ def frame_terms(p_t, v_t, override, dodge_override, kp_pt, kd_pt, span, ts, c0, 
 
 
 @kernel
-def twist_torques_into(xquat, xmat, cvel, b_body, b_axis, q_t, w_t, has_rot, scale, kp_rot, kd_rot,
-                       max_torque, tq) -> float:
-    """Eq 2 for every controlled body (body ids ``b_body``, bone axes ``b_axis`` [B, 3] in the body
-    frame): the twist of ``q_t q^-1`` about the world axis, torque ``clip(kp theta + kd rate)``
-    along it (gains times ``scale``, the inertia about the axis), 0 without an orientation target
-    or when not finite. Writes ``tq`` [B, 3] N·m; returns the largest norm."""
+def twist_torques_into(sim, bod, rot, gains, tq) -> float:
+    """Eq 2 for every controlled body (``bod``: body ids, bone axes [B, 3] in the body frame): the
+    twist of ``q_t q^-1`` about the world axis, torque ``clip(kp theta + kd rate)`` along it (gains
+    ``(kp_rot, kd_rot, max_torque)`` times the inertia about the axis), 0 without an orientation
+    target or when not finite. Writes ``tq`` [B, 3] N·m; returns the largest norm."""
+    site_xpos, cvel, subtree_com, xipos, xquat, xmat, xfrc = sim
+    b_body, b_axis, scale = bod
+    q_t, w_t, has_rot = rot
+    kp_rot, kd_rot, max_torque = gains
     top = 0.0
     for i in range(b_body.shape[0]):
         b = b_body[i]
@@ -95,12 +178,14 @@ def twist_torques_into(xquat, xmat, cvel, b_body, b_axis, q_t, w_t, has_rot, sca
 
 
 @kernel
-def joint_forces_into(site_xpos, cvel, subtree_com, pt_site, pt_body, pt_root, c0, slope, step, kp, kd,
-                      bound, f) -> float:
+def joint_forces_into(sim, pts, terms, step, f) -> float:
     """Eq 1 at every joint point for substep ``step``: the point's velocity from its body's ``cvel``
     about the subtree centre of mass, ``f = c0 + (step + 1) slope - kp p - kd v``, non-finite
     components zeroed, each norm clipped to ``bound`` [N]. Writes ``f`` [N, 3] N; returns the
     largest squared norm applied."""
+    site_xpos, cvel, subtree_com, xipos, xquat, xmat, xfrc = sim
+    pt_site, pt_body, pt_root, bound = pts
+    c0, slope, kp, kd = terms
     top2 = 0.0
     for i in range(pt_site.shape[0]):
         s, b, r = pt_site[i], pt_body[i], pt_root[i]
@@ -135,9 +220,11 @@ def joint_forces_into(site_xpos, cvel, subtree_com, pt_site, pt_body, pt_root, c
 
 
 @kernel
-def apply_wrenches(site_xpos, xipos, pt_site, pt_body, f, b_body, tq, xfrc) -> None:
+def apply_wrenches(sim, pts, f, b_body, tq) -> None:
     """``xfrc_applied`` [nbody, 6] = the body torques ``tq`` on bodies ``b_body`` plus each point
     force ``f`` [N, 3] at its site: ``[f, (p - xipos[body]) x f]`` (mj_applyFT at the point)."""
+    site_xpos, cvel, subtree_com, xipos, xquat, xmat, xfrc = sim
+    pt_site, pt_body, pt_root, bound = pts
     xfrc[:, :] = 0.0
     for i in range(b_body.shape[0]):
         b = b_body[i]
@@ -159,33 +246,71 @@ def apply_wrenches(site_xpos, xipos, pt_site, pt_body, f, b_body, tq, xfrc) -> N
 
 
 @kernel
-def substep_control(site_xpos, cvel, subtree_com, xipos, xquat, xmat, xfrc,
-                    pt_site, pt_body, pt_root, b_body, b_axis, scale_body,
-                    c0, slope, kp, kd, bound, q_t, w_t, has_rot,
-                    step, kp_rot, kd_rot, max_torque, f, tq, tops) -> None:
+def substep_control(sim, pts, bod, terms, rot, gains, step, f, tq, tops) -> None:
     """One substep's control after ``mj_step1``: Eq 2 torques on the first substep of a frame (held
-    over the rest), Eq 1 forces, both summed into ``xfrc``. ``tops`` [2]: largest squared force
-    of this substep, largest torque norm (first substep)."""
+    over the rest), Eq 1 forces, both summed into ``sim.xfrc_applied``. ``gains``: (kp_rot 1/s^2,
+    kd_rot 1/s, max_torque N·m). Writes ``f`` [N, 3], ``tq`` [B, 3]; ``tops`` [2]: largest squared
+    force of this substep, largest torque norm (first substep)."""
     if step == 0:
-        tops[1] = twist_torques_into(xquat, xmat, cvel, b_body, b_axis, q_t, w_t, has_rot, scale_body,
-                                     kp_rot, kd_rot, max_torque, tq)
-    tops[0] = joint_forces_into(site_xpos, cvel, subtree_com, pt_site, pt_body, pt_root, c0, slope, step,
-                                kp, kd, bound, f)
-    apply_wrenches(site_xpos, xipos, pt_site, pt_body, f, b_body, tq, xfrc)
+        tops[1] = twist_torques_into(sim, bod, rot, gains, tq)
+    tops[0] = joint_forces_into(sim, pts, terms, step, f)
+    apply_wrenches(sim, pts, f, bod[0], tq)
 
 
 @kernel
-def set_target_into(positions, orientations, body_joints, a, b0, dt, max_speed, max_rate, parents, min_z,
-                    p_t, v_t, q_t, w_t, has_rot, p_in, v_in) -> None:
+def _orientation_targets(orientations, body_joints, b0, dt, max_rate, rot) -> None:
+    """:func:`set_target_into`'s orientations: bodies from ``b0`` take their joint's orientation
+    (kept where the new one is missing) and its rate, 2 vec(q q_prev^-1) / dt clipped to
+    ``max_rate`` rad/s (0 without a previous one or a usable ``dt``)."""
+    q_t, w_t, has_rot = rot
+    use_dt = 1e-4 < dt < 0.5
+    for k in range(body_joints.shape[0]):
+        i = b0 + k
+        j = body_joints[k]
+        qw, qx, qy, qz = orientations[j, 0], orientations[j, 1], orientations[j, 2], orientations[j, 3]
+        ok_q = math.isfinite(qw) and math.isfinite(qx) and math.isfinite(qy) and math.isfinite(qz)
+        wx, wy, wz = 0.0, 0.0, 0.0
+        if use_dt and ok_q and has_rot[i]:
+            # 2 vec(q q_prev^-1) / dt, signed by its scalar part (the short way round)
+            bw, bx, by, bz = q_t[i, 0], -q_t[i, 1], -q_t[i, 2], -q_t[i, 3]
+            ew = qw * bw - qx * bx - qy * by - qz * bz
+            ex = qw * bx + qx * bw + qy * bz - qz * by
+            ey = qw * by - qx * bz + qy * bw + qz * bx
+            ez = qw * bz + qx * by - qy * bx + qz * bw
+            g = math.copysign(2.0 / dt, ew)
+            wx, wy, wz = ex * g, ey * g, ez * g
+            n2 = wx * wx + wy * wy + wz * wz
+            if n2 > max_rate * max_rate:
+                sc = min(1.0, max_rate / math.sqrt(max(n2, 1e-24)))
+                wx *= sc
+                wy *= sc
+                wz *= sc
+        w_t[i, 0] = wx
+        w_t[i, 1] = wy
+        w_t[i, 2] = wz
+        if ok_q:
+            q_t[i, 0] = qw
+            q_t[i, 1] = qx
+            q_t[i, 2] = qy
+            q_t[i, 3] = qz
+        has_rot[i] = ok_q
+
+
+@kernel
+def set_target_into(positions, orientations, body_joints, parents, a, b0, dt, limits, min_z, tgt, rot,
+                    inp) -> None:
     """One character's new target into the stacked arrays (points from ``a``, bodies from ``b0``):
     a target under the floor (below ``min_z``) swung up about its parent, else raised; velocities
     of those targets by finite differences over ``dt`` s (none when ``dt`` is outside (1e-4, 0.5) s;
     a row missing now or before gets 0), clipped to ``max_speed`` m/s and ``max_rate`` rad/s;
-    orientations kept where the new one is missing. ``p_in``, ``v_in`` [N, 3]: the input rows as
-    given (a partly missing row NaN) and their velocities (unclipped; 0 where not finite), what
-    the foot pins judge contact by. The numpy reference is ``PhysicsWorld.set_target``."""
+    orientations kept where the new one is missing; ``limits`` = (max_speed, max_rate). ``inp``
+    (``p_in``, ``v_in`` [N, 3]): the input rows as given (a partly missing row NaN) and their
+    velocities (unclipped; 0 where not finite), what the foot pins judge contact by. The numpy
+    reference is :func:`.reference.set_target_into`."""
+    p_t, v_t, _, _ = tgt
+    p_in, v_in = inp
+    max_speed, max_rate = limits
     J = positions.shape[0]
-    B = body_joints.shape[0]
     use_dt = 1e-4 < dt < 0.5
     for j in range(J):
         i = a + j
@@ -246,41 +371,11 @@ def set_target_into(positions, orientations, body_joints, a, b0, dt, max_speed, 
         p_t[i, 0] = px
         p_t[i, 1] = py
         p_t[i, 2] = pz
-    for k in range(B):
-        i = b0 + k
-        j = body_joints[k]
-        qw, qx, qy, qz = orientations[j, 0], orientations[j, 1], orientations[j, 2], orientations[j, 3]
-        ok_q = math.isfinite(qw) and math.isfinite(qx) and math.isfinite(qy) and math.isfinite(qz)
-        wx, wy, wz = 0.0, 0.0, 0.0
-        if use_dt and ok_q and has_rot[i]:
-            # 2 vec(q q_prev^-1) / dt, signed by its scalar part (the short way round)
-            bw, bx, by, bz = q_t[i, 0], -q_t[i, 1], -q_t[i, 2], -q_t[i, 3]
-            ew = qw * bw - qx * bx - qy * by - qz * bz
-            ex = qw * bx + qx * bw + qy * bz - qz * by
-            ey = qw * by - qx * bz + qy * bw + qz * bx
-            ez = qw * bz + qx * by - qy * bx + qz * bw
-            g = math.copysign(2.0 / dt, ew)
-            wx, wy, wz = ex * g, ey * g, ez * g
-            n2 = wx * wx + wy * wy + wz * wz
-            if n2 > max_rate * max_rate:
-                sc = min(1.0, max_rate / math.sqrt(max(n2, 1e-24)))
-                wx *= sc
-                wy *= sc
-                wz *= sc
-        w_t[i, 0] = wx
-        w_t[i, 1] = wy
-        w_t[i, 2] = wz
-        if ok_q:
-            q_t[i, 0] = qw
-            q_t[i, 1] = qx
-            q_t[i, 2] = qy
-            q_t[i, 3] = qz
-        has_rot[i] = ok_q
+    _orientation_targets(orientations, body_joints, b0, dt, max_rate, rot)
 
 
 @kernel
-def switch_pins(p_in, v_in, pin_point, pin_rest_z, pin_on, pin_mocap, mocap_pos, site_xpos, pt_site, pin_eq,
-                eq_active, contact_height, contact_speed, pin_slack, pin_hold, follow_step) -> bool:
+def switch_pins(inp, pins, mocap_pos, site_xpos, pt_site, eq_active, rule) -> bool:
     """Virtual joints on the feet (Shum & Ho 6.1), judged by the input target (``p_in``, ``v_in``:
     a toe target under the floor swung up about the ankle moves faster than the toe did): a pin
     switches on where its foot's target is within
@@ -291,7 +386,11 @@ def switch_pins(p_in, v_in, pin_point, pin_rest_z, pin_on, pin_mocap, mocap_pos,
     after it horizontally by at most ``follow_step`` m (this frame's share of the follow speed):
     a pivoting foot turns with its target at a bounded rate instead of being let go and caught
     up at PD speed. Writes ``pin_on``, ``mocap_pos`` and ``eq_active``; True if any switched. A
-    missing target (NaN) neither pins nor holds. Reference: ``PhysicsWorld._update_pins``."""
+    missing target (NaN) neither pins nor holds. ``rule`` = (contact_height, contact_speed,
+    pin_slack, pin_hold, follow_step), m and m/s. Reference: :func:`.reference.switch_pins`."""
+    p_in, v_in = inp
+    pin_point, pin_rest_z, pin_on, pin_mocap, pin_eq = pins
+    contact_height, contact_speed, pin_slack, pin_hold, follow_step = rule
     changed = False
     for k in range(pin_point.shape[0]):
         i = pin_point[k]
@@ -331,25 +430,19 @@ def switch_pins(p_in, v_in, pin_point, pin_rest_z, pin_on, pin_mocap, mocap_pos,
 def warm() -> None:
     """Compile every kernel here once on small inputs (fills the on-disk cache)."""
     n, b, nb = 2, 2, 3
-    p3 = np.zeros((n, 3))
-    nan3 = np.full((n, 3), np.nan)
-    c0, slope, f = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
-    kp, kd = np.zeros(n), np.zeros(n)
-    frame_terms(p3, p3, nan3, nan3, np.ones(n), np.ones(n), 0.01, 0.005, c0, slope, kp, kd)
+    tgt = tuple(Targets(np.zeros((n, 3)), np.zeros((n, 3)), np.full((n, 3), np.nan), np.full((n, 3), np.nan)))
+    rot = tuple(Orientations(np.tile([1.0, 0, 0, 0], (b, 1)), np.zeros((b, 3)), np.ones(b, dtype=np.bool_)))
+    inp = tuple(Inputs(np.zeros((n, 3)), np.zeros((n, 3))))
+    terms = tuple(Terms(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n)))
+    frame_terms(tgt, np.ones(n), np.ones(n), 0.01, 0.005, terms)
     idx = np.arange(n, dtype=np.int64)
-    xq = np.tile([1.0, 0, 0, 0], (nb, 1))
-    xm = np.tile(np.eye(3).ravel(), (nb, 1))
-    cvel = np.zeros((nb, 6))
-    tq = np.zeros((b, 3))
-    qt = np.tile([1.0, 0, 0, 0], (b, 1))
-    has = np.ones(b, dtype=np.bool_)
-    tops = np.zeros(2)
-    substep_control(np.zeros((nb, 3)), cvel, np.zeros((nb, 3)), np.zeros((nb, 3)), xq, xm, np.zeros((nb, 6)),
-                    idx, idx, idx, idx, np.ones((b, 3)), np.ones(b), c0, slope, kp, kd, np.ones(n), qt,
-                    np.zeros((b, 3)), has, 0, 1.0, 1.0, 1.0, f, tq, tops)
-    set_target_into(p3, np.tile([1.0, 0, 0, 0], (n, 1)), idx, 0, 0, 0.01, 6.0, 20.0,
-                    np.array([-1, 0], dtype=np.int64), np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3)),
-                    qt.copy(), np.zeros((b, 3)), has.copy(), np.zeros((n, 3)), np.zeros((n, 3)))
-    eq = np.zeros(2, dtype=np.bool_)
-    switch_pins(p3, p3, idx, np.zeros(n), np.zeros(n, dtype=np.bool_), idx, np.zeros((nb, 3)), np.zeros((nb, 3)),
-                idx, idx, eq, 0.03, 0.25, 0.05, 0.02, 0.0015)
+    sim = tuple(Sim(np.zeros((nb, 3)), np.zeros((nb, 6)), np.zeros((nb, 3)), np.zeros((nb, 3)),
+                    np.tile([1.0, 0, 0, 0], (nb, 1)), np.tile(np.eye(3).ravel(), (nb, 1)), np.zeros((nb, 6))))
+    pts = tuple(Points(idx, idx, idx, np.ones(n)))
+    bod = tuple(Bodies(idx, np.ones((b, 3)), np.ones(b)))
+    substep_control(sim, pts, bod, terms, rot, (1.0, 1.0, 1.0), 0, np.zeros((n, 3)), np.zeros((b, 3)), np.zeros(2))
+    set_target_into(np.zeros((n, 3)), np.tile([1.0, 0, 0, 0], (n, 1)), idx, np.array([-1, 0], dtype=np.int64),
+                    0, 0, 0.01, (6.0, 20.0), np.zeros(n), tgt, rot, inp)
+    pins = tuple(Pins(idx, np.zeros(n), np.zeros(n, dtype=np.bool_), idx, idx))
+    switch_pins(inp, pins, np.zeros((nb, 3)), np.zeros((nb, 3)), idx, np.zeros(2, dtype=np.bool_),
+                (0.03, 0.25, 0.05, 0.02, 0.0015))

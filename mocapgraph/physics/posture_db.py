@@ -7,8 +7,9 @@ below ``min_ssd`` m^2 from a kept posture) are dropped. PCA (SVD of the centred 
 ``k`` components. A query is normalised the same way, its missing joints take the database mean
 (section 5.2), it is projected and its nearest posture found in the reduced space by brute force or
 a k-d tree (``scipy.spatial.cKDTree``), whichever :meth:`PostureDB.choose_search` measured faster.
-:meth:`PostureDB.complete` substitutes the missing positions and rotations from the match (P_e, Θ_e),
-the match put back at the query's root and heading.
+:meth:`PostureDB.complete_into` substitutes the missing positions and rotations from the match (P_e,
+Θ_e), the match put back at the query's root and heading, as kernels (:mod:`.posture_kernels`);
+their numpy reference is :func:`.reference.complete`.
 
 Stored as ``.npz`` (arrays plus a JSON header); units metres, world Z up.
 """
@@ -24,6 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..kinematics.quaternion import quat_multiply
+from ..messages.bounded_json import loads_bounded
 from . import posture_kernels as pk
 
 FORMAT = "mocapgraph.posture_db/1"
@@ -82,7 +84,7 @@ class Frame:
         return yaw, origin, ok
 
 
-def _rz_rows(yaw: float) -> np.ndarray:
+def rz_rows(yaw: float) -> np.ndarray:
     """Row vectors times this turn about +Z by ``yaw`` rad."""
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -102,7 +104,7 @@ def normalise_one(frame: Frame, pos: np.ndarray) -> tuple[np.ndarray | None, flo
     origin = pos[frame.root]
     if not np.isfinite(origin).all():
         origin = 0.5 * (np.asarray(a) + np.asarray(b))
-    return (pos - origin) @ _rz_rows(-yaw), yaw, origin
+    return (pos - origin) @ rz_rows(-yaw), yaw, origin
 
 
 def normalise(frame: Frame, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -178,18 +180,21 @@ class PostureDB:
         self._search_t = np.ascontiguousarray(np.vstack([-2.0 * self._reduced.T, self._sqnorm[None]]))
         self._query = np.ones(self.k + 1)
         self._tree = cKDTree(self._reduced)
-        # the compiled path's contiguous arrays and buffers
-        self._k_reduced_t = np.ascontiguousarray(self._reduced.T)
-        self._k_dist = np.zeros(len(self._reduced))
-        self._k_sqnorm = np.ascontiguousarray(self._sqnorm)
-        self._k_basis = np.ascontiguousarray(self._basis, dtype=np.float64)
-        self._k_mean = np.ascontiguousarray(self.mean, dtype=np.float64)
-        self._k_pos = np.ascontiguousarray(self.positions, dtype=np.float64)
-        self._k_rot = np.ascontiguousarray(self.rotations, dtype=np.float64)
-        self._k_pl = np.array([l for l, _ in self.frame.pairs], dtype=np.int64)
-        self._k_pr = np.array([r for _, r in self.frame.pairs], dtype=np.int64)
-        self._k_q = np.zeros(self.k)
-        self._k_info = np.zeros(4)
+        # the compiled path's contiguous arrays and buffers, as its kernels read them
+        self._k = tuple(pk.DBArrays(np.array([l for l, _ in self.frame.pairs], dtype=np.int64),
+                                    np.array([r for _, r in self.frame.pairs], dtype=np.int64), int(self.frame.root),
+                                    np.ascontiguousarray(self.mean, dtype=np.float64),
+                                    np.ascontiguousarray(self._basis, dtype=np.float64),
+                                    np.ascontiguousarray(self._reduced.T), np.ascontiguousarray(self._sqnorm),
+                                    np.zeros(len(self._reduced)),
+                                    np.ascontiguousarray(self.positions, dtype=np.float64),
+                                    np.ascontiguousarray(self.rotations, dtype=np.float64), np.zeros(self.k),
+                                    np.zeros(4)))
+
+    @property
+    def kernel_arrays(self) -> tuple:
+        """The database as :mod:`.posture_kernels` reads it (a plain tuple laid out as ``DBArrays``)."""
+        return self._k
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -232,7 +237,8 @@ class PostureDB:
         tree, each called as :meth:`complete_into` calls it; ms per query) and keep the faster."""
         rng = np.random.default_rng(0)
         q = self._reduced[rng.integers(0, len(self), trials)] + rng.normal(0, 0.01, (trials, self.k))
-        red, sq, dist = self._k_reduced_t, self._k_sqnorm, self._k_dist
+        k = pk.DBArrays(*self._k)
+        red, sq, dist = k.reduced_t, k.sqnorm, k.dist
         out = {}
         pk.nearest(q[0], red, sq, dist)
         t = time.perf_counter()
@@ -253,53 +259,13 @@ class PostureDB:
         (C-contiguous float64) from the nearest posture; ``filled`` [J] bool marks them. Returns the
         match index, or -1 when the query has no root/heading (nothing filled)."""
         if self.search_compiled == "brute":
-            return pk.complete_brute(pos, rot, self._k_pl, self._k_pr, self.frame.root, self._k_mean,
-                                     self._k_basis, self._k_reduced_t, self._k_sqnorm, self._k_dist, self._k_pos,
-                                     self._k_rot,
-                                     self._k_q, self._k_info, filled)
-        if not pk.query(pos, self._k_pl, self._k_pr, self.frame.root, self._k_mean, self._k_basis, self._k_q,
-                        self._k_info):
+            return pk.complete_brute(pos, rot, self._k, filled)
+        if not pk.query(pos, self._k):
             filled[:] = False
             return -1
-        idx = int(self._tree.query(self._k_q, k=1)[1])
-        pk.fill(idx, self._k_info, self._k_pos, self._k_rot, self.frame.root, pos, rot, filled)
+        idx = int(self._tree.query(self._k[10], k=1)[1])   # q, the query's reduced coordinates
+        pk.fill(idx, self._k, pos, rot, filled)
         return idx
-
-    def match(self, positions: np.ndarray) -> tuple[int, float, np.ndarray, bool]:
-        """Nearest posture to one world posture [J, 3] (NaN rows missing):
-        (index, heading yaw rad, root origin [3] m, whether the query could be normalised)."""
-        norm, yaw, origin = normalise_one(self.frame, positions)
-        if norm is None:
-            return -1, 0.0, np.zeros(3), False
-        return int(self.nearest(self.project(norm.reshape(1, -1)))[0]), yaw, origin, True
-
-    def posture_world(self, index: int, yaw: float, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Database posture ``index`` put at ``origin`` with heading ``yaw``: positions, local rotations."""
-        world = self.positions[index] @ _rz_rows(yaw) + origin
-        rot = self.rotations[index].copy()
-        r = self.frame.root
-        # (cos h, 0, 0, sin h) * root rotation, h = yaw / 2: the heading put back, in scalars
-        c, s = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-        w, x, y, z = rot[r].tolist()
-        rot[r] = (c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w)
-        return world, rot
-
-    def complete(self, positions: np.ndarray, rotations: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-        """Shum & Ho's P_e and Θ_e: missing (non-finite) joint positions and local rotations of one
-        posture taken from its nearest database posture. Returns (P_e [J, 3], Θ_e [J, 4],
-        filled [J] bool, match index or -1 when the query has no root/heading to normalise by)."""
-        pos = np.asarray(positions, float)
-        rot = np.asarray(rotations, float)
-        miss_p = ~np.isfinite(pos).all(1)
-        miss_r = ~np.isfinite(rot).all(1)
-        if not (miss_p.any() or miss_r.any()):
-            return pos, rot, np.zeros(len(pos), bool), -1
-        idx, yaw, origin, ok = self.match(pos)
-        if not ok:
-            return pos, rot, np.zeros(len(pos), bool), -1
-        wp, wr = self.posture_world(idx, yaw, origin)
-        return (np.where(miss_p[:, None], wp, pos), np.where(miss_r[:, None], wr, rot), miss_p | miss_r, idx)
 
     # ----- files -------------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
@@ -311,9 +277,11 @@ class PostureDB:
 
     @classmethod
     def load(cls, path: str | Path) -> "PostureDB":
+        if Path(path).exists() and not Path(path).is_file():  # a device or fifo: np.load would read forever or block
+            raise PostureDBError(f"{path}: not a regular file")
         try:
             with np.load(path, allow_pickle=False) as z:
-                header = json.loads(str(z["header"]))
+                header = loads_bounded(str(z["header"]), max_depth=8)   # (a hostile file's header: bounded)
                 if header.get("format") != FORMAT:
                     raise PostureDBError(f"{path}: not a posture database ({header.get('format')!r})")
                 return cls(tuple(header["joint_names"]), z["parents"], z["positions"], z["rotations"], z["mean"],
@@ -333,7 +301,7 @@ def open_posture_db(spec: str) -> PostureDB | None:
     if not spec:
         return None
     if spec.startswith("synthetic:"):
-        from ..kinematics.character import standard_20
+        from ..retarget.character import standard_20
         from .synthetic_targets import synthetic_postures
         pos, rot = synthetic_postures(spec)
         ch = standard_20()

@@ -1,26 +1,56 @@
 """Compiled per-frame posture database path and target conditioning (Shum & Ho section 5).
 
-The numpy references are :meth:`.posture_db.PostureDB.complete` (normalise the query by its root
+The numpy references are :func:`.reference.complete` (normalise the query by its root
 and heading, missing joints take the database mean, PCA projection, nearest posture, P_e / Θ_e
 substituted from the match put back at the query's root and heading) and
-:meth:`.tracker.TargetConditioner.condition` (rotation checks, quality, world orientations by
-forward kinematics); tests compare them. Units m, rad; world Z up; quaternions wxyz.
+:class:`.reference.ReferenceConditioner` (rotation checks, quality, world orientations by
+forward kinematics), of :class:`.tracker.TargetConditioner`; tests compare them. Groups of arrays travel as
+plain tuples laid out as :class:`DBArrays` and :class:`Skeleton`. Units m, rad; world Z up; quaternions wxyz.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from ..jit import kernel, readonly
 
 
+class DBArrays(NamedTuple):
+    """A posture database as the kernels read it (passed as ``tuple(arrays)``: numba types a plain
+    tuple in its C dispatcher, a named one in Python, 4 us more a call)."""
+
+    pair_l: np.ndarray     # [P] left joint of each heading pair
+    pair_r: np.ndarray     # [P] right joint
+    root: int              # the root joint
+    mean: np.ndarray       # [3J] m, mean normalised posture
+    basis: np.ndarray      # [k, 3J] principal axes
+    reduced_t: np.ndarray  # [k, N] the postures in the reduced space, as columns
+    sqnorm: np.ndarray     # [N] their squared norms
+    dist: np.ndarray       # [N] scratch
+    db_pos: np.ndarray     # [N, J, 3] m, normalised postures
+    db_rot: np.ndarray     # [N, J, 4] wxyz local rotations (the root's without heading)
+    q: np.ndarray          # [k] scratch: the query's reduced coordinates
+    info: np.ndarray       # [4] scratch: the query's (yaw rad, origin xyz m)
+
+
+class Skeleton(NamedTuple):
+    """One character's hierarchy as :func:`orient` reads it."""
+
+    root: int              # root joint
+    order: np.ndarray      # [J] joints, parents first
+    parents: np.ndarray    # [J] parent joint, -1 at the root
+    rest: np.ndarray       # [J, 4] wxyz rest rotations
+
+
 @kernel
-def query(pos, pair_l, pair_r, root, mean, basis, q, info) -> bool:
+def query(pos, dba) -> bool:
     """One posture [J, 3] (NaN rows missing) to its reduced PCA coordinates ``q`` [k]: origin at
     the root (else the first complete left/right pair's midpoint), heading from the first complete
-    pair turned to zero, missing coordinates taking ``mean`` [3J]. ``info`` [4] gets (yaw rad,
-    origin xyz m). False when no pair is complete (no heading to normalise by)."""
+    pair turned to zero, missing coordinates taking ``mean`` [3J] (``dba``: :class:`DBArrays`).
+    ``info`` [4] gets (yaw rad, origin xyz m). False when no pair is complete (no heading)."""
+    pair_l, pair_r, root, mean, basis, _, _, _, _, _, q, info = dba
     found = -1
     for p in range(pair_l.shape[0]):
         l, r = pair_l[p], pair_r[p]
@@ -80,10 +110,11 @@ def nearest(q, reduced_t, sqnorm, dist) -> int:
 
 
 @kernel
-def fill(index, info, db_pos, db_rot, root, pos, rot, filled) -> None:
+def fill(index, dba, pos, rot, filled) -> None:
     """Missing rows (non-finite) of ``pos`` [J, 3] and ``rot`` [J, 4] taken, in place, from database
     posture ``index`` put at the query's origin and heading (``info`` from :func:`query`); the
     root's rotation gets the heading back. ``filled`` [J] marks the rows taken."""
+    _, _, root, _, _, _, _, _, db_pos, db_rot, _, info = dba
     yaw, ox, oy, oz = info[0], info[1], info[2], info[3]
     c, s = math.cos(yaw), math.sin(yaw)
     hc, hs = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
@@ -105,15 +136,14 @@ def fill(index, info, db_pos, db_rot, root, pos, rot, filled) -> None:
 
 
 @kernel
-def complete_brute(pos, rot, pair_l, pair_r, root, mean, basis, reduced_t, sqnorm, dist, db_pos, db_rot, q,
-                   info, filled) -> int:
+def complete_brute(pos, rot, dba, filled) -> int:
     """:func:`query`, :func:`nearest` and :func:`fill` in one call (the brute-force search):
     the match index, or -1 when the query cannot be normalised (nothing filled)."""
-    if not query(pos, pair_l, pair_r, root, mean, basis, q, info):
+    if not query(pos, dba):
         filled[:] = False
         return -1
-    idx = nearest(q, reduced_t, sqnorm, dist)
-    fill(idx, info, db_pos, db_rot, root, pos, rot, filled)
+    idx = nearest(dba[10], dba[5], dba[6], dba[7])   # q, reduced_t, sqnorm, dist
+    fill(idx, dba, pos, rot, filled)
     return idx
 
 
@@ -150,11 +180,13 @@ def clean(pos_in, rot_in, quality, use_quality, pos, rot) -> int:
 
 
 @kernel
-def orient(pos, rot, root_in, root, order, parents, rest, orient_out) -> None:
+def orient(pos, rot, root_in, skel, orient_out) -> None:
     """World orientations [J, 4] of local rotations ``rot`` (``W[j] = W[parent] (rest[j] rot[j])``,
     joints in ``order``, parents first): a missing rotation turns as identity and marks its
     orientation and those below it unknown (NaN); all unknown without a root position (neither
-    ``root_in`` [3] nor joint ``root`` of ``pos`` finite). Rows of ``pos`` not wholly finite become NaN."""
+    ``root_in`` [3] nor joint ``root`` of ``pos`` finite; ``skel``: :class:`Skeleton`). Rows of
+    ``pos`` not wholly finite become NaN."""
+    root, order, parents, rest = skel
     J = pos.shape[0]
     root_ok = (math.isfinite(root_in[0]) and math.isfinite(root_in[1]) and math.isfinite(root_in[2])) or \
         (math.isfinite(pos[root, 0]) and math.isfinite(pos[root, 1]) and math.isfinite(pos[root, 2]))
@@ -204,8 +236,7 @@ def orient(pos, rot, root_in, root, order, parents, rest, orient_out) -> None:
 
 
 @kernel
-def condition_brute(pos_in, rot_in, root_in, quality, use_quality, root, order, parents, rest, pair_l, pair_r,
-                    mean, basis, reduced_t, sqnorm, dist, db_pos, db_rot, q, info, pos, rot, orient_out,
+def condition_brute(pos_in, rot_in, root_in, quality, use_quality, skel, dba, pos, rot, orient_out,
                     filled) -> int:
     """A whole frame's conditioning with a brute-force database in one call: :func:`clean`, then
     :func:`complete_brute` when a joint is missing, then :func:`orient`. Returns -2 to hold the last
@@ -215,11 +246,10 @@ def condition_brute(pos_in, rot_in, root_in, quality, use_quality, root, order, 
         return -2
     match = -1
     if state > 0:
-        match = complete_brute(pos, rot, pair_l, pair_r, root, mean, basis, reduced_t, sqnorm, dist, db_pos,
-                               db_rot, q, info, filled)
+        match = complete_brute(pos, rot, dba, filled)
     else:
         filled[:] = False
-    orient(pos, rot, root_in, root, order, parents, rest, orient_out)
+    orient(pos, rot, root_in, skel, orient_out)
     return match
 
 
@@ -231,27 +261,23 @@ def warm() -> None:
     pos[0, 0] = np.nan
     rot = np.tile([1.0, 0, 0, 0], (J, 1))
     pl, pr = np.array([1], dtype=np.int64), np.array([2], dtype=np.int64)
-    q, info, filled = np.zeros(k), np.zeros(4), np.zeros(J, dtype=np.bool_)
-    complete_brute(pos, rot, pl, pr, 0, np.zeros(3 * J), np.ones((k, 3 * J)), np.zeros((k, N)), np.zeros(N),
-                   np.zeros(N), np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), q, info, filled)
-    order, par, rest = np.arange(J, dtype=np.int64), np.array([-1, 0, 0], dtype=np.int64), np.tile([1.0, 0, 0, 0], (J, 1))
-    condition_brute(pos, rot, np.zeros(3), np.full(J, 2, dtype=np.int8), True, 0, order, par, rest, pl, pr,
-                    np.zeros(3 * J), np.ones((k, 3 * J)), np.zeros((k, N)), np.zeros(N), np.zeros(N),
-                    np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), q, info, np.zeros((J, 3)),
-                    np.zeros((J, 4)), np.zeros((J, 4)), filled)
+    filled = np.zeros(J, dtype=np.bool_)
+    dba = tuple(DBArrays(pl, pr, 0, np.zeros(3 * J), np.ones((k, 3 * J)), np.zeros((k, N)), np.zeros(N), np.zeros(N),
+                         np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), np.zeros(k), np.zeros(4)))
+    complete_brute(pos, rot, dba, filled)
+    skel = tuple(Skeleton(0, np.arange(J, dtype=np.int64), np.array([-1, 0, 0], dtype=np.int64),
+                          np.tile([1.0, 0, 0, 0], (J, 1))))
+    out = (np.zeros((J, 3)), np.zeros((J, 4)), np.zeros((J, 4)), filled)
+    condition_brute(pos, rot, np.zeros(3), np.full(J, 2, dtype=np.int8), True, skel, dba, *out)
     # the entry points called directly too (the k-d tree path, the search timing)
-    nearest(q, np.zeros((k, N)), np.zeros(N), np.zeros(N))
-    if query(pos, pl, pr, 0, np.zeros(3 * J), np.ones((k, 3 * J)), q, info):
-        fill(0, info, np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), 0, pos, rot, filled)
+    nearest(dba[10], dba[5], dba[6], dba[7])
+    if query(pos, dba):
+        fill(0, dba, pos, rot, filled)
     p2, r2 = np.zeros((J, 3)), np.zeros((J, 4))
     clean(pos, rot, np.full(J, 2, dtype=np.int8), True, p2, r2)
     clean(pos, rot, np.zeros(J, dtype=np.int8), False, p2, r2)
     # a node's targets are arrays decoded from CharacterPose: read-only, a signature of their own
     ro_pos, ro_rot, ro_q = readonly(pos), readonly(rot), readonly(np.full(J, 2, dtype=np.int8))
     clean(ro_pos, ro_rot, ro_q, True, p2, r2)
-    condition_brute(ro_pos, ro_rot, readonly(np.zeros(3)), ro_q, True, 0, order, par, rest, pl, pr,
-                    np.zeros(3 * J), np.ones((k, 3 * J)), np.zeros((k, N)), np.zeros(N), np.zeros(N),
-                    np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), q, info, np.zeros((J, 3)),
-                    np.zeros((J, 4)), np.zeros((J, 4)), filled)
-    orient(p2, rot, np.zeros(3), 0, np.arange(J, dtype=np.int64), np.array([-1, 0, 0], dtype=np.int64),
-           np.tile([1.0, 0, 0, 0], (J, 1)), np.zeros((J, 4)))
+    condition_brute(ro_pos, ro_rot, readonly(np.zeros(3)), ro_q, True, skel, dba, *out)
+    orient(p2, rot, np.zeros(3), skel, np.zeros((J, 4)))

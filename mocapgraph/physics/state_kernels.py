@@ -1,13 +1,14 @@
 """Compiled per-frame state read-out of the physics world: published geom poses and errors, the
 simulated character's local rotations.
 
-Numpy references: ``PhysicsWorld.geom_state`` / ``tracking_error`` / ``local_rotations`` (tests
-compare them). Reads MuJoCo's ``mjData`` arrays in place; m, wxyz (w >= 0 for geoms, as
-``kinematics.quaternion.matrix_to_quat``), world frame Z up.
+Numpy references: :mod:`.reference` (the same signatures; tests compare them). Reads MuJoCo's
+``mjData`` arrays in place; m, wxyz (w >= 0 for geoms, as ``kinematics.quaternion.matrix_to_quat``),
+world frame Z up.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -17,13 +18,23 @@ from ..kinematics import quat_kernels
 kernel = kernel_calling(quat_kernels)   # matrix_to_quat_into
 
 
+class GeomLayout(NamedTuple):
+    """What the published geoms read (passed as ``tuple(layout)``, see :mod:`.controller_kernels`)."""
+
+    geom_ids: np.ndarray    # [G] published geoms (every one but the floor)
+    pt_site: np.ndarray     # [N] the site of each stacked joint point
+    geom_j0: np.ndarray     # [G] a character capsule's two joints (stacked points), -1: not one
+    geom_j1: np.ndarray     # [G]
+    point_err: np.ndarray   # [N] m, scratch: each joint's distance to its target (written)
+
+
 @kernel
-def geom_state_into(geom_xpos, geom_xmat, geom_ids, site_xpos, pt_site, p_t, override, geom_j0, geom_j1,
-                    point_err, pos, quat, err) -> None:
+def geom_state_into(geom_xpos, geom_xmat, site_xpos, lay, p_t, override, pos, quat, err) -> None:
     """Published geoms ``geom_ids`` [G]: positions ``pos`` [G, 3], orientations ``quat`` [G, 4]
     (Shepperd's method from ``geom_xmat``, w >= 0), and ``err`` [G] the mean tracking error of a
     character capsule's two joints (``geom_j0/1``, -1: not a capsule, NaN). ``point_err`` [N] gets
     each joint's distance to its target (the override where one is set; NaN without target)."""
+    geom_ids, pt_site, geom_j0, geom_j1, point_err = lay
     for i in range(pt_site.shape[0]):
         s = pt_site[i]
         e2 = 0.0
@@ -75,8 +86,9 @@ def warm() -> None:
     n, g = 2, 2
     idx = np.arange(n, dtype=np.int64)
     xm = np.tile(np.eye(3).ravel(), (g, 1))
-    geom_state_into(np.zeros((g, 3)), xm, idx, np.zeros((n, 3)), idx, np.zeros((n, 3)), np.full((n, 3), np.nan),
-                    idx, idx, np.zeros(n), np.zeros((g, 3)), np.zeros((g, 4)), np.zeros(g))
+    lay = tuple(GeomLayout(idx, idx, idx, idx, np.zeros(n)))
+    geom_state_into(np.zeros((g, 3)), xm, np.zeros((n, 3)), lay, np.zeros((n, 3)), np.full((n, 3), np.nan),
+                    np.zeros((g, 3)), np.zeros((g, 4)), np.zeros(g))
     qpos = np.zeros(11)
     qpos[3] = qpos[7] = 1.0
     local_rotations_into(qpos, np.array([7], dtype=np.int64), np.array([1], dtype=np.int64), 0, 0,

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics.character import Character, standard_20
+from ..retarget.character import Character, standard_20
 from ..kinematics.quaternion import matrix_to_quat
-from ..kinematics.synthetic_actor import SyntheticActor
-from ..kinematics.synthetic_body import SEGMENT_NAMES
+from ..kinematics.synthetic.actor import SyntheticActor
+from ..kinematics.synthetic.body import SEGMENT_NAMES
 
 JOINT_SEGMENT = {
     "HipCenter": "pelvis", "Spine": "thorax", "ShoulderCenter": "thorax", "Head": "head",
@@ -60,7 +60,7 @@ def synthetic_targets(start_s: float, stop_s: float, rate: float = 120.0, *, see
     """``standard_20`` (or a character with its joint names) following the synthetic performer
     over [start_s, stop_s) of its session (base 0-1 s, gym 1-17 s, walk 17-22, reach 22-25,
     turn 25-27.5, walk back 27.5-32.5, kick 32.5-35, turn back 35-37.5)."""
-    from ..kinematics.synthetic_body import BodyParams
+    from ..kinematics.synthetic.body import BodyParams
     ch = character or standard_20(height)
     actor = actor or SyntheticActor("kiip_full_body", rate=rate, seed=seed, body=BodyParams(height=height),
                                     duration_s=max(stop_s + 1.0, 38.0))

@@ -3,7 +3,7 @@ time, joint centres on the base pose, as a self-contained HTML page or one PNG (
 
 Numbers come from the model itself (``quality.residual_rms`` in mm, ``range_of_motion`` in
 degrees) so that the page says what the model file says; marker residuals are recomputed from
-the calibration frames (:func:`~mocapgraph.kinematics.marker_residuals.marker_residuals`).
+the calibration frames (:func:`~mocapgraph.kinematics.calibration.marker_residuals.marker_residuals`).
 Views of the base pose: front (from +X, looking back: Y to the right, Z up) and side (X forward, Z up).
 Nothing is fetched from the internet: figures are embedded PNGs.
 """
@@ -21,7 +21,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..kinematics.marker_residuals import marker_residuals
+from ..kinematics.calibration.marker_residuals import marker_residuals
 
 if TYPE_CHECKING:  # for hints only: nothing of the model module is needed at run time
     from ..kinematics.model import ActorModel

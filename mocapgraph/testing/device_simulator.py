@@ -18,7 +18,7 @@ import numpy as np
 
 from ..formats.wire_protocol import encode_binary, encode_text
 from ..kinematics.labels import missing_labels, place_labels
-from ..kinematics.synthetic_actor import CaptureOptions, SyntheticActor
+from ..kinematics.synthetic.actor import CaptureOptions, SyntheticActor
 from ..formats.device_file import DeviceConfig, device_or_default
 
 

@@ -46,6 +46,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.http11 import Request, Response
 
 from ..messages import Envelope, Message
+from ..messages.bounded_json import loads_bounded
 from ..messages.commands import VIEWER_COMMANDS
 from ..net.async_server import AsyncServerThread, ServerStartError
 from . import ASSET_DIR
@@ -62,6 +63,7 @@ COMMAND_ARGS: dict[tuple[str, str], dict[str, tuple[str, bool]]] = {
 }
 MAX_SECONDS = 1e7  # no recording or command is longer than this (s); bigger numbers are refused
 COMMAND_RATE_HZ = 10.0
+MAX_MESSAGE_BYTES, MAX_MESSAGE_DEPTH = 64 * 1024, 8  # a page's command: checked before parsing
 COMMAND_BURST = 20
 _SERVED_SUFFIXES = (".html", ".js", ".css")
 
@@ -338,7 +340,7 @@ class ViewerServer(AsyncServerThread):
         try:
             if not client.bucket.take():  # first: a flood of bad commands is limited too
                 raise ValueError(f"too many commands (at most {COMMAND_RATE_HZ:g}/s); this one was dropped")
-            req = json.loads(text)
+            req = loads_bounded(text, MAX_MESSAGE_BYTES, MAX_MESSAGE_DEPTH)
             if not isinstance(req, dict) or req.get("type") != "command":
                 raise ValueError("not a command")
             channel, name = req.get("channel"), req.get("command")
@@ -395,6 +397,6 @@ def _headers(ctype: str, length: int) -> Headers:
 
 def _req_id(text: Any) -> Any:
     try:
-        return json.loads(text).get("id")
+        return loads_bounded(text, MAX_MESSAGE_BYTES, MAX_MESSAGE_DEPTH).get("id")
     except (ValueError, TypeError, AttributeError):
         return None

@@ -13,8 +13,8 @@ import time
 import numpy as np
 
 from mocapgraph.bus import Node, Output, Param
-from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
-from mocapgraph.kinematics.synthetic_motion import MotionScript
+from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
+from mocapgraph.kinematics.synthetic.motion import MotionScript
 from mocapgraph.messages import ActorPose, MarkerFrame, MarkerLayout
 
 

@@ -8,13 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mocapgraph.kinematics.calibration import CalibrationWarning, calibrate
+from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, calibrate
 from mocapgraph.kinematics.model import ActorModel
-from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
-from mocapgraph.kinematics.synthetic_motion import MotionScript
+from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
+from mocapgraph.kinematics.synthetic.motion import MotionScript
 
 from graph_helpers import read_jsonl, wait_until  # noqa: F401  (re-exported to the actor tests)
 
+#: the test source node, by the file that holds it (the graph check loads only files a graph names)
+ACTOR_SOURCE = f"{Path(__file__).resolve().parent / 'actor_source.py'}:ActorSource"
 PIPELINE = Path(__file__).resolve().parents[2] / "graph_configs" / "actor_pipeline.yaml"
 
 

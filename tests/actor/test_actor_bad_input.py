@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import yaml
 
-from actor_support import joints, poses, quick_model, statuses, wait_until
+from actor_support import ACTOR_SOURCE, joints, poses, quick_model, statuses, wait_until
 from mocapgraph.kinematics.layout import layout_path
 from mocapgraph.kinematics.model import save_model
 
@@ -33,14 +33,14 @@ def test_bad_inputs_are_named_and_the_nodes_keep_running(launch_graph, tmp_path)
     g = launch_graph(f"""\
 nodes:
   - name: src
-    type: actor_source:ActorSource
+    type: {ACTOR_SOURCE}
     params: {{duration_s: 6.0, speed: 4.0, seed: 0, nan_every: 10}}
   - name: still
-    type: actor_source:ActorSource
+    type: {ACTOR_SOURCE}
     params: {{duration_s: 5.0, speed: 4.0, gym_scale: 0.02}}
     remap: {{markers: still_markers, marker_layout: still_layout, ground_truth: still_truth}}
   - name: hidden
-    type: actor_source:ActorSource
+    type: {ACTOR_SOURCE}
     params: {{duration_s: 3.0, speed: 4.0, hide: [LKNE, RFIN]}}
     remap: {{markers: hidden_markers, marker_layout: hidden_layout, ground_truth: hidden_truth}}
   - name: cal_hidden

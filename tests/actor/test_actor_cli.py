@@ -16,8 +16,10 @@ from mocapgraph.cli import main
 from mocapgraph.formats import MarkerTrial, read_trc, write_c3d, write_trc
 from mocapgraph.kinematics.layout import layout_path
 from mocapgraph.kinematics.model import load_model, save_model
-from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
-from mocapgraph.kinematics.synthetic_motion import MotionScript
+from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
+from mocapgraph.kinematics.synthetic.motion import MotionScript
+
+pytestmark = pytest.mark.slow  # the calibrate/solve commands as processes, on real captures
 
 RATE = 120.0
 

@@ -11,14 +11,15 @@ import time
 import numpy as np
 import pytest
 
-from actor_support import PIPELINE, joints, poses, read_jsonl, states, statuses, wait_until
+from actor_support import ACTOR_SOURCE, PIPELINE, joints, poses, read_jsonl, states, statuses, wait_until
+from graph_helpers import CommandSender
 from mocapgraph.kinematics.model import load_model
 
 SOURCE = """\
   - name: src
     type: actor_source:ActorSource
     params: {{duration_s: {duration}, speed: 4.0, seed: 3}}
-"""
+""".replace("actor_source:ActorSource", ACTOR_SOURCE)
 
 
 def _pipeline_graph(log, model_file, rate_scale: float = 3.0, start_s: float = 0.0) -> str:
@@ -103,40 +104,10 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
         assert p2[f]["limb_orientations"] == p1[f]["limb_orientations"], f
 
 
-class CommandSender:
-    """An external publisher of NodeCommand on ``calibration_command`` (declared in the graph)."""
-
-    def __init__(self) -> None:
-        import zmq
-
-        self.sock = zmq.Context.instance().socket(zmq.XPUB)
-        self.port = self.sock.bind_to_random_port("tcp://127.0.0.1")
-        self.seq = 0
-
-    def wait_subscriber(self) -> None:
-        from mocapgraph.messages.codec import topic_frame
-
-        assert self.sock.poll(15000), "the calibration node never subscribed"
-        assert self.sock.recv() == b"\x01" + topic_frame("calibration_command")
-
-    def send(self, command: str, target: str = "", **args) -> None:
-        import time
-
-        from mocapgraph.messages import NodeCommand, encode
-
-        self.seq += 1
-        msg = NodeCommand(target=target, command=command, args_json=json.dumps(args))
-        self.sock.send_multipart([bytes(f) for f in encode("calibration_command", msg, self.seq,
-                                                            time.time_ns(), "test")])
-
-    def close(self) -> None:
-        self.sock.close(0)
-
-
 def test_calibration_driven_by_commands_reports_every_state(launch_graph, tmp_path):
     log = tmp_path / "status.jsonl"
     saved = tmp_path / "commanded.json"
-    cmd = CommandSender()
+    cmd = CommandSender("calibration_command", "the calibration node")
     g = launch_graph(f"""\
 external:
   - {{topic: calibration_command, type: NodeCommand, endpoint: "tcp://127.0.0.1:{cmd.port}"}}
@@ -144,13 +115,13 @@ nodes:
 {SOURCE.format(duration=60.0)}\
   - name: cal
     type: calibration
-    params: {{layout: kiip_full_body}}
+    params: {{layout: kiip_full_body, model_file: {tmp_path / 'actor_model.json'}}}  # save/load: in its folder
   - name: logger
     type: topic_logger
     params: {{path: {log}, topics: [calibration_status, skeleton_model]}}
 """)
     g.wait_ready()
-    cmd.wait_subscriber()
+    cmd.wait_subscriber(15.0)
 
     def last() -> dict:
         st = statuses(log, "cal")
@@ -214,10 +185,10 @@ def test_the_solver_node_never_calls_an_unreliable_joint_good(launch_graph, tmp_
     # live solver node publishes them estimated on every frame, the others good.
     import warnings
 
-    from mocapgraph.kinematics.calibration import CalibrationWarning, calibrate
+    from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, calibrate
     from mocapgraph.kinematics.model import save_model
-    from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
-    from mocapgraph.kinematics.synthetic_motion import MotionScript
+    from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
+    from mocapgraph.kinematics.synthetic.motion import MotionScript
 
     actor = SyntheticActor("kiip_full_body", rate=120.0, seed=3, script=MotionScript(gym_block_s=1.0),
                            options=CaptureOptions(noise_mm=1.0))

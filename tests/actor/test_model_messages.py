@@ -10,8 +10,8 @@ from actor_support import quick_model
 from mocapgraph.kinematics.layout import available_layouts
 from mocapgraph.kinematics.model import ModelFileError
 from mocapgraph.kinematics.skeleton import SkeletonDefinition
-from mocapgraph.kinematics.solver import FrameSolver
-from mocapgraph.kinematics.synthetic_actor import CaptureOptions, SyntheticActor
+from mocapgraph.kinematics.solving.solver import FrameSolver
+from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
 from mocapgraph.messages import decode, encode
 from mocapgraph.adapters.model_messages import (ModelMismatchError, marker_index, model_from_message,
                                              model_to_message, owner_limbs, pose_message)

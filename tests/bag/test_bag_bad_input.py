@@ -13,6 +13,8 @@ from mocapgraph.bag.writer import BagWriter
 from mocapgraph.messages import encode
 from mocapgraph.messages.codec import HEADER
 
+pytestmark = pytest.mark.slow  # each case runs the bag CLI as a process
+
 
 def clis(*arg_lists: list[str], timeout: float = 30) -> list[subprocess.CompletedProcess]:
     """Several independent `mocapgraph bag` calls run at once (their start-ups share the cores), in order."""

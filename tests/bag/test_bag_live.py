@@ -20,11 +20,13 @@ from mocapgraph.bag.reader import BagReader
 from mocapgraph.bag.recover import recover
 from mocapgraph.launch.check import check_graph
 from mocapgraph.launch.graph import load_graph
-from mocapgraph.launch.manifest import fetch_manifest, subscribe
+from mocapgraph.bus.manifest import fetch_manifest, subscribe
 from mocapgraph.formats.yaml_source import GraphError
 from mocapgraph.messages import NodeCommand, decode, decode_envelope, encode
 from mocapgraph.messages.codec import topic_frame
 from mocapgraph.testing.marker_pattern import pattern_positions
+
+pytestmark = pytest.mark.slow  # live recording and playback processes
 
 N_MARKERS = 64
 RATE = 240.0

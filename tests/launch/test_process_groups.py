@@ -16,10 +16,10 @@ from mocapgraph.bag.reader import BagReader
 from mocapgraph.bus.node import Input, Node, Output, Wiring
 from mocapgraph.bus.process import serve
 from mocapgraph.formats.retarget_setup import build, source_from_model
-from mocapgraph.kinematics.calibration import calibrate
-from mocapgraph.kinematics.retarget import RetargetOptions
+from mocapgraph.kinematics.calibration.calibrate import calibrate
+from mocapgraph.retarget.retargeter import RetargetOptions
 from mocapgraph.kinematics.model import save_model
-from mocapgraph.kinematics.synthetic_actor import SyntheticActor
+from mocapgraph.kinematics.synthetic.actor import SyntheticActor
 from mocapgraph.cli.graph_cmds import to_text
 from mocapgraph.launch.check import check_graph
 from mocapgraph.launch.graph import load_graph

@@ -19,6 +19,8 @@ from graph_helpers import (assert_pattern_frame, node_pids, pid_alive, read_json
 from mocapgraph.messages import MarkerFrame, encode
 from mocapgraph.messages.codec import topic_frame
 
+pytestmark = pytest.mark.slow  # launched graphs and the tools against them
+
 
 PIPELINE = """\
 args:
@@ -185,7 +187,7 @@ def test_topic_tools_against_a_running_graph(launch_graph, tmp_path) -> None:
     assert "type: MarkerFrame" in r.stdout and "pattern at ipc://" in r.stdout and "positions: float64[N,3]" in r.stdout
     # The reference: the pattern's own sequence numbers over its publish stamps, seen by this test
     # meanwhile (a busy machine makes the pattern skip ticks, so its real rate, not 200 Hz).
-    from mocapgraph.launch.manifest import fetch_manifest, subscribe
+    from mocapgraph.bus.manifest import fetch_manifest, subscribe
     from mocapgraph.messages import decode_envelope
 
     sock = subscribe(fetch_manifest(g.master), ["raw_markers"])

@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from mocapgraph.kinematics.character import standard_20
+from mocapgraph.retarget.character import standard_20
 from mocapgraph.physics.stage import Stage, load_stage
 from mocapgraph.physics.synthetic_targets import synthetic_targets
 from mocapgraph.physics.world import PhysicsWorld, TrackerParams
@@ -76,8 +76,8 @@ def _push_response(params: TrackerParams | None = None) -> dict:
     w = PhysicsWorld([ch], params=params or TrackerParams())
     w.set_pose(0, clip.local_rotations[0], clip.root[0])
     chest = ch.index("ShoulderCenter")
-    trunk = w.force_bound == w.force_bound[chest]
-    bodies = w.b_body
+    trunk = w.control.force_bound == w.control.force_bound[chest]
+    bodies = w.index.b_body
     err, ahead, fmax, momentum = [], [], 0.0, 0.0
     for i in range(360):
         w.set_target(0, clip.positions[0], clip.orientations[0], i * DT)
@@ -88,11 +88,11 @@ def _push_response(params: TrackerParams | None = None) -> dict:
         err.append(np.linalg.norm(p - clip.positions[0], axis=1).mean())
         ahead.append(p[chest, 0] - clip.positions[0][chest, 0])
         if 120 <= i < 132:
-            fmax = max(fmax, float(np.linalg.norm(w.last_forces[trunk], axis=1).max()))
+            fmax = max(fmax, float(np.linalg.norm(w.control.last_forces[trunk], axis=1).max()))
         if i == 131:   # the push's last frame: the body's forward momentum from MuJoCo's own state
             momentum = float((w.model.body_mass[bodies] * w.data.cvel[bodies, 3]).sum())
     return dict(err=1000 * np.array(err), ahead=1000 * np.array(ahead), fmax=fmax, momentum=momentum,
-                bound=float(w.force_bound[chest]))
+                bound=float(w.control.force_bound[chest]))
 
 
 def test_a_200N_push_displaces_and_the_character_recovers_within_1s():
@@ -155,7 +155,7 @@ def _shoot_at_head(dodge: bool, n: int = 6):
     for s in range(n):
         k = w.shoot(rest_pos[ch.index("Head")] + [0, 0.03 * (s - n / 2), 0])
         g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, st.ball_names[k])
-        dof = w.ball_dof[k]
+        dof = w.index.ball_dof[k]
         vx0 = w.data.qvel[dof]
         for _ in range(2 * 90):                         # 0.75 s per ball at 240 Hz checks
             w.set_target(0, rest_pos, rest_rot, t)
@@ -204,12 +204,11 @@ def test_two_characters_in_one_world_are_both_tracked():
 
 def test_eight_characters_in_one_world_are_each_tracked():
     """The benchmark's real-time figure is for 8 characters: each one of them tracks its walk (the
-    per-body wrench sums take the sparse path at this size)."""
+    kernels sum every body's wrench in one pass at this size)."""
     clip = synthetic_targets(17.0, 18.5)
     n = 8
     offs = [np.array([0.0, 2.5 * k, 0.0]) for k in range(n)]
     w = PhysicsWorld([clip.character] * n, spawns=offs)
-    assert w._A_sparse is not None
     for k in range(n):
         w.set_pose(k, clip.local_rotations[0], clip.root[0] + offs[k])
     err = np.zeros((len(clip), n))

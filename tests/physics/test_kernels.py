@@ -16,7 +16,8 @@ from mocapgraph.physics.posture_db import PostureDB
 from mocapgraph.physics.stage import load_stage
 from mocapgraph.physics.synthetic_targets import synthetic_targets
 from mocapgraph.physics.tracker import TargetConditioner
-from mocapgraph.physics.world import PhysicsWorld, TrackerParams
+from mocapgraph.physics.reference import REFERENCE, ReferenceConditioner
+from mocapgraph.physics.world import COMPILED, PhysicsWorld, TrackerParams
 
 RATE = 120.0
 
@@ -36,7 +37,7 @@ def db():
 
 def _pair(clip, stage=None):
     ws = [PhysicsWorld([clip.character], stage if stage is not None else load_stage("claro_pole"),
-                       TrackerParams(compiled=c)) for c in (False, True)]
+                       TrackerParams(), kernels=k) for k in (REFERENCE, COMPILED)]
     for w in ws:
         w.set_pose(0, clip.local_rotations[0], clip.root[0])
     return ws
@@ -50,9 +51,10 @@ def _sync(src: PhysicsWorld, dst: PhysicsWorld) -> None:
     mujoco.mj_setState(dst.model, dst.data, st, spec)
     for w in (src, dst):
         mujoco.mj_forward(w.model, w.data)
-    for name in ("p_t", "v_t", "p_in", "v_in", "q_t", "w_t", "has_rot", "pin_on", "override", "dodge_override"):
-        getattr(dst, name)[...] = getattr(src, name)
-    dst.time_of_target = list(src.time_of_target)
+    for name in ("p_t", "v_t", "p_in", "v_in", "q_t", "w_t", "has_rot", "override", "dodge_override"):
+        getattr(dst.targets, name)[...] = getattr(src.targets, name)
+    dst.pins.on[...] = src.pins.on
+    dst.targets.time_of_target = list(src.targets.time_of_target)
 
 
 def _frame_input(clip, i, rng):
@@ -83,20 +85,21 @@ def test_controller_kernels_equal_the_numpy_step_frame_by_frame(clip):
         p, q = _frame_input(clip, i, rng)
         for w in (ref, fast):
             w.set_target(0, p, q, clip.times[i])
-        assert np.array_equal(ref.p_t, fast.p_t, equal_nan=True) and np.array_equal(ref.has_rot, fast.has_rot)
-        assert np.array_equal(ref.p_in, fast.p_in, equal_nan=True)
-        worst["target"] = max(worst["target"], np.abs(ref.v_t - fast.v_t).max(), np.abs(ref.w_t - fast.w_t).max(),
-                              np.abs(ref.q_t - fast.q_t).max(), np.abs(ref.v_in - fast.v_in).max())
-        pins_before, on_before = ref.data.mocap_pos[ref.pin_mocap].copy(), ref.pin_on.copy()
+        a, b = ref.targets, fast.targets
+        assert np.array_equal(a.p_t, b.p_t, equal_nan=True) and np.array_equal(a.has_rot, b.has_rot)
+        assert np.array_equal(a.p_in, b.p_in, equal_nan=True)
+        worst["target"] = max(worst["target"], np.abs(a.v_t - b.v_t).max(), np.abs(a.w_t - b.w_t).max(),
+                              np.abs(a.q_t - b.q_t).max(), np.abs(a.v_in - b.v_in).max())
+        pins_before, on_before = ref.data.mocap_pos[ref.pins.mocap].copy(), ref.pins.on.copy()
         for w in (ref, fast):
             w.step(1.0 / RATE)
-        moved = (ref.data.mocap_pos[ref.pin_mocap] != pins_before).any(1)
-        followed += int((moved & on_before & ref.pin_on).sum())
-        switched += int((on_before != ref.pin_on).sum())
-        worst["pins"] += int((ref.pin_on != fast.pin_on).sum())
+        moved = (ref.data.mocap_pos[ref.pins.mocap] != pins_before).any(1)
+        followed += int((moved & on_before & ref.pins.on).sum())
+        switched += int((on_before != ref.pins.on).sum())
+        worst["pins"] += int((ref.pins.on != fast.pins.on).sum())
         worst["xfrc"] = max(worst["xfrc"], np.abs(ref.data.xfrc_applied - fast.data.xfrc_applied).max())
-        worst["force"] = max(worst["force"], np.abs(ref.last_forces - fast.last_forces).max())
-        worst["torque"] = max(worst["torque"], np.abs(ref.last_torques - fast.last_torques).max())
+        worst["force"] = max(worst["force"], np.abs(ref.control.last_forces - fast.control.last_forces).max())
+        worst["torque"] = max(worst["torque"], np.abs(ref.control.last_torques - fast.control.last_torques).max())
         assert np.abs(ref.data.mocap_pos - fast.data.mocap_pos).max() < 1e-12
     print(f"\ncompiled vs numpy controller, {len(clip) - 60} frames from one state: largest difference "
           f"xfrc_applied {worst['xfrc']:.1e} N(·m), force {worst['force']:.1e} N, torque {worst['torque']:.1e} N·m, "
@@ -106,9 +109,9 @@ def test_controller_kernels_equal_the_numpy_step_frame_by_frame(clip):
     assert worst["pins"] == 0 and switched > 0 and followed > 0
     # both kept every force within its bound, from the values actually applied
     for w in (ref, fast):
-        assert w.max_applied_force <= w.params.gains.max_force + 1e-9
-    assert abs(ref.max_applied_force - fast.max_applied_force) < 1e-9
-    assert abs(ref.max_applied_torque - fast.max_applied_torque) < 1e-12
+        assert w.control.max_applied_force <= w.params.gains.max_force + 1e-9
+    assert abs(ref.control.max_applied_force - fast.control.max_applied_force) < 1e-9
+    assert abs(ref.control.max_applied_torque - fast.control.max_applied_torque) < 1e-12
 
 
 def test_a_short_clip_tracked_by_both_paths_has_the_same_qpos(clip):
@@ -147,7 +150,7 @@ def test_conditioning_and_database_kernels_equal_numpy(clip, db, search):
     the split calls a profiled conditioner makes."""
     ch = clip.character
     db.search_compiled = "brute" if search == "split" else search
-    conds = [TargetConditioner(ch, db, compiled=c) for c in (False, True)]
+    conds = [ReferenceConditioner(ch, db), TargetConditioner(ch, db)]
     if search == "split":
         conds[1].profile = {}
     rng = np.random.default_rng(3)
@@ -204,16 +207,15 @@ def test_apply_wrenches_kernel_moves_the_model_as_mj_applyFT(clip):
     rng = np.random.default_rng(4)
     w.data.qvel[:] = rng.normal(0, 0.5, w.model.nv)
     mujoco.mj_forward(w.model, w.data)
-    p = w.point_positions()
+    p = w.readout.point_positions()
     f = rng.normal(0, 50, p.shape)
-    ck.apply_wrenches(w.data.site_xpos, w.data.xipos, w._k_site, w._k_body, f, w._k_bbody,
-                      np.zeros((len(w._k_bbody), 3)), w.data.xfrc_applied)
+    ck.apply_wrenches(w.control.sim, w.control.points, f, w.index.b_body, np.zeros((len(w.index.b_body), 3)))
     mujoco.mj_forward(w.model, w.data)
     qacc_kernel = w.data.qacc.copy()
     w.data.xfrc_applied[:] = 0
     qfrc = np.zeros(w.model.nv)
     for i in range(len(p)):
-        mujoco.mj_applyFT(w.model, w.data, f[i], np.zeros(3), p[i], int(w.pt_body[i]), qfrc)
+        mujoco.mj_applyFT(w.model, w.data, f[i], np.zeros(3), p[i], int(w.index.pt_body[i]), qfrc)
     w.data.qfrc_applied[:] = qfrc
     mujoco.mj_forward(w.model, w.data)
     np.testing.assert_allclose(qacc_kernel, w.data.qacc, rtol=1e-9, atol=1e-7)

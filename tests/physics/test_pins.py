@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapgraph.kinematics.character import standard_20
-from mocapgraph.physics.world import PhysicsWorld, TrackerParams
+from mocapgraph.retarget.character import standard_20
+from mocapgraph.physics.reference import REFERENCE
+from mocapgraph.physics.world import COMPILED, PhysicsWorld, TrackerParams
 
 RATE = 120.0
 
@@ -16,8 +17,8 @@ RATE = 120.0
 @pytest.mark.parametrize("compiled", [True, False])
 def test_a_pivoting_foot_follows_its_target_at_a_bounded_rate_and_lets_go_when_lifted(compiled):
     ch = standard_20(1.75)
-    prm = TrackerParams(compiled=compiled)
-    w = PhysicsWorld([ch], params=prm)
+    prm = TrackerParams()
+    w = PhysicsWorld([ch], params=prm, kernels=COMPILED if compiled else REFERENCE)
     w.set_pose(0, np.tile([1.0, 0, 0, 0], (ch.n_joints, 1)), ch.rest_pose()[0][ch.root])
     pos, rot = ch.rest_pose()
     toe, ankle = ch.index("FootRight"), ch.index("AnkleRight")
@@ -29,11 +30,11 @@ def test_a_pivoting_foot_follows_its_target_at_a_bounded_rate_and_lets_go_when_l
         w.set_target(0, p, rot, t)
         w.step(1.0 / RATE)
         t += 1.0 / RATE
-        return w.joint_positions(0)[toe].copy(), w.data.mocap_pos[w.pin_mocap[k]].copy(), bool(w.pin_on[k])
+        return w.joint_positions(0)[toe].copy(), w.data.mocap_pos[w.pins.mocap[k]].copy(), bool(w.pins.on[k])
 
     for _ in range(int(0.5 * RATE)):                       # standing still: both feet pinned
         frame(pos)
-    assert w.pin_on.all()
+    assert w.pins.on.all()
     # the toe pivots about the ankle at 0.2 m/s (over the follow speed, under the contact speed) for
     # 0.75 s, 15 cm of arc: it stays on the floor, so it stays pinned and its pin follows it
     arm = pos[toe] - pos[ankle]

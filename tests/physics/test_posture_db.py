@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mocapgraph.physics.posture_db import PostureDB, PostureDBError, normalise
+from mocapgraph.physics.reference import match
 from mocapgraph.physics.synthetic_targets import synthetic_targets
 from mocapgraph.physics.tracker import TargetConditioner
 from mocapgraph.physics.world import PhysicsWorld
@@ -48,10 +49,10 @@ def test_build_normalises_dedupes_and_round_trips(db, tmp_path):
 
 def test_match_is_yaw_and_translation_free_and_searches_agree(db, walk):
     p = walk.positions[100]
-    i, yaw, origin, ok = db.match(p)
+    i, yaw, origin, ok = match(db, p)
     c, s = np.cos(1.0), np.sin(1.0)
     R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-    j, yaw2, origin2, _ = db.match(p @ R.T + [3.0, -2.0, 0.0])
+    j, yaw2, origin2, _ = match(db, p @ R.T + [3.0, -2.0, 0.0])
     assert ok and i == j and yaw2 == pytest.approx(yaw + 1.0)
     q = db.project(normalise(db.frame, walk.positions[::7])[0].reshape(-1, 3 * len(db.joint_names)))
     np.testing.assert_array_equal(db.nearest(q, "brute"), db.nearest(q, "kdtree"))
@@ -142,7 +143,7 @@ def test_posture_db_build_command(tmp_path):
 
 
 def test_lean_world_orientations_equal_the_characters_forward_kinematics(walk):
-    from mocapgraph.physics.tracker import world_orientations
+    from mocapgraph.physics.reference import world_orientations
     ch = walk.character
     _, fk = ch.forward_kinematics(walk.local_rotations[40], walk.root[40])
     q = world_orientations(walk.local_rotations[40], ch.rest_rotations, ch.parents, ch._levels)

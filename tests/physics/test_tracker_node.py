@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -104,7 +105,7 @@ nodes:
     type: physics_tracker
     params: {{stage: balls}}
   - name: cmd
-    type: physics_support:CommandScript
+    type: {Path(__file__).resolve().parent / "physics_support.py"}:CommandScript
     params: {{script: [{{at_s: 1.0, command: shoot, args: {{joint: Head}}}},
                        {{at_s: 1.5, command: push, args: {{joint: ShoulderCenter, force: [0, 300, 0], duration_s: 0.2}}}},
                        {{at_s: 1.6, command: fly, args: {{}}}}]}}

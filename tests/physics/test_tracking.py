@@ -10,10 +10,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from mocapgraph.kinematics.character import standard_20
+from mocapgraph.retarget.character import standard_20
 from mocapgraph.physics.body import character_body
 from mocapgraph.physics.controller import Gains
 from mocapgraph.physics.synthetic_targets import synthetic_targets
+from mocapgraph.physics.reference import apply_wrenches
 from mocapgraph.physics.world import PhysicsWorld, TrackerParams
 
 RATE = 120.0
@@ -30,7 +31,7 @@ def run(clip, params: TrackerParams):
     w = PhysicsWorld([clip.character], params=params)
     w.set_pose(0, clip.local_rotations[0], clip.root[0])
     feet = w.bodies[0].feet
-    caps = np.array([i for i, n in enumerate(w.geom_names) if n.startswith("c0/")])
+    caps = np.array([i for i, n in enumerate(w.index.geom_names) if n.startswith("c0/")])
     n = len(clip)
     sim = np.empty((n, clip.character.n_joints, 3))
     lowest = np.empty(n)
@@ -40,17 +41,17 @@ def run(clip, params: TrackerParams):
         w.set_target(0, clip.positions[i], clip.orientations[i], clip.times[i])
         w.step(1.0 / RATE)
         sim[i] = w.joint_positions(0)
-        fn = np.linalg.norm(w.last_forces, axis=1)
+        fn = np.linalg.norm(w.control.last_forces, axis=1)
         forces[i] = fn.max()
         foot_forces[i] = fn[feet_pts].max()
-        torques[i] = np.linalg.norm(w.last_torques, axis=1).max()
-        g = w.geom_ids[caps]
+        torques[i] = np.linalg.norm(w.control.last_torques, axis=1).max()
+        g = w.index.geom_ids[caps]
         zc = w.data.geom_xpos[g, 2]
         axz = np.abs(w.data.geom_xmat[g].reshape(-1, 3, 3)[:, 2, 2])
         lowest[i] = (zc - axz * w.model.geom_size[g, 1] - w.model.geom_size[g, 0]).min()
     tv = np.r_[np.zeros((1, len(feet))),
                np.linalg.norm(np.diff(clip.positions[:, feet, :2], axis=0), axis=2) * RATE]
-    contact = (clip.positions[:, feet, 2] < w.pin_rest_z[None] + params.contact_height) & (tv < params.contact_speed)
+    contact = (clip.positions[:, feet, 2] < w.pins.rest_z[None] + params.contact_height) & (tv < params.contact_speed)
     # skating (#9): horizontal foot displacement between consecutive contact frames
     both = contact.copy()
     both[0] = False
@@ -101,7 +102,7 @@ def test_no_fall_lengths_kept_forces_bounded(clip, pinned):
     assert pinned["forces"].max() <= w.params.gains.max_force + 1e-9
     assert pinned["foot_forces"].max() <= w.params.foot_max_force + 1e-9
     assert pinned["torques"].max() <= w.params.gains.max_torque + 1e-9
-    assert w.max_applied_force <= w.params.gains.max_force + 1e-9
+    assert w.control.max_applied_force <= w.params.gains.max_force + 1e-9
     assert pinned["resets"] == 0
 
 
@@ -135,7 +136,7 @@ def test_body_masses_and_mjcf_file(tmp_path):
     ch = standard_20(1.75)
     w = PhysicsWorld([ch], params=TrackerParams(body_mass=82.0))
     m = w.model
-    bodies = w.b_body
+    bodies = w.index.b_body
     assert m.body_mass[bodies].sum() == pytest.approx(82.0, rel=1e-6)
     # de Leva: both thighs 28.3 % of body mass, sitting on the hip bodies
     thigh = m.body_mass[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "c0/HipLeft")]
@@ -155,17 +156,15 @@ def test_forces_through_xfrc_equal_mj_applyFT_at_the_joints(clip):
     rng = np.random.default_rng(3)
     w.data.qvel[:] = rng.normal(0, 0.5, w.model.nv)
     mujoco.mj_forward(w.model, w.data)
-    p = w.point_positions()
+    p = w.readout.point_positions()
     f = rng.normal(0, 50, p.shape)
-    arm = p - w.data.xipos[w.pt_body]
-    wrench = np.concatenate([f, np.cross(arm, f)], axis=1)
-    w.data.xfrc_applied[:] = w._A[:, :len(p)] @ wrench
+    apply_wrenches(w.control.sim, w.control.points, f, w.index.b_body, np.zeros((len(w.index.b_body), 3)))
     mujoco.mj_forward(w.model, w.data)
     qacc_ours = w.data.qacc.copy()
     w.data.xfrc_applied[:] = 0
     qfrc = np.zeros(w.model.nv)
     for i in range(len(p)):
-        mujoco.mj_applyFT(w.model, w.data, f[i], np.zeros(3), p[i], int(w.pt_body[i]), qfrc)
+        mujoco.mj_applyFT(w.model, w.data, f[i], np.zeros(3), p[i], int(w.index.pt_body[i]), qfrc)
     w.data.qfrc_applied[:] = qfrc
     mujoco.mj_forward(w.model, w.data)
     np.testing.assert_allclose(qacc_ours, w.data.qacc, rtol=1e-9, atol=1e-7)
@@ -176,16 +175,16 @@ def test_point_velocities_match_mujoco_jacobians(clip):
     w.set_pose(0, clip.local_rotations[500], clip.root[500])
     w.data.qvel[:] = np.random.default_rng(1).normal(0, 1.0, w.model.nv)
     mujoco.mj_forward(w.model, w.data)
-    p = w.point_positions()
-    v = w.point_velocities(p)
+    p = w.readout.point_positions()
+    v = w.readout.point_velocities(p)
     jacp = np.zeros((3, w.model.nv))
     for i in range(len(p)):
-        mujoco.mj_jac(w.model, w.data, jacp, None, p[i], int(w.pt_body[i]))
+        mujoco.mj_jac(w.model, w.data, jacp, None, p[i], int(w.index.pt_body[i]))
         np.testing.assert_allclose(v[i], jacp @ w.data.qvel, atol=1e-9)
     # and the simulated joints sit on the target pose we put the body in, raised onto the floor
     # (this frame's heel capsule cuts 43 mm into it: set_pose never starts a body in the floor)
-    lift = p[w.point_slice[0]][clip.character.root, 2] - clip.positions[500, clip.character.root, 2]
-    np.testing.assert_allclose(p[w.point_slice[0]] - [0.0, 0.0, lift], clip.positions[500], atol=1e-9)
+    lift = p[w.index.point_slice[0]][clip.character.root, 2] - clip.positions[500, clip.character.root, 2]
+    np.testing.assert_allclose(p[w.index.point_slice[0]] - [0.0, 0.0, lift], clip.positions[500], atol=1e-9)
     assert 0.0 < lift < 0.05 and abs(w.lowest_point(0)) < 1e-9
 
 

@@ -6,7 +6,7 @@ from functools import lru_cache
 import numpy as np
 
 from mocapgraph.formats.bvh_file import bvh_to_skeleton, read_bvh
-from mocapgraph.kinematics.retarget_source import skeleton_source
+from mocapgraph.retarget.source import skeleton_source
 
 
 @lru_cache(maxsize=4)

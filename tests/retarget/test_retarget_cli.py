@@ -12,6 +12,8 @@ import pytest
 from mocapgraph.bag.reader import BagReader
 from mocapgraph.formats.character_file import load_character
 
+pytestmark = pytest.mark.slow  # the retarget command as processes, on real captures
+
 
 def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     """The `mocapgraph retarget` command line, run in this process (its entry point, its output)."""
@@ -111,7 +113,7 @@ def test_mapping_command_writes_an_editable_file(tmp_path, shared_data):
 ])
 def test_bad_mapping_files_are_one_line_errors(tmp_path, shared_data, edit, needle):
     from mocapgraph.formats.mapping_file import write_mapping
-    from mocapgraph.kinematics.retarget_mapping import derive_mapping
+    from mocapgraph.retarget.mapping import derive_mapping
     from retarget_cli_support import cmu_source
     bvh = str(shared_data / "bvh/cmu/131_01.bvh")
     write_mapping(derive_mapping(load_character("mixamo"), cmu_source(bvh)), tmp_path / "m.yaml")

@@ -9,9 +9,9 @@ import pytest
 
 from mocapgraph.bag.reader import BagReader
 from mocapgraph.formats.mapping_file import load_mapping
-from mocapgraph.kinematics.character import standard_20
+from mocapgraph.retarget.character import standard_20
 
-from graph_helpers import read_jsonl, wait_until
+from graph_helpers import CommandSender, read_jsonl, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -96,42 +96,13 @@ def test_wrong_skeleton_for_the_mapping_keeps_the_node_running(launch_graph, tmp
     assert sum("cannot retarget" in s for s in _status(tmp_path)) == 1     # said once, not per frame
 
 
-class CommandSender:
-    """An external publisher of NodeCommand on ``retarget_command`` (declared in the graph)."""
-
-    def __init__(self) -> None:
-        import zmq
-
-        self.sock = zmq.Context.instance().socket(zmq.XPUB)
-        self.port = self.sock.bind_to_random_port("tcp://127.0.0.1")
-        self.seq = 0
-
-    def wait_subscriber(self) -> None:
-        from mocapgraph.messages.codec import topic_frame
-
-        assert self.sock.poll(30000), "the retargeter never subscribed"
-        assert self.sock.recv() == b"\x01" + topic_frame("retarget_command")
-
-    def send(self, command: str, target: str = "") -> None:
-        import time
-
-        from mocapgraph.messages import NodeCommand, encode
-
-        self.seq += 1
-        msg = NodeCommand(target=target, command=command, args_json="{}")
-        self.sock.send_multipart([bytes(f) for f in encode("retarget_command", msg, self.seq, time.time_ns(), "test")])
-
-    def close(self) -> None:
-        self.sock.close(0)
-
-
 def test_capture_rest_pose_writes_an_editable_mapping(launch_graph, tmp_path, shared_data):
     bvh = shared_data / "bvh" / "cmu" / "131_01.bvh"
     out = tmp_path / "captured.yaml"
     reader = f"""- name: reader
     type: bvh_player
     params: {{file: "{bvh}", rate_scale: 1.0, loop: true}}"""
-    cmd = CommandSender()
+    cmd = CommandSender("retarget_command", "the retargeter")
     external = f"""external:
   - {{topic: retarget_command, type: NodeCommand, endpoint: "tcp://127.0.0.1:{cmd.port}"}}
 """

@@ -1,4 +1,4 @@
-"""The page names a node whose diagnostics stopped for 3 s (SIGSTOP) as stalled, and clears it."""
+"""The page names a node whose diagnostics stopped for 3 s (SIGSTOP) as stalled, through a reconnect, and clears it."""
 from __future__ import annotations
 
 import os
@@ -22,6 +22,10 @@ nodes:
     g.wait_ready()
     page = open_page(viewer_url(g))
     page.wait("s.connected && s.framesDrawn > 3 && Array.isArray(s.stalled)", timeout=20)
+    # the page can only miss a node it has heard from: wait for pattern's first diagnostics (1 Hz),
+    # else a quick machine stops it before it ever reported
+    page.wait('window.mocapgraphViewer.store.ofType("Diagnostics").some((d) => (d.fields.node || d.sender) === "pattern")',
+              timeout=10)
     assert page.stats()["stalled"] == []
     pid = node_pids(g)["pattern"]
     os.kill(pid, signal.SIGSTOP)
@@ -29,6 +33,14 @@ nodes:
         page.wait('s.stalled.includes("pattern")', timeout=10)
         assert "viz" not in page.stats()["stalled"]
         assert "pattern" in page.page.locator("#stalled-nodes").inner_text()
+        # the link drops and comes back: the server sends every stream's newest message again,
+        # the stopped node's last diagnostics among them; that is no sign of life
+        connects = page.stats()["connects"]
+        page.page.evaluate("() => window.mocapgraphViewer.link.ws.close()")
+        page.wait(f"s.connected && s.connects > {connects} && s.bundles > 0", timeout=10)
+        page.wait("s.framesDrawn > 0", timeout=5)
+        page.page.wait_for_timeout(600)   # a few panel refreshes (4 a second) after the resend
+        assert "pattern" in page.stats()["stalled"], page.stats()["stalled"]
     finally:
         os.kill(pid, signal.SIGCONT)
     page.wait("s.stalled.length === 0", timeout=10)

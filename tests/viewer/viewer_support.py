@@ -10,6 +10,11 @@ import urllib.request
 from pathlib import Path
 from typing import Any, Callable
 
+try:
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+except ImportError:   # the browser tests skip (conftest); the socket-level helpers here still serve
+    PlaywrightTimeout = TimeoutError
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO_ROOT / "artifacts"
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
@@ -128,8 +133,13 @@ class PageProbe:
 
     def wait(self, js: str, timeout: float = 10.0) -> Any:
         """Wait for a JS expression over ``s`` (the stats object) to be truthy; returns its value."""
-        self.page.wait_for_function(f"() => {{ const s = window.mocapgraphStats; return s && ({js}); }}",
-                                    timeout=timeout * 1000)
+        try:
+            self.page.wait_for_function(f"() => {{ const s = window.mocapgraphStats; return s && ({js}); }}",
+                                        timeout=timeout * 1000)
+        except PlaywrightTimeout:   # say what the page showed, not only that it timed out
+            s = self.stats() or {}
+            shown = {k: s.get(k) for k in ("connected", "connects", "framesDrawn", "fps", "stalled", "bundles", "records")}
+            raise AssertionError(f"page: not ({js}) within {timeout} s; the page showed {shown}") from None
         return self.page.evaluate(f"() => {{ const s = window.mocapgraphStats; return ({js}); }}")
 
 
@@ -172,7 +182,7 @@ class BusTap:
     def __init__(self, master: str, topics: list[str]) -> None:
         import threading
 
-        from mocapgraph.launch.manifest import fetch_manifest, subscribe
+        from mocapgraph.bus.manifest import fetch_manifest, subscribe
 
         self.sock = subscribe(fetch_manifest(master), topics)
         self.messages: list[tuple[Any, Any]] = []

@@ -34,8 +34,11 @@ export class Store {
   apply(doc, nowMs) {
     for (const rec of doc.records) {
       const prev = this.streams.get(rec.key);
-      rec.receivedMs = nowMs;
-      rec.count = (prev ? prev.count : 0) + 1;
+      // the same message sent again (a reconnect sends every stream's newest) is no news: a node
+      // that stopped must not look alive because its last diagnostics came round once more
+      const again = prev && prev.seq === rec.seq && prev.publish_ms === rec.publish_ms;
+      rec.receivedMs = again ? prev.receivedMs : nowMs;
+      rec.count = (prev ? prev.count : 0) + (again ? 0 : 1);
       rec.latencyMs = nowMs - rec.publish_ms;
       this.streams.set(rec.key, rec);
       let t = this.topics.get(rec.topic);
