@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from ..formats.errors import FormatError
 from ..formats.marker_trial import MarkerTrial
-from ..formats.skeleton_trial import SkeletonTrial, offsets_from_rest, topological_order
+from ..formats.skeleton_trial import SkeletonTrial, observed_rest_offsets, offsets_from_rest, topological_order
 from ..messages import (Array, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, Message, Scalar,
                         SkeletonInfo, SkeletonPose, Strings)
 from .errors import BagError
@@ -87,22 +87,12 @@ def markers_to_bag(trial: MarkerTrial, writer: BagWriter, *, start_ns: int = 0, 
 
 
 def skeleton_rest_offsets(trial: SkeletonTrial) -> np.ndarray:
-    """[J, 3] offsets from each joint's parent (roots: their position), m, world: BVH rest pose when
-    the trial came from BVH, else the per-bone median over frames where both ends were seen."""
+    """[J, 3] offsets from each joint's parent (roots: their position), m, world: the BVH rest pose
+    when the trial came from BVH, else the observed ones (``observed_rest_offsets``, as the live
+    skeleton sources publish)."""
     rest = trial.extra.get("rest_positions")
-    P = trial.positions
     if rest is None:
-        rest = np.nanmedian(P, axis=0) if P.shape[0] else np.zeros((trial.n_joints, 3))
-        child = np.flatnonzero(trial.parents >= 0)
-        d = P[:, child] - P[:, trial.parents[child]]
-        out = np.asarray(rest, np.float64).copy()
-        with np.errstate(all="ignore"):
-            import warnings
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                out[child] = np.nanmedian(d, axis=0)
-        return out
+        return observed_rest_offsets(trial.positions, trial.parents)
     return offsets_from_rest(rest, trial.parents)
 
 

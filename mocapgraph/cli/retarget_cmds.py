@@ -79,12 +79,11 @@ def read_source(path: str, model: str | None, topic: str | None) -> SourceFrames
             return _skeleton_frames(tr.names, par, offs, tr.positions, tr.orientations, None, t, motion.rate_hz, p.name)
         if kind == ".csv":
             from ..formats.kinect_csv import read_kinect_csv
-            from ..retarget.source import observed_bone_lengths
+            from ..formats.skeleton_trial import observed_rest_offsets
             tr = read_kinect_csv(p, ground="feet")
             t = (tr.timestamps_ns - tr.timestamps_ns[0]) * 1e-9
-            lengths = observed_bone_lengths(np.where((tr.tracking_state == 2)[..., None], tr.positions, np.nan), tr.parents)
-            offs = np.zeros((len(tr.names), 3))
-            offs[:, 2] = np.nan_to_num(lengths)   # only their lengths matter for a Kinect (see retarget_setup)
+            # bone lengths from tracked samples only (only their lengths matter for a Kinect, see retarget_setup)
+            offs = observed_rest_offsets(np.where((tr.tracking_state == 2)[..., None], tr.positions, np.nan), tr.parents)
             return _skeleton_frames(tr.names, tr.parents, offs, tr.positions, tr.orientations,
                                     tr.tracking_state, t, tr.rate_hz, p.name)
         if kind in (".c3d", ".trc"):

@@ -2,7 +2,6 @@
 as live SkeletonPose frames."""
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -41,9 +40,3 @@ class C3DSegmentReader(SkeletonFilePlayer):
         if self.trial.n_frames and abs(self.rate_hz - self.trial.extra.get("point_rate", self.rate_hz)) < 1e-9:
             # same rate as the points: number frames as the file does (start_frame/end_frame)
             self.frame_numbers = int(self.trial.extra.get("first_frame", 1)) + np.arange(self.trial.n_frames)
-
-    def rest_offsets(self, trial: SkeletonTrial) -> np.ndarray:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a segment never valid: all-NaN median
-            rest = np.nanmedian(trial.positions, axis=0)
-        return np.nan_to_num(rest)  # a segment never seen rests at the origin

@@ -21,7 +21,7 @@ class KinectReader(SkeletonFilePlayer):
     is ``behind_sensor`` in the reader status. Frames are sent at their recorded time stamps,
     so dropped frames stay gaps.
     ``rest_offsets`` in skeleton_info are observed (median bone length along the mean bone
-    direction): a Kinect stream has no rest pose.
+    direction; the root: its median position): a Kinect stream has no rest pose.
     """
 
     summary = "replay a Kinect v2 (25 joints) / v1 (20 joints) body-tracking CSV as SkeletonPose"

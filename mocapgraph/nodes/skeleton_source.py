@@ -15,32 +15,10 @@ import numpy as np
 
 from ..bus import Output, Param
 from ..formats import SkeletonTrial
+from ..formats.skeleton_trial import observed_rest_offsets
 from ..messages import SkeletonInfo, SkeletonPose
 from ..formats.device_file import DeviceConfig, device_or_default
 from .source_base import FilePlayback, SourceError
-
-
-def observed_rest_offsets(trial: SkeletonTrial) -> np.ndarray:
-    """[J, 3] parent->joint offsets for a stream without a rest pose (Kinect): median bone length
-    along the mean observed bone direction, over frames where both ends are present. Roots: 0."""
-    p = trial.parents
-    J = trial.n_joints
-    out = np.zeros((J, 3))
-    child = np.flatnonzero(p >= 0)
-    if not child.size:
-        return out
-    v = trial.positions[:, child] - trial.positions[:, p[child]]        # [T, C, 3]
-    length = np.linalg.norm(v, axis=2)
-    ok = np.isfinite(length) & (length > 1e-9)
-    unit = np.where(ok[..., None], v / np.where(ok, length, 1.0)[..., None], 0.0)
-    direction = unit.sum(axis=0)
-    norm = np.linalg.norm(direction, axis=1, keepdims=True)
-    direction = np.divide(direction, norm, out=np.zeros_like(direction), where=norm > 0)
-    seen = ok.any(axis=0)
-    med = np.zeros(child.size)
-    med[seen] = np.nanmedian(np.where(ok, length, np.nan)[:, seen], axis=0)
-    out[child] = direction * med[:, None]
-    return out
 
 
 class SkeletonFilePlayer(FilePlayback):
@@ -62,7 +40,8 @@ class SkeletonFilePlayer(FilePlayback):
         raise NotImplementedError
 
     def rest_offsets(self, trial: SkeletonTrial) -> np.ndarray:
-        return observed_rest_offsets(trial)
+        """[J, 3] m, the file's frame: observed ones (a stream without a rest pose); a BVH overrides."""
+        return observed_rest_offsets(trial.positions, trial.parents)
 
     def load(self, path: Path) -> None:
         trial = self.read_trial(path)
@@ -74,8 +53,11 @@ class SkeletonFilePlayer(FilePlayback):
         quats = trial.orientations if trial.orientations is not None else np.full((trial.n_frames, J, 4), np.nan)
         self.orientations = np.ascontiguousarray(dev.quats_to_world(quats))
         self.tracking = np.ascontiguousarray(trial.tracking_state)
-        rest = self.rest_offsets(trial)
-        rest = rest @ dev.rotation.T
+        raw = self.rest_offsets(trial)
+        rest = raw @ dev.rotation.T
+        # a root's offset is its rest position: placed in the room like the positions, not only turned
+        roots = trial.parents < 0
+        rest[roots] = dev.points_to_world(raw[roots])
         notes = list(trial.conversions) + ([dev.describe()] if self.device else [])
         self.info = SkeletonInfo(source=self.source_kind(trial), joint_names=trial.names,
                                  joint_parent=trial.parents.astype(np.int32), rest_offsets=rest,

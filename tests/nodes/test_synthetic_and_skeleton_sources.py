@@ -141,6 +141,8 @@ def test_kinect_replay_keeps_recorded_timing_tracking_and_device_pose(run_node, 
     rest = info.rest_offsets
     neck = info.joint_names.index("Neck")
     assert 0.03 < np.linalg.norm(rest[neck]) < 0.2 and rest[neck][2] > 0   # neck sits above its parent
+    # the root's offset is its rest position, placed in the room like the joints (sensor 2.5 m forward)
+    np.testing.assert_allclose(rest[0], np.nanmedian(ref.positions[:, 0], axis=0) + [2.5, 0.0, 0.0])
 
 
 def test_kinect_v1_recording_uses_the_20_joint_definition(run_node, shared_data, tmp_path) -> None:
