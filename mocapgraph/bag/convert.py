@@ -27,7 +27,8 @@ from scipy.spatial.transform import Rotation
 
 from ..formats.errors import FormatError
 from ..formats.marker_trial import MarkerTrial
-from ..formats.skeleton_trial import SkeletonTrial, observed_rest_offsets, offsets_from_rest, topological_order
+from ..formats.skeleton_trial import SkeletonTrial, topological_order
+from ..formats.sources import FILE_KINDS, read_marker_file, read_skeleton_file, skeleton_rest_offsets
 from ..messages import (Array, CharacterInfo, CharacterPose, MarkerFrame, MarkerLayout, Message, Scalar,
                         SkeletonInfo, SkeletonPose, Strings)
 from .errors import BagError
@@ -36,11 +37,11 @@ from .writer import BagWriter, base_metadata
 
 Progress = Callable[[int, int], None]
 SENDER = "bag_convert"
-INPUT_KINDS = {".c3d": "c3d", ".trc": "trc", ".bvh": "bvh", ".csv": "kinect_csv", ".txt": "kinect_csv"}
+INPUT_KINDS = FILE_KINDS  # what converts into a bag: every capture file formats.sources reads
 OUTPUT_KINDS = {".csv": "csv", ".trc": "trc", ".c3d": "c3d", ".bvh": "bvh"}
 BVH_UNITS_M = 0.01  # BVH written in centimetres
 # world = BVH_TO_WORLD @ bvh (Y-up BVH, character facing +Z; see formats.bvh_file)
-from ..formats.bvh_file import BVH_TO_WORLD, BvhMotion, bvh_to_skeleton, read_bvh, write_bvh  # noqa: E402
+from ..formats.bvh_file import BVH_TO_WORLD, BvhMotion, write_bvh  # noqa: E402
 from ..formats.c3d_segments import read_c3d_segments  # noqa: E402
 
 
@@ -86,16 +87,6 @@ def markers_to_bag(trial: MarkerTrial, writer: BagWriter, *, start_ns: int = 0, 
     return T
 
 
-def skeleton_rest_offsets(trial: SkeletonTrial) -> np.ndarray:
-    """[J, 3] offsets from each joint's parent (roots: their position), m, world: the BVH rest pose
-    when the trial came from BVH, else the observed ones (``observed_rest_offsets``, as the live
-    skeleton sources publish)."""
-    rest = trial.extra.get("rest_positions")
-    if rest is None:
-        return observed_rest_offsets(trial.positions, trial.parents)
-    return offsets_from_rest(rest, trial.parents)
-
-
 def skeleton_to_bag(trial: SkeletonTrial, writer: BagWriter, *, source: str, start_ns: int = 0,
                     topic: str = "skeleton_pose", info_topic: str = "skeleton_info",
                     progress: Progress | None = None) -> int:
@@ -122,10 +113,7 @@ def file_to_bag(src: str | Path, dst: str | Path, *, compression: str = "lz4", s
 
     up_axis: a marker file's up axis (None/"auto": what the file says; see read_c3d/read_trc).
     """
-    from ..formats.c3d_file import read_c3d
     from ..formats.c3d_segments import c3d_segment_count
-    from ..formats.kinect_csv import read_kinect_csv
-    from ..formats.trc_file import read_trc
 
     src, dst = Path(src), Path(dst)
     kind = INPUT_KINDS.get(src.suffix.lower())
@@ -138,7 +126,7 @@ def file_to_bag(src: str | Path, dst: str | Path, *, compression: str = "lz4", s
         if kind == "c3d" and c3d_segment_count(src) > 0:
             return _c3d_with_segments_to_bag(src, dst, compression, start_ns, progress, up_axis)
         if kind in ("c3d", "trc"):
-            trial = read_c3d(src, up_axis=up_axis) if kind == "c3d" else read_trc(src, up_axis=up_axis)
+            trial = read_marker_file(src, up_axis=up_axis)
             times = None
             t_file = trial.extra.get("time_s") if kind == "trc" else None
             if t_file is not None and len(t_file) == trial.n_frames and np.all(np.isfinite(t_file)) \
@@ -149,13 +137,7 @@ def file_to_bag(src: str | Path, dst: str | Path, *, compression: str = "lz4", s
                 n = markers_to_bag(trial, w, start_ns=start_ns, times_ns=times, progress=progress)
             topics = {"marker_layout": 1, "markers": n}
         else:
-            if kind == "bvh":
-                motion = read_bvh(src)
-                trial = bvh_to_skeleton(motion, start_ns=0)
-                trial.extra["rest_positions"] = motion.rest_positions()
-            else:
-                trial = read_kinect_csv(src)
-                trial.timestamps_ns = trial.timestamps_ns - (trial.timestamps_ns[0] if trial.n_frames else 0)
+            trial = read_skeleton_file(src)
             notes = [f"{trial.n_joints} joints x {trial.n_frames} frames @ {trial.rate_hz:.4g} Hz "
                      f"({'; '.join(trial.conversions) or 'no conversion'})"] + list(trial.notes)
             with _writer(dst, compression, src, kind) as w:

@@ -18,79 +18,48 @@ import argparse
 import csv
 import math
 import warnings
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from . import UserError
 from .progress import Progress
 
+if TYPE_CHECKING:   # annotations only: the command loads its readers when it runs
+    from ..bag.sources import MarkerInput
+
 OUTPUT_KINDS = (".csv", ".trc", ".mcap")
 
 
-@dataclass
-class MarkerInput:
-    """Markers of one input file: labels, float[T,N,3] m world, rate, frame numbers, layout name."""
-
-    path: Path
-    labels: list[str]
-    positions: np.ndarray
-    rate_hz: float
-    frame_numbers: np.ndarray
-    layout_name: str = ""
-    times_s: np.ndarray | None = None  # float[T] s on the file's own clock (None: from frame numbers)
-
-    def times(self) -> np.ndarray:
-        """float[T] seconds: the file's own times, else frame numbers / rate from the first frame."""
-        if self.times_s is not None:
-            return self.times_s
-        return (self.frame_numbers - self.frame_numbers[0]) / self.rate_hz
-
-
 def read_marker_input(path: str, topic: str | None = None, up: str = "auto") -> MarkerInput:
-    """A C3D, TRC or bag file as markers; UserError (one line) when it cannot be read.
+    """A C3D, TRC or bag file as markers (``bag.sources.read_marker_input``); UserError (one line)
+    when it cannot be read, a warning printed for each duplicate label.
 
     up: the file's up axis ("auto": what the file says, see ``--up``); bags are already in
     world axes, so anything but "auto" is refused for them.
     """
+    from ..bag import sources
     from ..bag.errors import BagError
-    from ..formats import FormatError, read_markers
+    from ..formats import FormatError
 
     p = Path(path)
     if not p.exists():
         raise UserError(f"{path}: no such file")
-    times = None
+    if p.suffix.lower() == ".mcap" and up != "auto":
+        raise UserError(f"{p.name}: --up {up} applies to C3D and TRC files; a bag is already "
+                        "in world axes (Z up)")
     try:
-        if p.suffix.lower() == ".mcap":
-            if up != "auto":
-                raise UserError(f"{p.name}: --up {up} applies to C3D and TRC files; a bag is already "
-                                "in world axes (Z up)")
-            from ..bag.convert import bag_to_marker_trial
-            from ..bag.reader import BagReader
-
-            with BagReader(p) as reader:
-                trial = bag_to_marker_trial(reader, topic)
-                lay = [t for t, i in reader.topic_infos().items() if i.type_name == "MarkerLayout" and i.known]
-                name = ""
-                if lay:
-                    for _env, m in reader.decoded(lay[0]):
-                        name = m.name
-        else:
-            trial = read_markers(p, up_axis=up)
-            times = trial.file_times_s
-            name = ""
-            for note in trial.notes:
-                if note.startswith("duplicate label"):
-                    print(f"warning: {p.name}: {note}")
+        inp = sources.read_marker_input(p, topic, up)
     except (FormatError, BagError) as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:
         raise UserError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    T = trial.positions.shape[0]
-    return MarkerInput(p, list(trial.labels), trial.positions, float(trial.rate_hz),
-                       trial.first_frame + np.arange(T), name, times)
+    for note in inp.notes:
+        if note.startswith("duplicate label"):
+            print(f"warning: {p.name}: {note}")
+    return inp
 
 
 def parse_frames(spec: str, n: int, source: str) -> slice:

@@ -63,36 +63,27 @@ def read_source(path: str, model: str | None, topic: str | None) -> SourceFrames
     """Any supported trial as source frames; UserError (one line) otherwise."""
     from ..bag.errors import BagError
     from ..formats import FormatError
+    from ..formats.sources import SKELETON_KINDS, read_skeleton_file, skeleton_rest_offsets
     p = Path(path)
     if not p.exists():
         raise UserError(f"{path}: no such file")
     kind = p.suffix.lower()
     try:
-        if kind == ".bvh":
-            from ..formats.bvh_file import bvh_to_skeleton, read_bvh
-            from ..formats.skeleton_trial import offsets_from_rest
-            motion = read_bvh(p)
-            tr = bvh_to_skeleton(motion)
-            par = tr.parents
-            offs = offsets_from_rest(motion.rest_positions(), par)
-            t = np.arange(motion.n_frames) / motion.rate_hz
-            return _skeleton_frames(tr.names, par, offs, tr.positions, tr.orientations, None, t, motion.rate_hz, p.name)
-        if kind == ".csv":
-            from ..formats.kinect_csv import read_kinect_csv
-            from ..formats.skeleton_trial import observed_rest_offsets
-            tr = read_kinect_csv(p, ground="feet")
-            t = (tr.timestamps_ns - tr.timestamps_ns[0]) * 1e-9
-            # bone lengths from tracked samples only (only their lengths matter for a Kinect, see retarget_setup)
-            offs = observed_rest_offsets(np.where((tr.tracking_state == 2)[..., None], tr.positions, np.nan), tr.parents)
-            return _skeleton_frames(tr.names, tr.parents, offs, tr.positions, tr.orientations,
-                                    tr.tracking_state, t, tr.rate_hz, p.name)
+        if kind in SKELETON_KINDS:
+            # BVH: its rest pose; Kinect: bone lengths of tracked samples (only lengths matter, see retarget_setup)
+            tr = read_skeleton_file(p, ground="feet")
+            offs = skeleton_rest_offsets(tr, tracked_only=True)
+            t = tr.timestamps_ns * 1e-9 if kind != ".bvh" else np.arange(tr.n_frames) / tr.rate_hz
+            state = tr.tracking_state if kind != ".bvh" else None
+            return _skeleton_frames(tr.names, tr.parents, offs, tr.positions, tr.orientations, state, t,
+                                    tr.rate_hz, p.name)
         if kind in (".c3d", ".trc"):
             return _solve_markers(p, model, topic)
         if kind == ".mcap":
             return _bag_source(p, model, topic)
     except (FormatError, BagError) as exc:
         raise UserError(str(exc)) from None
-    raise UserError(f"{p.name}: unknown trial type {p.suffix or '(none)'!r} (expected .bvh, .csv (Kinect), "
+    raise UserError(f"{p.name}: unknown trial type {p.suffix or '(none)'!r} (expected .bvh, .csv or .txt (Kinect), "
                     ".c3d, .trc or .mcap)")
 
 
