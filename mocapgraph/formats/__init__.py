@@ -10,7 +10,8 @@ Markers: :func:`read_c3d`, :func:`write_c3d`, :func:`read_trc`, :func:`write_trc
 Segment poses: :func:`read_c3d_segments` (a C3D's ROTATION group) -> :class:`SkeletonTrial`.
 Skeletons: :func:`read_bvh` -> :class:`BvhMotion` (``forward_kinematics``), :func:`write_bvh`,
 :func:`bvh_to_skeleton` and :func:`read_kinect_csv` -> :class:`SkeletonTrial`.
-Devices: :mod:`mocapgraph.formats.wire_protocol` (text and binary marker frames).
+Devices: :mod:`mocapgraph.formats.wire_protocol` (text and binary marker frames),
+:mod:`mocapgraph.formats.natnet` (OptiTrack NatNet 3.0-4.2 packets; Motive axes, decoded as sent).
 
 The names above are imported from their module on first use (PEP 562 ``__getattr__``): every
 ``mocapgraph.formats.X`` import runs this file first, and loading every format here would cost a
