@@ -237,7 +237,7 @@ def _subject(args: argparse.Namespace, first: MarkerInput):
 def cmd_solve(args: argparse.Namespace) -> int:
     from ..kinematics.model import ModelFileError, load_model
     from ..kinematics.solving.solver import FrameSolver
-    from ..adapters.model_messages import marker_index
+    from ..adapters.marker_columns import model_order
 
     out = Path(args.output)
     if out.suffix.lower() not in OUTPUT_KINDS:
@@ -248,8 +248,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     inp = read_marker_input(args.trial, args.topic, args.up)
     where, missing = _place(model, inp, args.allow_missing)
-    x = np.concatenate([inp.positions, np.full(inp.positions.shape[:1] + (1, 3), np.nan)], axis=1)
-    x = x[:, np.where(where >= 0, where, inp.positions.shape[1])]
+    x = model_order(inp, where)
     numbers, times = inp.frame_numbers, inp.times()
     if args.frames:
         sl = parse_frames(args.frames, len(x), inp.path.name)
@@ -312,19 +311,14 @@ def _solve_chunks(solver, x: np.ndarray, times: np.ndarray):
 
 
 def _place(model, inp: MarkerInput, allow_missing: bool) -> tuple[np.ndarray, list[str]]:
-    """Model marker -> input column (-1 absent); UserError for another layout or absent markers."""
+    """Model marker -> input column (-1 absent) and the absent labels (``adapters.marker_columns``);
+    UserError for another layout or absent markers."""
+    from ..adapters.marker_columns import place_markers
     from ..kinematics.model import ModelFileError
-    from ..adapters.model_messages import marker_index
-    from ..kinematics.labels import missing_labels, place_labels
-
     try:
-        return marker_index(model, inp.layout_name, inp.labels, source=inp.path.name), []
+        return place_markers(model, inp, allow_missing)
     except ModelFileError as exc:
-        where, _ = place_labels(model.marker_labels, inp.labels)
-        missing = missing_labels(model.marker_labels, where)
-        if not allow_missing or not (where >= 0).any():
-            raise UserError(f"{exc}" + ("" if allow_missing else "; --allow-missing solves without them")) from None
-        return where, missing
+        raise UserError(f"{exc}" + ("" if allow_missing else "; --allow-missing solves without them")) from None
 
 
 def _write_csv(out: Path, model, res, numbers: np.ndarray, times: np.ndarray) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import csv
 import time
-from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from pathlib import Path
 
 import numpy as np
@@ -21,143 +21,19 @@ import numpy as np
 from . import UserError
 from .progress import Progress
 
+if TYPE_CHECKING:   # annotations only: the command loads its readers when it runs
+    from ..bag.trial_frames import SourceFrames
+
 OUTPUTS = (".bvh", ".mcap", ".csv")
 
 
-@dataclass
-class SourceFrames:
-    """A trial as the retargeter reads it: points [F, P, 3], ok [F, P], rotations [F, R, 4] or None."""
-
-    source: object
-    points: np.ndarray
-    point_ok: np.ndarray
-    rotations: np.ndarray | None
-    rotation_ok: np.ndarray | None
-    times_s: np.ndarray
-    frame_numbers: np.ndarray
-    rate_hz: float
-    label: str
-
-
-def _skeleton_frames(names, parents, rest_offsets, positions, orientations, state, times, rate, label):
-    from ..formats.retarget_setup import source_from_skeleton_info
-    has_q = orientations is not None and bool(np.isfinite(orientations).any())
-    src = source_from_skeleton_info(names, parents, rest_offsets, has_orientations=has_q)
-    ok = np.isfinite(positions).all(-1) & (state >= 1 if state is not None else True)
-    return SourceFrames(src, positions, ok, orientations if has_q else None, None, times,
-                        np.arange(len(times)), rate, label)
-
-
-def _actor_frames(model_msg_like, joints, jq, limbs, lq, times, rate, label):
-    from ..formats.retarget_setup import source_from_model
-    from ..retarget.source import optical_points
-    m = model_msg_like
-    src = source_from_model(m.joint_names, m.joint_parent, m.joint_limbs, m.limb_names, m.joint_base, m.layout)
-    pts = optical_points(joints, m.joint_names)
-    hips = [i for i, n in enumerate(m.joint_names) if n.startswith("hip")]
-    pok = np.concatenate([jq >= 1, (jq[:, hips] >= 1).all(1, keepdims=True)], axis=1)
-    return SourceFrames(src, pts, pok, limbs, lq >= 1, times, np.arange(len(times)), rate, label)
-
-
-def read_source(path: str, model: str | None, topic: str | None) -> SourceFrames:
-    """Any supported trial as source frames; UserError (one line) otherwise."""
-    from ..bag.errors import BagError
-    from ..formats import FormatError
-    from ..formats.sources import SKELETON_KINDS, read_skeleton_file, skeleton_rest_offsets
-    p = Path(path)
-    if not p.exists():
-        raise UserError(f"{path}: no such file")
-    kind = p.suffix.lower()
+def read_source(path: str, model: str | None, topic: str | None) -> "SourceFrames":
+    """Any supported trial as source frames (``bag.trial_frames``); UserError (one line) otherwise."""
+    from ..bag.trial_frames import TrialError, read_trial_frames
     try:
-        if kind in SKELETON_KINDS:
-            # BVH: its rest pose; Kinect: bone lengths of tracked samples (only lengths matter, see retarget_setup)
-            tr = read_skeleton_file(p, ground="feet")
-            offs = skeleton_rest_offsets(tr, tracked_only=True)
-            t = tr.timestamps_ns * 1e-9 if kind != ".bvh" else np.arange(tr.n_frames) / tr.rate_hz
-            state = tr.tracking_state if kind != ".bvh" else None
-            return _skeleton_frames(tr.names, tr.parents, offs, tr.positions, tr.orientations, state, t,
-                                    tr.rate_hz, p.name)
-        if kind in (".c3d", ".trc"):
-            return _solve_markers(p, model, topic)
-        if kind == ".mcap":
-            return _bag_source(p, model, topic)
-    except (FormatError, BagError) as exc:
+        return read_trial_frames(path, model, topic)
+    except TrialError as exc:
         raise UserError(str(exc)) from None
-    raise UserError(f"{p.name}: unknown trial type {p.suffix or '(none)'!r} (expected .bvh, .csv or .txt (Kinect), "
-                    ".c3d, .trc or .mcap)")
-
-
-def _solve_markers(p: Path, model_path: str | None, topic: str | None) -> SourceFrames:
-    from ..kinematics.model import ModelFileError, load_model
-    from ..kinematics.solving.solver import FrameSolver
-    from .actor_cmds import _place, read_marker_input
-    if not model_path:
-        raise UserError(f"{p.name}: markers need an actor model: --model model.json (mocapgraph calibrate)")
-    try:
-        model = load_model(model_path)
-    except ModelFileError as exc:
-        raise UserError(str(exc)) from None
-    inp = read_marker_input(str(p), topic)
-    where, _ = _place(model, inp, False)
-    x = np.concatenate([inp.positions, np.full(inp.positions.shape[:1] + (1, 3), np.nan)], axis=1)
-    x = x[:, np.where(where >= 0, where, inp.positions.shape[1])]
-    times = (inp.frame_numbers - inp.frame_numbers[0]) / inp.rate_hz
-    res = FrameSolver(model, rate_hz=inp.rate_hz).solve(x, times)
-    m = _ModelView(model.joint_names, model.joint_parent, model.joint_limbs, model.limb_names, model.joint_base,
-                   model.layout)
-    return _actor_frames(m, res.joints, res.joint_quality, res.limb_rotation, res.limb_quality, times, inp.rate_hz, p.name)
-
-
-@dataclass
-class _ModelView:
-    joint_names: tuple
-    joint_parent: np.ndarray
-    joint_limbs: np.ndarray
-    limb_names: tuple
-    joint_base: np.ndarray
-    layout: str
-
-
-def _bag_source(p: Path, model_path: str | None, topic: str | None) -> SourceFrames:
-    from ..bag.reader import BagReader
-    with BagReader(p) as r:
-        infos = r.topic_infos()
-        by_type = {}
-        for t, i in infos.items():
-            by_type.setdefault(i.type_name, []).append(t)
-        if "SkeletonPose" in by_type or "ActorPose" in by_type:
-            kind = "SkeletonPose" if "SkeletonPose" in by_type else "ActorPose"
-            tp = topic or by_type[kind][0]
-            comp = "SkeletonInfo" if kind == "SkeletonPose" else "SkeletonModel"
-            if comp not in by_type:
-                raise UserError(f"{p.name}: topic {tp!r} [{kind}] needs its latched {comp}, which the bag lacks")
-            info = None
-            for _, m in r.decoded(by_type[comp][0]):
-                info = m
-            frames = [(env.capture_ns, m) for env, m in r.decoded(tp)]
-        elif "MarkerFrame" in by_type:
-            return _solve_markers(p, model_path, topic)
-        else:
-            raise UserError(f"{p.name}: no SkeletonPose, ActorPose or MarkerFrame topic to retarget")
-    if not frames:
-        raise UserError(f"{p.name}: topic {tp!r} holds no frames")
-    ns = np.array([f[0] for f in frames], dtype=np.int64)
-    t = (ns - ns[0]) * 1e-9
-    rate = float(1.0 / np.median(np.diff(t))) if len(t) > 1 else 30.0
-    msgs = [f[1] for f in frames]
-    if kind == "SkeletonPose":
-        J = len(info.joint_names)
-        good = [m for m in msgs if m.joint_positions.shape[0] == J]
-        if len(good) < len(msgs):
-            print(f"note: {len(msgs) - len(good)} frames of {tp} do not have the {J} joints of skeleton_info: skipped")
-        return _skeleton_frames(info.joint_names, info.joint_parent, info.rest_offsets,
-                                np.stack([m.joint_positions for m in good]), np.stack([m.joint_orientations for m in good]),
-                                np.stack([m.tracking_state for m in good]), t[:len(good)], rate, p.name)
-    m = info
-    view = _ModelView(m.joint_names, m.joint_parent, m.joint_limbs, m.limb_names, m.base_joints, m.layout_name)
-    return _actor_frames(view, np.stack([x.joint_positions for x in msgs]), np.stack([x.joint_quality for x in msgs]),
-                         np.stack([x.limb_orientations for x in msgs]), np.stack([x.limb_quality for x in msgs]),
-                         t, rate, p.name)
 
 
 def _options(args):

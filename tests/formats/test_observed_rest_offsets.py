@@ -7,7 +7,7 @@ import pytest
 
 from mocapgraph.bag.convert import file_to_bag
 from mocapgraph.bag.reader import BagReader
-from mocapgraph.cli.retarget_cmds import read_source
+from mocapgraph.bag.trial_frames import read_trial_frames as read_source
 from mocapgraph.formats.kinect_csv import read_kinect_csv
 from mocapgraph.formats.retarget_setup import source_from_skeleton_info
 from mocapgraph.formats.skeleton_trial import observed_rest_offsets

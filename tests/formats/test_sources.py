@@ -8,7 +8,7 @@ import pytest
 from mocapgraph.bag.convert import file_to_bag
 from mocapgraph.bag.errors import BagError
 from mocapgraph.bag.sources import read_marker_input
-from mocapgraph.cli.retarget_cmds import read_source
+from mocapgraph.bag.trial_frames import read_trial_frames as read_source
 from mocapgraph.formats.bvh_file import bvh_to_skeleton, read_bvh
 from mocapgraph.formats.c3d_file import read_c3d
 from mocapgraph.formats.errors import FormatError
