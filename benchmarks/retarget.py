@@ -80,6 +80,7 @@ def bench_live(n: int) -> None:
     from mocapgraph.retarget.character import standard_20
     from mocapgraph.retarget.retargeter import RetargetOptions, Retargeter
     from mocapgraph.retarget.mapping import derive_mapping
+    from mocapgraph.retarget.live_numpy import NumpyFrame
     cap, model, src, pts, rot, rok, t, actor = _solved_actor()
     ch = standard_20(1.75)
     m = derive_mapping(ch, src)
@@ -99,7 +100,7 @@ def bench_live(n: int) -> None:
         per = {}
         # the batched path one frame at a time, the numpy one-frame path (the kernel's reference), the
         # compiled kernel (what the node runs)
-        for what, kw in (("batched path, F = 1   ", dict(live=False)), ("numpy one-frame path  ", dict(compiled=False)),
+        for what, kw in (("batched path, F = 1   ", dict(live=False)), ("numpy one-frame path  ", dict(frame_path=NumpyFrame)),
                          ("compiled kernel       ", {})):
             rt = Retargeter(ch, m, src, RetargetOptions(foot_planting=planting), **kw)
             for f in range(50):  # warm

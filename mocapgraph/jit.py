@@ -46,11 +46,13 @@ KERNEL_MODULES: tuple[str, ...] = (
     "mocapgraph.physics.controller_kernels",
     "mocapgraph.physics.posture_kernels",
     "mocapgraph.physics.state_kernels",
+    "mocapgraph.retarget.frame_plan",
     "mocapgraph.retarget.kernels",
 )
 #: kernel module -> "module:function" that warms it
 WARMED_BY: dict[str, str] = {
     "mocapgraph.retarget.source_kernels": "mocapgraph.retarget.warmup:warm_source_kernels",
+    "mocapgraph.retarget.frame_plan": "mocapgraph.retarget.warmup:warm_frame_kernels",
     "mocapgraph.retarget.kernels": "mocapgraph.retarget.warmup:warm_frame_kernels",
 }
 

@@ -7,7 +7,8 @@ following the source bones, spread chains with their end point matched, aimed cl
 inheritance and rest orientations, root, forward kinematics, local rotations, and Kiip's foot
 planting (contact from height and windowed speed, planted targets, two-bone leg IK). World frame,
 Z up, metres, seconds, quaternions wxyz. Inputs and outputs are float64/int64/bool arrays that
-:class:`live.CompiledFrame` preallocates; nothing here allocates per frame.
+:class:`live.CompiledFrame` preallocates; nothing here allocates per frame. The constants and the
+scratch travel in one :class:`frame_plan.FramePlan`, read by name (``p.K``, ``p.parents``).
 
 Plant state (carried between frames) is one float array ``ps`` [13]: planted l, r (0/1), anchor xy
 l, r, offset xy l, r, last time (NaN: none yet), lowest ankle height l, r (NaN: none yet); the
@@ -125,31 +126,28 @@ def hold_frame(pts_in, pok_in, rot_in, rok_in, check_norm, st_pts, st_rot, pts_s
 
 
 @kernel
-def drive_frame(qn, pts, eq41, follow, chains, aims, scratch):
-    """Per-joint deltas D [J + 1, 4] (row J: identity) from the held unit source rotations ``qn``
-    [R, 4] and points ``pts`` [P, 3]: Eq 4.1 (``eq41`` = rot_src, dep_idx, K, rot_joint: K =
-    A·_·D·R⁻¹·A⁻¹ as 4x4 matrices, dependency levels ``dep_idx`` with R the identity slot),
-    following bones (``follow`` = f_m, f_a, f_b, f_bone, f_A), spread chains (``chains``: their
-    starts, ends, joints, fractions, correction), aims (``aims`` = a_joint, a_pre, a_bone, a_frm,
-    a_to, a_A). ``scratch`` = qk, dq [n, 4], ap [aims, 4], D (the output), tmp [2, 4]."""
-    qk, dq, ap, D, tmp = scratch
-    rot_joint = eq41[3]
-    _eq41(qn, eq41, qk, dq)
-    _follow_bones(pts, follow, dq, tmp)
+def drive_frame(p, pts):
+    """Per-joint deltas ``p.D`` [J + 1, 4] (row J: identity) from the held unit source rotations
+    ``p.qn`` [R, 4] and points ``pts`` [P, 3] (m): Eq 4.1 (``p.K`` = A·_·D·R⁻¹·A⁻¹ as 4x4 matrices,
+    dependency levels ``p.dep_idx`` with R the identity slot), following bones (``p.f_*``), spread
+    chains (``p.c_*``), aims (``p.a_*``); :class:`frame_plan.FramePlan` names every field."""
+    D, dq, rot_joint = p.D, p.dq, p.rot_joint
+    _eq41(p)
+    _follow_bones(p, pts)
     J1 = D.shape[0]
     for j in range(J1):
         D[j, 0], D[j, 1], D[j, 2], D[j, 3] = 1.0, 0.0, 0.0, 0.0
     for i in range(rot_joint.shape[0]):
         j = rot_joint[i]
         D[j, 0], D[j, 1], D[j, 2], D[j, 3] = dq[i, 0], dq[i, 1], dq[i, 2], dq[i, 3]
-    _spread_chains(pts, chains, D, tmp)
-    _aim_joints(pts, aims, D, ap, tmp)
+    _spread_chains(p, pts)
+    _aim_joints(p, pts)
 
 
 @kernel
-def _eq41(qn, eq41, qk, dq):
+def _eq41(p):
     """Eq 4.1 on the rotate joints: dq[i] = K[i] · (Q_k · the dependency rotations), from the held unit rotations qn."""
-    rot_src, dep_idx, K, _ = eq41
+    rot_src, dep_idx, K, qn, qk, dq = p.rot_src, p.dep_idx, p.K, p.qn, p.qk, p.dq
     n = rot_src.shape[0]
     R = qn.shape[0]
     for i in range(n):
@@ -164,9 +162,9 @@ def _eq41(qn, eq41, qk, dq):
 
 
 @kernel
-def _follow_bones(pts, follow, dq, tmp):
+def _follow_bones(p, pts):
     """Bones following the source bones: each following joint's delta dq turned so that its carried rest bone points along the source bone."""
-    f_m, f_a, f_b, f_bone, f_A = follow
+    f_m, f_a, f_b, f_bone, f_A, dq, tmp = p.f_m, p.f_a, p.f_b, p.f_bone, p.f_A, p.dq, p.tmp
     # bones following the source bones: turn the carried bone onto the source's (A applied)
     for f in range(f_m.shape[0]):
         m = f_m[f]
@@ -179,11 +177,12 @@ def _follow_bones(pts, follow, dq, tmp):
 
 
 @kernel
-def _spread_chains(pts, chains, D, tmp):
+def _spread_chains(p, pts):
     """Spread chains in D: each chain joint takes its share of the turn from start to end, then the
     chain is turned so that its end point lies on the scaled source end point."""
-    (c_start, c_end, c_jptr, c_joints, c_frac, c_iters, c_correct, c_end_src, c_pivot_src, c_A,
-     c_pptr, c_path, c_off) = chains
+    c_start, c_end, c_jptr, c_joints, c_frac, c_iters = p.c_start, p.c_end, p.c_jptr, p.c_joints, p.c_frac, p.c_iters
+    c_correct, c_end_src, c_pivot_src, c_A, c_pptr = p.c_correct, p.c_end_src, p.c_pivot_src, p.c_A, p.c_pptr
+    c_path, c_off, D, tmp = p.c_path, p.c_off, p.D, p.tmp
     # spread chains: qs · (qs⁻¹ qe)^f per chain joint, then the chain turned onto the scaled end point
     for c in range(c_start.shape[0]):
         s, e = c_start[c], c_end[c]
@@ -223,14 +222,15 @@ def _spread_chains(pts, chains, D, tmp):
 
 
 @kernel
-def _aim_joints(pts, aims, D, ap, tmp):
+def _aim_joints(p, pts):
     """Aim joints in D from their parent-carried rest bones (``ap`` [aims, 4] scratch)."""
-    a_joint, a_pre, a_bone, a_frm, a_to, a_A = aims
+    a_joint, a_pre, a_bone, a_frm, a_to, a_A = p.a_joint, p.a_pre, p.a_bone, p.a_frm, p.a_to, p.a_A
+    D, ap, tmp = p.D, p.ap, p.tmp
     # aims: every aim joint from its parent-carried rest bone (parents' deltas read before any is set)
     na = a_joint.shape[0]
     for i in range(na):
-        p = a_pre[i]
-        ap[i, 0], ap[i, 1], ap[i, 2], ap[i, 3] = D[p, 0], D[p, 1], D[p, 2], D[p, 3]
+        k = a_pre[i]
+        ap[i, 0], ap[i, 1], ap[i, 2], ap[i, 3] = D[k, 0], D[k, 1], D[k, 2], D[k, 3]
     for i in range(na):
         _rotate(ap, i, a_bone[i, 0], a_bone[i, 1], a_bone[i, 2], tmp, 0)
         w0, w1, w2 = _source_bone(a_A, i, pts, a_frm[i], a_to[i])
@@ -240,10 +240,13 @@ def _aim_joints(pts, aims, D, ap, tmp):
 
 
 @kernel
-def world_from_deltas(D, src_ext, rw_q, W, pts, root_src, root_M, root_c, root_j, root_s, root):
-    """World orientations W [J, 4] = D[nearest driven] · rest world orientation; the root [3] (m) from
-    the source root point: root_M (ratio, heading) times it plus root_c (floor matched, offset), plus
-    R(W[root_j]) root_s (the mid-hip rule's rest root - mid-hip in the root's frame; zero when off)."""
+def world_from_deltas(p, pts, root):
+    """World orientations ``p.W`` [J, 4] = D[nearest driven] · rest world orientation; the root [3]
+    (m) from the source root point: root_M (ratio, heading) times it plus root_c (floor matched,
+    offset), plus R(W[root_joint]) root_s (the mid-hip rule's rest root - mid-hip in the root's frame;
+    zero when off)."""
+    D, src_ext, rw_q, W, root_src = p.D, p.src_ext, p.rw_q, p.W, p.root_src
+    root_M, root_c, root_j, root_s = p.root_M, p.root_c, p.root_joint, p.root_s
     for j in range(W.shape[0]):
         s = src_ext[j]
         _qmul(D[s, 0], D[s, 1], D[s, 2], D[s, 3], rw_q[j, 0], rw_q[j, 1], rw_q[j, 2], rw_q[j, 3], W, j)
@@ -260,9 +263,10 @@ def world_from_deltas(D, src_ext, rw_q, W, pts, root_src, root_M, root_c, root_j
 
 
 @kernel
-def pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp):
+def pose_from_world(plan, root, pos, local):
     """Joint positions [J, 3] (root + parent-rotated rest offsets down the hierarchy, ``order`` parents
-    first) and local rotations [J, 4] rest_local⁻¹ · W[parent]⁻¹ · W with w >= 0."""
+    first) and local rotations [J, 4] rest_local⁻¹ · W[parent]⁻¹ · W with w >= 0, from ``plan.W``."""
+    W, parents, order, offsets, rl_inv, tmp = plan.W, plan.parents, plan.order, plan.offsets, plan.rl_inv, plan.tmp
     for k in range(order.shape[0]):
         j = order[k]
         p = parents[j]
@@ -421,10 +425,12 @@ def _leg_ik(hip, knee, ankle, target, l1, l2, p0, p1, p2, out, k1, k2):
 
 
 @kernel
-def legs_to_targets(W, pos, target, hip, knee, ankle, l1, l2, aff, which, turns):
-    """Two-bone IK for each leg whose ankle is not at its target (1e-12 m): the thigh turn (and the
-    shin turn after it) applied to the world orientations W [J, 4] of the joints they carry
-    (``aff``, ``which``: 0/1 thigh l/r, 2/3 shin l/r). Returns True when a leg moved."""
+def legs_to_targets(p, pos):
+    """Two-bone IK for each leg whose ankle is not at its target ``p.target`` [2, 3] (1e-12 m): the
+    thigh turn (and the shin turn after it) applied to the world orientations ``p.W`` [J, 4] of the
+    joints they carry (``p.aff``, ``p.which``: 0/1 thigh l/r, 2/3 shin l/r). Returns True when a leg moved."""
+    W, target, hip, knee, ankle, l1, l2 = p.W, p.target, p.hip, p.knee, p.ankle, p.l1, p.l2
+    aff, which, turns = p.aff, p.which, p.turns
     moved = False
     for t in range(4):
         turns[t, 0], turns[t, 1], turns[t, 2], turns[t, 3] = 1.0, 0.0, 0.0, 0.0
@@ -452,22 +458,19 @@ def legs_to_targets(W, pos, target, hip, knee, ankle, l1, l2, aff, which, turns)
 
 
 @kernel
-def plant_frame(pos, W, pose, legs, t, params, state, contact, scratch):
-    """Foot planting for one frame: contact and targets (:func:`plant_feet`), leg IK
-    (:func:`legs_to_targets`) and, when a leg moved, positions and local rotations anew. ``pose`` =
-    parents, order, offsets, rl_inv, root, local, tmp (:func:`pose_from_world`'s); ``legs`` = hip,
-    knee, ankle, toe, has_toe, l1, l2, rest_h, toe_h, aff, which; ``params`` and ``state`` as
-    :func:`plant_feet`'s; ``scratch`` = ank [2, 3], toe_z [2], target [2, 3], speed [2], turns [4, 4]."""
-    parents, order, offsets, rl_inv, root, local, tmp = pose
-    hip, knee, ankle, toe, has_toe, l1, l2, rest_h, toe_h, aff, which = legs
-    ank, toe_z, target, speed, turns = scratch
+def plant_frame(p, pos, root, local, t, state, contact):
+    """Foot planting for one frame at ``t`` s: contact [2] and targets (:func:`plant_feet`), leg IK
+    (:func:`legs_to_targets`) and, when a leg moved, positions [J, 3] and local rotations [J, 4]
+    anew from the root [3]; ``state`` as :func:`plant_feet`'s."""
+    ank, toe_z, ankle, toe = p.ank, p.toe_z, p.ankle, p.toe
     for i in range(2):
         a = ankle[i]
         ank[i, 0], ank[i, 1], ank[i, 2] = pos[a, 0], pos[a, 1], pos[a, 2]
-        toe_z[i] = pos[toe[i], 2] if has_toe else 0.0
-    plant_feet(ank, toe_z, has_toe, rest_h, toe_h, t, params, state, target, contact, speed)
-    if legs_to_targets(W, pos, target, hip, knee, ankle, l1, l2, aff, which, turns):
-        pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp)
+        toe_z[i] = pos[toe[i], 2] if p.has_toe else 0.0
+    plant_feet(ank, toe_z, p.has_toe, p.rest_h, p.toe_h, t,
+               (p.floor_z, p.height_m, p.speed_mps, p.release_s, p.window_s), state, p.target, contact, p.speed)
+    if legs_to_targets(p, pos):
+        pose_from_world(p, root, pos, local)
 
 
 @kernel
@@ -511,178 +514,67 @@ def optical_frame(joint_positions, joint_quality, hips, pts, ok):
     ok[J] = good
 
 
-# Slots of the packed constants (one int64 array ``ci``, one float64 array ``cf``, one float64
-# scratch ``wk``): passing three arrays instead of ninety costs ~1 us of dispatch instead of ~20.
-# ``ci`` starts with (start, end) pairs: int slots, then float slots (into cf), then scratch slots (into wk).
-# Slot numbers are passed as np.int64(...): a plain int constant would compile the accessor once per value.
-INT_SLOTS = ("rot_src", "dep_idx", "rot_joint", "f_m", "f_a", "f_b", "c_start", "c_end", "c_jptr", "c_joints",
-             "c_iters", "c_correct", "c_end_src", "c_pivot_src", "c_pptr", "c_path", "a_joint", "a_pre", "a_frm",
-             "a_to", "src_ext", "parents", "order", "scalars", "hip", "knee", "ankle", "toe", "aff", "which",
-             "hips", "b_joint", "b_child", "b_a", "b_b")
-FLOAT_SLOTS = ("K", "f_bone", "f_A", "c_frac", "c_A", "c_off", "a_bone", "a_A", "rw_q", "offsets", "rl_inv",
-               "root_M", "root_c", "root_s", "l1", "l2", "rest_h", "toe_h", "plant", "b_A", "b_cos")
-WORK_SLOTS = ("qn", "qk", "dq", "ap", "D", "W", "tmp", "ank", "toe_z", "target", "speed", "turns", "pin")
-_NI, _NF = len(INT_SLOTS), len(FLOAT_SLOTS)
-(I_ROT_SRC, I_DEP, I_ROT_JOINT, I_FM, I_FA, I_FB, I_CS, I_CE, I_CJPTR, I_CJ, I_CIT, I_CCOR, I_CES, I_CPS, I_CPPTR,
- I_CPATH, I_AJ, I_APRE, I_AFRM, I_ATO, I_SRC_EXT, I_PAR, I_ORDER, I_SCAL, I_HIP, I_KNEE, I_ANKLE, I_TOE, I_AFF,
- I_WHICH, I_HIPS, I_BJ, I_BC, I_BA, I_BB) = range(_NI)
-(F_K, F_FBONE, F_FA, F_CFRAC, F_CA, F_COFF, F_ABONE, F_AA, F_RWQ, F_OFF, F_RLINV, F_RM, F_RC, F_RS, F_L1, F_L2,
- F_RH, F_TH, F_PLANT, F_BA, F_BCOS) = range(_NF)
-(W_QN, W_QK, W_DQ, W_AP, W_D, W_W, W_TMP, W_ANK, W_TOEZ, W_TARGET, W_SPEED, W_TURNS, W_PIN) = range(len(WORK_SLOTS))
-
-
 @kernel
-def _iv(ci, k):
-    """Int slot k of the packed constants (a view)."""
-    return ci[ci[2 * k]:ci[2 * k + 1]]
-
-
-@kernel
-def _fv(ci, cf, k):
-    """Float slot k (a view)."""
-    return cf[ci[2 * (_NI + k)]:ci[2 * (_NI + k) + 1]]
-
-
-@kernel
-def _fm(ci, cf, k, cols):
-    """Float slot k as [rows, cols] (a view)."""
-    a = _fv(ci, cf, k)
-    return a.reshape((a.shape[0] // cols, cols))
-
-
-@kernel
-def _wv(ci, wk, k, cols):
-    """Scratch slot k as [rows, cols] (a view)."""
-    a = wk[ci[2 * (_NI + _NF + k)]:ci[2 * (_NI + _NF + k) + 1]]
-    return a.reshape((a.shape[0] // cols, cols))
-
-
-@kernel
-def retarget_frame(pts, pok, rot, rok, t, held, plant, packed, out):
+def retarget_frame(pts, pok, rot, rok, t, held, plant, p, out):
     """One whole frame (hold, drive, world, root, pose, plant) of points [P, 3], their mask [P],
     rotations [R, 4], their mask [R] at ``t`` s. ``held`` = st_pts, st_rot, pts_seen, rot_seen (the
     retargeter's state, updated), pq, rq (this frame's source quality, written); ``plant`` = ps,
-    ht, hxy, hn (the plant state); ``packed`` = ci, cf, wk (the constants and scratch, :func:`pack`);
-    writes ``out`` = root [3], pos [J, 3], local [J, 4], contact [2]; returns True when every input was good."""
+    ht, hxy, hn (the plant state); ``p`` the retargeter's :class:`frame_plan.FramePlan` (constants
+    and scratch); writes ``out`` = root [3], pos [J, 3], local [J, 4], contact [2]; returns True
+    when every input was good."""
     st_pts, st_rot, pts_seen, rot_seen, pq, rq = held
-    ci, cf, wk = packed
     root, pos, local, contact = out
-    sc = _iv(ci, np.int64(I_SCAL))                      # root_src, legs (0/1), toe (0/1), check_norm (0/1), root joint
-    rot_src = _iv(ci, np.int64(I_ROT_SRC))
-    n = rot_src.shape[0]
-    dep = _iv(ci, np.int64(I_DEP))
-    depth = dep.shape[0] // n if n else 0
-    qn = _wv(ci, wk, np.int64(W_QN), 4)
-    good = hold_frame(pts, pok, rot, rok, sc[3] != 0, st_pts, st_rot, pts_seen, rot_seen, pq, rq, qn)
-    f_m = _iv(ci, np.int64(I_FM))
-    nf = f_m.shape[0]
-    c_start = _iv(ci, np.int64(I_CS))
-    nc = c_start.shape[0]
-    a_joint = _iv(ci, np.int64(I_AJ))
-    na = a_joint.shape[0]
-    tmp = _wv(ci, wk, np.int64(W_TMP), 4)
-    D = _wv(ci, wk, np.int64(W_D), 4)
-    W = _wv(ci, wk, np.int64(W_W), 4)
-    eq41 = (rot_src, dep.reshape((depth, n)), _fv(ci, cf, np.int64(F_K)).reshape((n, 4, 4)), _iv(ci, np.int64(I_ROT_JOINT)))
-    follow = (f_m, _iv(ci, np.int64(I_FA)), _iv(ci, np.int64(I_FB)), _fv(ci, cf, np.int64(F_FBONE)).reshape((nf, 3)),
-              _fv(ci, cf, np.int64(F_FA)).reshape((nf, 3, 3)))
-    chains = (c_start, _iv(ci, np.int64(I_CE)), _iv(ci, np.int64(I_CJPTR)), _iv(ci, np.int64(I_CJ)),
-              _fv(ci, cf, np.int64(F_CFRAC)), _iv(ci, np.int64(I_CIT)), _iv(ci, np.int64(I_CCOR)), _iv(ci, np.int64(I_CES)),
-              _iv(ci, np.int64(I_CPS)), _fv(ci, cf, np.int64(F_CA)).reshape((nc, 3, 3)), _iv(ci, np.int64(I_CPPTR)),
-              _iv(ci, np.int64(I_CPATH)), _fm(ci, cf, np.int64(F_COFF), 3))
-    aims = (a_joint, _iv(ci, np.int64(I_APRE)), _fv(ci, cf, np.int64(F_ABONE)).reshape((na, 3)), _iv(ci, np.int64(I_AFRM)),
-            _iv(ci, np.int64(I_ATO)), _fv(ci, cf, np.int64(F_AA)).reshape((na, 3, 3)))
-    drive_frame(qn, st_pts, eq41, follow, chains, aims,
-                (_wv(ci, wk, np.int64(W_QK), 4), _wv(ci, wk, np.int64(W_DQ), 4), _wv(ci, wk, np.int64(W_AP), 4), D, tmp))
-    rw_q = _fm(ci, cf, np.int64(F_RWQ), 4)
-    world_from_deltas(D, _iv(ci, np.int64(I_SRC_EXT)), rw_q, W, st_pts, sc[0], _fv(ci, cf, np.int64(F_RM)).reshape((3, 3)),
-                      _fv(ci, cf, np.int64(F_RC)), sc[4], _fv(ci, cf, np.int64(F_RS)), root)
-    parents, order = _iv(ci, np.int64(I_PAR)), _iv(ci, np.int64(I_ORDER))
-    offsets, rl_inv = _fm(ci, cf, np.int64(F_OFF), 3), _fm(ci, cf, np.int64(F_RLINV), 4)
-    pose_from_world(W, parents, order, offsets, rl_inv, root, pos, local, tmp)
+    good = hold_frame(pts, pok, rot, rok, p.check_norm, st_pts, st_rot, pts_seen, rot_seen, pq, rq, p.qn)
+    drive_frame(p, st_pts)
+    world_from_deltas(p, st_pts, root)
+    pose_from_world(p, root, pos, local)
     contact[0], contact[1] = False, False
-    if sc[1] != 0:
-        pp = _fv(ci, cf, np.int64(F_PLANT))         # floor_z, height_m, speed_mps, release_s, window_s
-        legs = (_iv(ci, np.int64(I_HIP)), _iv(ci, np.int64(I_KNEE)), _iv(ci, np.int64(I_ANKLE)), _iv(ci, np.int64(I_TOE)),
-                sc[2] != 0, _fv(ci, cf, np.int64(F_L1)), _fv(ci, cf, np.int64(F_L2)), _fv(ci, cf, np.int64(F_RH)),
-                _fv(ci, cf, np.int64(F_TH)), _iv(ci, np.int64(I_AFF)), _iv(ci, np.int64(I_WHICH)))
-        scratch = (_wv(ci, wk, np.int64(W_ANK), 3), _wv(ci, wk, np.int64(W_TOEZ), 1)[:, 0], _wv(ci, wk, np.int64(W_TARGET), 3),
-                   _wv(ci, wk, np.int64(W_SPEED), 1)[:, 0], _wv(ci, wk, np.int64(W_TURNS), 4))
-        plant_frame(pos, W, (parents, order, offsets, rl_inv, root, local, tmp), legs, t,
-                    (pp[0], pp[1], pp[2], pp[3], pp[4]), plant, contact, scratch)
+    if p.has_legs:
+        plant_frame(p, pos, root, local, t, plant, contact)
     return good
 
 
 @kernel
-def retarget_actor_frame(jp, jq, rot, lq, t, held, plant, packed, out):
+def retarget_actor_frame(jp, jq, rot, lq, t, held, plant, p, out):
     """A solved actor's frame (ActorPose's arrays: joints jp [J, 3] m, their quality jq [J], limb
     rotations rot [R, 4] wxyz, their quality lq [R], int8) in one call: optical_frame's points and
-    masks (the pelvis last, into scratch), the limbs of quality >= 1, :func:`retarget_frame`, and
-    when every input was good the joint quality [1, J] (good, bones the character could not follow
-    flagged by :func:`flag_unfollowed`). ``held`` and ``plant`` as :func:`retarget_frame`'s;
-    ``packed`` = ci, cf, wk and bk (bool scratch [J + 1 + R]); ``out`` = root, pos, local, contact,
-    quality, [1, ...] as RetargetResult holds them. Returns 1 when every input was good (else 0: ``quality`` is left for the
-    caller, which derives it from ``pq`` and ``rq``), plus 2 when the speed window has room for one
-    more frame only (the caller grows it before the next: numpy scalars would cost it more there)."""
-    ci, cf, wk, bk = packed
+    masks (the pelvis last, into the plan's scratch), the limbs of quality >= 1, :func:`retarget_frame`,
+    and when every input was good the joint quality [1, J] (good, bones the character could not
+    follow flagged by :func:`flag_unfollowed`). ``held``, ``plant`` and ``p`` as :func:`retarget_frame`'s;
+    ``out`` = root, pos, local, contact, quality, [1, ...] as RetargetResult holds them. Returns 1
+    when every input was good (else 0: ``quality`` is left for the caller, which derives it from
+    ``pq`` and ``rq``), plus 2 when the speed window has room for one more frame only (the caller
+    grows it before the next: numpy scalars would cost it more there)."""
     root, pos, local, contact, quality = out
     st_pts = held[0]
-    J, R = jp.shape[0], rot.shape[0]
-    pts = _wv(ci, wk, np.int64(W_PIN), 3)
-    pok, rok = bk[:J + 1], bk[J + 1:J + 1 + R]
-    optical_frame(jp, jq, _iv(ci, np.int64(I_HIPS)), pts, pok)
-    for r in range(R):
+    pts, pok, rok = p.pin, p.pin_ok, p.rot_ok
+    optical_frame(jp, jq, p.hips, pts, pok)
+    for r in range(rot.shape[0]):
         rok[r] = lq[r] >= 1
-    good = retarget_frame(pts, pok, rot, rok, t, held, plant, (ci, cf, wk), (root[0], pos[0], local[0], contact[0]))
+    good = retarget_frame(pts, pok, rot, rok, t, held, plant, p, (root[0], pos[0], local[0], contact[0]))
     if good:
         q = quality[0]
         q[:] = QUALITY_GOOD
-        nb = _iv(ci, np.int64(I_BJ)).shape[0]
-        flag_unfollowed(pos[0], st_pts, _iv(ci, np.int64(I_BJ)), _iv(ci, np.int64(I_BC)), _iv(ci, np.int64(I_BA)),
-                        _iv(ci, np.int64(I_BB)), _fv(ci, cf, np.int64(F_BA)).reshape((nb, 3, 3)),
-                        _fv(ci, cf, np.int64(F_BCOS)), q)
+        flag_unfollowed(pos[0], st_pts, p.b_joint, p.b_child, p.b_a, p.b_b, p.b_A, p.b_cos, q)
     ht, hn = plant[1], plant[3]
     return (1 if good else 0) + (2 if hn[0] + 2 >= ht.shape[0] else 0)
-
-
-def pack(ints: dict, floats: dict, work: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(ci, cf, wk) from the named slots (INT_SLOTS, FLOAT_SLOTS: arrays, any shape; WORK_SLOTS:
-    sizes in float64 elements), in the layout :func:`retarget_frame` reads."""
-    heads, data, fdata = [], [], []
-    at = 2 * (len(INT_SLOTS) + len(FLOAT_SLOTS) + len(WORK_SLOTS))
-    for name in INT_SLOTS:
-        a = np.asarray(ints[name], dtype=np.int64).reshape(-1)
-        heads += [at, at + len(a)]
-        data.append(a)
-        at += len(a)
-    fat = 0
-    for name in FLOAT_SLOTS:
-        a = np.asarray(floats[name], dtype=np.float64).reshape(-1)
-        heads += [fat, fat + len(a)]
-        fdata.append(a)
-        fat += len(a)
-    wat = 0
-    for name in WORK_SLOTS:
-        heads += [wat, wat + int(work[name])]
-        wat += int(work[name])
-    ci = np.concatenate([np.array(heads, dtype=np.int64)] + data)
-    return ci, np.concatenate(fdata), np.zeros(max(wat, 1))
 
 
 def load() -> None:
     """Load the cached machine code of the frame kernels for the live path's argument types (a node
     calls it before it reports ready, so that its first frame does not wait ~0.4 s for it)."""
     import numba
+
+    from .frame_plan import FRAME_PLAN
     ty = lambda *xs: tuple(numba.typeof(x) for x in xs)   # noqa: E731
     f2, f1, b1 = np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.bool_)
     f3, b2, i8_2 = np.zeros((1, 1, 3)), np.zeros((1, 1), np.bool_), np.zeros((1, 1), np.int8)
     i8, i64 = np.zeros(1, np.int8), np.zeros(1, np.int64)
     held, plant = (f2, f2, b1, b1, i8, i8), (f1, f1, f2, i64)
-    retarget_frame.compile(ty(f2, b1, f2, b1, 0.0, held, plant, (i64, f1, f1), (f1, f2, f2, b1)))
+    retarget_frame.compile(ty(f2, b1, f2, b1, 0.0, held, plant) + (FRAME_PLAN,) + ty((f1, f2, f2, b1)))
     flag_unfollowed.compile(ty(f2, f2, i64, i64, i64, i64, f3, f1, i8))
     ro2, ro8 = f2.copy(), i8.copy()
     ro2.flags.writeable = ro8.flags.writeable = False
     for jp, jq in ((ro2, ro8), (f2, i8)):   # decoded (read-only) frames and plain arrays
         optical_frame.compile(ty(jp, jq, i64, f2, b1))
-        retarget_actor_frame.compile(ty(jp, jq, jp, jq, 0.0, held, plant, (i64, f1, f1, b1), (f2, f3, f3, b2, i8_2)))
-
+        retarget_actor_frame.compile(ty(jp, jq, jp, jq, 0.0, held, plant) + (FRAME_PLAN,) + ty((f2, f3, f3, b2, i8_2)))

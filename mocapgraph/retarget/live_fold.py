@@ -15,42 +15,42 @@ from ..kinematics.quaternion import matrix_to_quat
 from .options import RetargetResult
 from .quat_forms import CONJ16, HAM, ID, ROT, left_map, right_map
 
-if TYPE_CHECKING:
-    from .retargeter import Retargeter
+if TYPE_CHECKING:   # annotations only
+    from .plan import RetargetPlan
 
 QUALITY_GOOD = 2
 
 
 class FoldedPlan:
-    """The folded constants of one Retargeter's plan (the attributes the one-frame paths read)."""
+    """The folded constants of one retarget plan (the attributes the one-frame paths read)."""
 
-    def __init__(self, rt: "Retargeter") -> None:
-        self.rt, self.J = rt, rt.character.n_joints
-        self._fold_eq41(rt)
-        self._fold_follow(rt)
-        self._fold_chains(rt)
-        self._fold_aims(rt)
-        self._fold_world(rt)
+    def __init__(self, plan: "RetargetPlan") -> None:
+        self.plan, self.J = plan, plan.character.n_joints
+        self._fold_eq41(plan)
+        self._fold_follow(plan)
+        self._fold_chains(plan)
+        self._fold_aims(plan)
+        self._fold_world(plan)
         self.jq_good = np.full((1, self.J), QUALITY_GOOD, np.int8)
         self.Result = RetargetResult
-        self._fold_root(rt)
-        self._fold_legs(rt)
-        self._fold_local(rt)
+        self._fold_root(plan)
+        self._fold_legs(plan)
+        self._fold_local(plan)
 
-    def _fold_eq41(self, rt: "Retargeter") -> None:
+    def _fold_eq41(self, plan: "RetargetPlan") -> None:
         """Eq 4.1 as one 4x4 map K per rotate joint on Q_k; with no source dependencies, the gather too."""
-        mp = rt.mapping
+        mp = plan.mapping
         rot = [e for e in mp.joints if e.mode == "rotate" and e.rotation is not None]
         n = len(rot)
         a_q = [np.asarray(e.A, float) / np.linalg.norm(e.A) for e in rot]
-        post_q = matrix_to_quat(rt.plan.post) if n else np.zeros((0, 4))
+        post_q = matrix_to_quat(plan.post) if n else np.zeros((0, 4))
         K = np.array([left_map(a) @ right_map(p) for a, p in zip(a_q, post_q)]).reshape(n, 4, 4)
         self.K = K
-        R = len(rt.source.rotation_names)
-        self.rot_src = rt.plan.rot_src
-        self.rot_joint = rt.plan.rot_joint
+        R = len(plan.source.rotation_names)
+        self.rot_src = plan.rot_src
+        self.rot_joint = plan.rot_joint
         # source dependencies, level by level: qk[i] *= rot_ext[dep_idx[level, i]] (R: identity slot)
-        deps = {i: d for i, d in rt.plan.dep}
+        deps = {i: d for i, d in plan.dep}
         depth = max((len(d) for d in deps.values()), default=0)
         self.dep_idx = np.full((depth, n), R, dtype=np.int64)
         for i, d in deps.items():
@@ -61,26 +61,26 @@ class FoldedPlan:
                 big[4 * self.rot_src[i]:4 * self.rot_src[i] + 4, 4 * i:4 * i + 4] += K[i].T
             self.K_big = big
 
-    def _fold_follow(self, rt: "Retargeter") -> None:
+    def _fold_follow(self, plan: "RetargetPlan") -> None:
         """Bone following: the rest bones as quadratic forms, the source bones as one linear map of the points."""
-        self.follow_m = rt.plan.follow_m
-        self.follow_forms = ROT @ rt.plan.follow_bone[:, None, :, None] if len(rt.plan.follow_m) else None
+        self.follow_m = plan.follow_m
+        self.follow_forms = ROT @ plan.follow_bone[:, None, :, None] if len(plan.follow_m) else None
         if self.follow_forms is not None:
             self.follow_forms = self.follow_forms[..., 0]                                   # [nf, 16, 3]
-            self.follow_len = np.linalg.norm(rt.plan.follow_bone, axis=1)
-            P = len(rt.source.point_names)
-            nf = len(rt.plan.follow_m)
+            self.follow_len = np.linalg.norm(plan.follow_bone, axis=1)
+            P = len(plan.source.point_names)
+            nf = len(plan.follow_m)
             w = np.zeros((3 * P, 3 * nf))   # want = A (p_b - p_a), flat
             for i in range(nf):
-                A = rt.plan.A[rt.plan.follow_m[i]]
-                w[3 * rt.plan.follow_b[i]:3 * rt.plan.follow_b[i] + 3, 3 * i:3 * i + 3] += A.T
-                w[3 * rt.plan.follow_a[i]:3 * rt.plan.follow_a[i] + 3, 3 * i:3 * i + 3] -= A.T
+                A = plan.A[plan.follow_m[i]]
+                w[3 * plan.follow_b[i]:3 * plan.follow_b[i] + 3, 3 * i:3 * i + 3] += A.T
+                w[3 * plan.follow_a[i]:3 * plan.follow_a[i] + 3, 3 * i:3 * i + 3] -= A.T
             self.follow_w = w
 
-    def _fold_chains(self, rt: "Retargeter") -> None:
+    def _fold_chains(self, plan: "RetargetPlan") -> None:
         """Spread chains: their shares and the end-point correction's constants."""
         self.chains = []
-        for c in rt.plan.chains:
+        for c in plan.chains:
             d = dict(start=c["start"], end=c["end"], joints=c["joints"], frac=c["frac"], path=c["path"],
                      f2=np.repeat(np.asarray(c["frac"], float)[:, None], 2, axis=1),
                      iters=1 if c["endpt"] == c["end"] else 4,
@@ -90,24 +90,24 @@ class FoldedPlan:
                 d["forms"] = (ROT @ c["offsets"][:, None, :, None])[..., 0]
             self.chains.append(d)
 
-    def _fold_aims(self, rt: "Retargeter") -> None:
+    def _fold_aims(self, plan: "RetargetPlan") -> None:
         """Aims, vectorised over the aim joints (each hangs from a joint not aimed itself)."""
-        ch, J = rt.character, self.J
+        ch, J = plan.character, self.J
         self.aims = None
-        if rt.plan.aims:
-            par = np.array([ch.parents[a[0]] for a in rt.plan.aims])
-            pre = rt.plan.src_pre[par]
+        if plan.aims:
+            par = np.array([ch.parents[a[0]] for a in plan.aims])
+            pre = plan.src_pre[par]
             pre = np.where(pre < 0, pre + J, pre)   # the batched path's index, Python's negative wrap included
-            self.aims = dict(joint=rt.plan.aim_joint, pre=pre,
-                             forms=(ROT @ np.array([a[1] for a in rt.plan.aims])[:, None, :, None])[..., 0],
-                             frm=np.array([a[2] for a in rt.plan.aims]), to=np.array([a[3] for a in rt.plan.aims]),
-                             A=np.array([a[4] for a in rt.plan.aims]))
+            self.aims = dict(joint=plan.aim_joint, pre=pre,
+                             forms=(ROT @ np.array([a[1] for a in plan.aims])[:, None, :, None])[..., 0],
+                             frm=np.array([a[2] for a in plan.aims]), to=np.array([a[3] for a in plan.aims]),
+                             A=np.array([a[4] for a in plan.aims]))
 
-    def _fold_world(self, rt: "Retargeter") -> None:
+    def _fold_world(self, plan: "RetargetPlan") -> None:
         """Inheritance and rest orientation: W[j] = Δ_ext[s_j] · rest_world_q[j] (identity slot J), as one product."""
-        ch, J = rt.character, self.J
-        src = np.where(rt.plan.src_post < 0, J, rt.plan.src_post)
-        rw_q = matrix_to_quat(rt.plan.rest_world)
+        ch, J = plan.character, self.J
+        src = np.where(plan.src_post < 0, J, plan.src_post)
+        rw_q = matrix_to_quat(plan.rest_world)
         par = np.where(ch.parents < 0, J, ch.parents)
         self.par_ext = par
         # one product gives every W and every W[parent] (the root's parent: the identity slot)
@@ -123,29 +123,29 @@ class FoldedPlan:
         self.G = g
         self.delta0 = np.tile(ID, (J + 1, 1))
 
-    def _fold_root(self, rt: "Retargeter") -> None:
+    def _fold_root(self, plan: "RetargetPlan") -> None:
         """Positions: bones R(W[parent]) · offset summed over ancestors; the root from the source root (one map)."""
-        ch = rt.character
+        ch = plan.character
         self.bone_forms = (ROT @ ch.rest_offsets[:, None, :, None])[..., 0]                # [J, 16, 3]
-        self.anc = rt.plan.anc
+        self.anc = plan.anc
         M = np.zeros((3, 3))
-        M[:2] = rt.ratio * rt.plan.root_A[:2]
-        M[2, 2] = rt.ratio
+        M[:2] = plan.ratio * plan.root_A[:2]
+        M[2, 2] = plan.ratio
         self.root_M = M
-        big = np.zeros((3 * len(rt.source.point_names), 3))
-        big[3 * rt.plan.root_src:3 * rt.plan.root_src + 3] = M.T       # the source root's gather folded in
+        big = np.zeros((3 * len(plan.source.point_names), 3))
+        big[3 * plan.root_src:3 * plan.root_src + 3] = M.T       # the source root's gather folded in
         self.root_big = big
-        self.root_c = np.array([0.0, 0.0, rt.plan.h_c - rt.ratio * rt.plan.h_s + rt.options.floor_z]) + rt.plan.offset
-        self.root_src = rt.plan.root_src
+        self.root_c = np.array([0.0, 0.0, plan.h_c - plan.ratio * plan.h_s + plan.options.floor_z]) + plan.offset
+        self.root_src = plan.root_src
         # the mid-hip rule (Retargeter._midhip_rule): root += R(W[root]) s
-        self.root_j = int(rt.plan.root)
-        self.root_s = None if rt.plan.root_s is None else [float(v) for v in rt.plan.root_s]
+        self.root_j = int(plan.root)
+        self.root_s = None if plan.root_s is None else [float(v) for v in plan.root_s]
 
-    def _fold_legs(self, rt: "Retargeter") -> None:
+    def _fold_legs(self, plan: "RetargetPlan") -> None:
         """Foot planting: the joints each leg's thigh and shin turns carry."""
         self.legs = None
-        if rt.plan.legs is not None:
-            L = rt.plan.legs
+        if plan.legs is not None:
+            L = plan.legs
             aff, which = [], []
             for i in range(2):
                 thigh = np.flatnonzero(L["sub"][i] & ~L["below_knee"][i])
@@ -158,10 +158,10 @@ class FoldedPlan:
                              l1=L["l1"].tolist(), l2=L["l2"].tolist(), rest_h=L["rest_h"].tolist(),
                              toe_h=L["toe_h"].tolist())
 
-    def _fold_local(self, rt: "Retargeter") -> None:
+    def _fold_local(self, plan: "RetargetPlan") -> None:
         """Local rotations (rest_local⁻¹ · conj(W[parent]) · W) as a bilinear form per joint, beside the bone vectors."""
         J = self.J
-        rl_inv = matrix_to_quat(np.swapaxes(rt.plan.rest_local_inv, -1, -2))   # rest_local, then conjugated
+        rl_inv = matrix_to_quat(np.swapaxes(plan.rest_local_inv, -1, -2))   # rest_local, then conjugated
         rl_inv[:, 1:] *= -1.0
         self.local_forms = np.stack([(HAM * CONJ16) @ left_map(rl_inv[j]).T for j in range(J)])  # [J, 16, 4]
         # both at once from W[parent] ⊗ [W[parent] | W] [J, 32]: the bone vector (3) and the local rotation (4)

@@ -63,6 +63,11 @@ class RetargetPlan:
     offset: np.ndarray           # [3] world shift of the character, m
     point_plan: PointRotationPlan | None   # rotations from points (positions-only sources)
     checks: BoneChecks           # the bone-follow quality checks
+    # what the plan was built from (read by the one-frame paths, which fold it further)
+    character: Character
+    mapping: Mapping
+    source: SourceSkeleton
+    options: RetargetOptions
 
 
 def build_plan(character: Character, mapping: Mapping, source: SourceSkeleton,
@@ -105,7 +110,8 @@ def build_plan(character: Character, mapping: Mapping, source: SourceSkeleton,
         legs=_legs(ch, m, jidx, cpos, rest_floor(cpos)) if opt.foot_planting and m.legs else None,
         eye_j=np.broadcast_to(_EYE3, (J, 3, 3)), offset=np.asarray(opt.offset, dtype=np.float64),
         point_plan=plan_point_rotations(src) if src.derived_rotations else None,
-        checks=plan_bone_checks(ch, m, src, opt.follow_tolerance_deg))
+        checks=plan_bone_checks(ch, m, src, opt.follow_tolerance_deg),
+        character=ch, mapping=m, source=src, options=opt)
 
 
 def rest_floor(rest_positions: np.ndarray) -> float:

@@ -5,7 +5,8 @@ from its rest by Claro's Eq 4.1 (A·Q_k·D·R⁻¹·A⁻¹; :mod:`mapping`), spr
 unmapped joints turning with their mapped ancestor, roll joints, the root scaled by the leg-length
 ratio with the floor matched, foot planting, local rotations (Kiip Eq 8). Where it is decided:
 :mod:`plan` builds the constants once; :mod:`batched` is the arithmetic on [F, ...] arrays (the
-reference); :mod:`live` and :mod:`kernels` the same for one frame, numpy and compiled.
+reference); :mod:`live` and :mod:`kernels` the same for one frame, compiled, with
+:mod:`live_numpy` its numpy reference.
 
 One entry for live and batch: :meth:`Retargeter.process` takes [F, ...] arrays and carries its
 state (last good source values, plants) from one call to the next, so a live node calls it with
@@ -24,7 +25,7 @@ from .batched import hold_last_good, retarget_frames
 from .character import Character
 from .foot_planting import PlantState
 from .kernels import flag_unfollowed
-from .live import LiveKernel
+from .live import CompiledFrame
 from .mapping import Mapping, MappingError
 from .options import RetargetOptions, RetargetResult
 from .plan import RetargetPlan, build_plan
@@ -50,17 +51,20 @@ class Retargeter:
     :meth:`process` on [F, ...] frames, :meth:`process_one` and :meth:`process_actor` on one live frame."""
 
     def __init__(self, character: Character, mapping: Mapping, source: SourceSkeleton,
-                 options: RetargetOptions | None = None, *, live: bool = True, compiled: bool = True) -> None:
-        """``live=False`` leaves out the one-frame path (every call takes the batched one);
-        ``compiled=False`` keeps the one-frame path in numpy (the compiled kernels' reference)."""
+                 options: RetargetOptions | None = None, *, live: bool = True,
+                 frame_path: type = CompiledFrame) -> None:
+        """``live=False`` leaves out the one-frame path (every call takes the batched one), as do
+        roll joints (no one-frame path rolls); ``frame_path`` builds the one-frame path from the plan
+        (:class:`live.CompiledFrame`; the tests pass :class:`live_numpy.NumpyFrame`, its reference)."""
         self.character, self.mapping, self.source = character, mapping, source
         self.options = options or RetargetOptions()
         self.plan: RetargetPlan = build_plan(character, mapping, source, self.options)
         self.reset()
-        self._live = None
-        self._optical: OpticalFrames | None = None   # process_actor's point layout when not compiled
+        self._optical: OpticalFrames | None = None   # process_actor's point layout off the compiled path
         # the one-frame path's folded gathers multiply every (held, so finite) point by its weights
-        self._live = LiveKernel(self, compiled) if live and np.isfinite(source.rest_points).all() else None
+        one_frame = live and not self.plan.rolls and np.isfinite(source.rest_points).all()
+        self.frame_path = frame_path(self.plan) if one_frame else None
+        self._frame_path_type = frame_path
 
     @property
     def ratio(self) -> float:
@@ -94,8 +98,8 @@ class Retargeter:
             else:
                 new.append(e)
         m = replace(self.mapping, joints=tuple(new))
-        self.__init__(self.character, m, self.source, self.options, live=self._live is not None,
-                      compiled=self._live is not None and self._live.compiled is not None)
+        self.__init__(self.character, m, self.source, self.options, live=self.frame_path is not None,
+                      frame_path=self._frame_path_type)
         return m
 
     # ----------------------------------------------------------------------------------------------
@@ -103,18 +107,16 @@ class Retargeter:
                     rotation_ok: np.ndarray | None, time_s: float) -> RetargetResult:
         """One live frame (the node's call): points [P, 3], rotations [R, 4] or None, masks [P], [R]
         or None, time in s; :meth:`process` of that frame (F = 1), without its batch wrapping."""
-        if self._live is not None:
+        if self.frame_path is not None:
             return self._live_frame(points, point_ok, rotations, rotation_ok, float(time_s))
         return self.process(points[None], None if point_ok is None else point_ok[None],
                             None if rotations is None else rotations[None],
                             None if rotation_ok is None else rotation_ok[None], float(time_s))
 
-    def _actor_kernel(self):
+    def _actor_kernel(self) -> CompiledFrame | None:
         """The compiled live path when it takes actor frames (an optical source), else None."""
-        live = self._live
-        if live is not None and live.compiled is not None and live.compiled.hips is not None:
-            return live.compiled
-        return None
+        live = self.frame_path
+        return live if isinstance(live, CompiledFrame) and live.hips is not None else None
 
     def actor_buffers(self) -> RetargetResult | None:
         """A one-frame result for :meth:`process_actor` to write into (its ``out``), or None when the
@@ -132,7 +134,8 @@ class Retargeter:
         it (overwritten by the next call); otherwise, and without it, the result is new."""
         compiled = self._actor_kernel()
         if compiled is not None:
-            return compiled.run_actor(joint_positions, joint_quality, limb_rotations, limb_quality, float(time_s), out)
+            return compiled.run_actor(self.state, joint_positions, joint_quality, limb_rotations, limb_quality,
+                                      float(time_s), out)
         if self.source.kind != "optical":
             raise ValueError(f"an actor frame wants an optical source, this one is {self.source.kind}")
         if self._optical is None:
@@ -142,7 +145,7 @@ class Retargeter:
 
     def _live_frame(self, pts, pok, rot, rok, t) -> RetargetResult:
         """The one-frame path, then the bone-follow check on the held points the frame used."""
-        res = self._live.run(pts, pok, rot, rok, t)
+        res = self.frame_path.run(self.state, pts, pok, rot, rok, t)
         c = self.plan.checks
         if c.joint.size:    # kernels.flag_unfollowed: one compiled call
             flag_unfollowed(res.joint_positions[0], self.state.pts, c.joint, c.child, c.a, c.b, c.A, c.cos_limit,
@@ -157,12 +160,12 @@ class Retargeter:
         st = self.state
         pts = np.asarray(points, dtype=np.float64)
         F = pts.shape[0]
-        if F == 1 and self._live is not None:   # the live case: same math, constants folded (live)
+        if F == 1 and self.frame_path is not None:   # the live case: same math, constants folded (live)
             return self._live_frame(pts[0], None if point_ok is None else np.asarray(point_ok, bool)[0],
                                     None if rotations is None else np.asarray(rotations, dtype=np.float64)[0],
                                     None if rotation_ok is None else np.asarray(rotation_ok, bool)[0], times_s)
-        if self._live is not None:
-            self._live.release_state()
+        if self.frame_path is not None:
+            self.frame_path.release_state()
         pok = np.isfinite(pts).all(-1) if point_ok is None else (np.asarray(point_ok, bool) & np.isfinite(pts).all(-1))
         if rotations is None:
             if self.plan.point_plan is None:

@@ -11,6 +11,8 @@ from mocapgraph.formats.character_file import load_character
 from mocapgraph.formats.kinect_csv import read_kinect_csv
 from mocapgraph.formats.mapping_file import load_mapping
 from mocapgraph.retarget.character import standard_20
+from mocapgraph.retarget.live import CompiledFrame
+from mocapgraph.retarget.live_numpy import NumpyFrame
 from mocapgraph.retarget.retargeter import RetargetOptions, RetargetResult, Retargeter
 from mocapgraph.retarget.mapping import derive_mapping
 from mocapgraph.retarget.source import kinect_source, optical_points, optical_source
@@ -25,8 +27,8 @@ def _compare(ch, mapping, src, opts, pts, pok, rot, t, rok=None):
     batch = Retargeter(ch, mapping, src, opts, live=False).process(pts, pok, rot, rok, t)
     out = {}
     for compiled in (True, False):
-        live = Retargeter(ch, mapping, src, opts, compiled=compiled)
-        assert live._live is not None and (live._live.compiled is not None) == compiled
+        live = Retargeter(ch, mapping, src, opts, frame_path=CompiledFrame if compiled else NumpyFrame)
+        assert isinstance(live.frame_path, CompiledFrame if compiled else NumpyFrame)
         frames = [live.process(pts[f:f + 1], None if pok is None else pok[f:f + 1],
                                None if rot is None else rot[f:f + 1], None if rok is None else rok[f:f + 1],
                                t[f:f + 1]) for f in range(len(pts))]
@@ -167,12 +169,12 @@ def test_the_actor_frame_is_the_layout_then_one_frame():
     fast = Retargeter(ch, m, src, opts, live=False).process(pts, None, lr, lq >= 1, t_fast)
     rt = Retargeter(ch, m, src, opts)
     got = np.concatenate([rt.process_actor(jp[f], jq[f], lr[f], lq[f], t_fast[f]).joint_positions for f in range(n)])
-    assert len(rt._live.compiled.ht) >= 256
+    assert len(rt.frame_path.ht) >= 256
     assert np.abs(got - fast.joint_positions).max() < 1e-12
     for compiled, read_only, into in ((True, True, False), (True, False, False), (False, True, False),
                                       (True, True, True), (False, True, True)):
-        rt = Retargeter(ch, m, src, opts, compiled=compiled)
-        assert (rt._live.compiled is not None) == compiled
+        rt = Retargeter(ch, m, src, opts, frame_path=CompiledFrame if compiled else NumpyFrame)
+        assert isinstance(rt.frame_path, CompiledFrame) == compiled
         out = rt.actor_buffers() if into else None   # the node's way: one frame's arrays, rewritten each frame
         assert (out is not None) == (compiled and into)
         frames = []

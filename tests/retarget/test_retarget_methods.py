@@ -94,7 +94,7 @@ def test_three_joint_spine_follows_a_one_segment_actor_spine(actor):
           f"per-joint local turn mean {np.degrees(local.mean(0)).round(1)} deg")
     assert np.abs(np.linalg.norm(s1 - waist_true, axis=-1)).max() < 1e-6
     assert end_err.max() < 0.005
-    assert rt._live.chains[0]["correct"]                 # the end point correction, on the one-frame path too
+    assert rt.frame_path.c_correct[0]               # the end point correction, on the one-frame path too
     assert live_minus_batch(ch, m, src, RetargetOptions(follow_bones=False), pts, None, limbs) < 1e-12
     busy = bend.magnitude() > np.radians(10)
     assert busy.any() and (local[busy] > np.radians(1)).all(axis=1).mean() > 0.9   # all three share the bend
