@@ -1,7 +1,8 @@
-"""Compiled rotation building blocks that other kernel modules call: a rotation matrix's quaternion, a symmetric matrix's eigenvectors.
+"""Compiled rotation building blocks that other kernel modules call: the quaternion product, a rotation matrix's quaternion, a symmetric matrix's eigenvectors.
 
-Shared by source_kernels (rotations from points), rigid_kernels (limb fits) and the
-physics state read-out; a module calling these declares it (``kernel = kernel_calling(quat_kernels)``,
+Shared by source_kernels (rotations from points), rigid_kernels (limb fits), the retargeting
+kernels and the physics kernels (:func:`qmul` is the one compiled Hamilton product; its numpy
+twin is :func:`mocapgraph.kinematics.quaternion.quat_multiply`, tested against it); a module calling these declares it (``kernel = kernel_calling(quat_kernels)``,
 see mocapgraph.jit) so that its cache follows changes here. Quaternions wxyz, w >= 0.
 """
 from __future__ import annotations
@@ -9,6 +10,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..jit import kernel
+
+
+@kernel
+def qmul(aw, ax, ay, az, bw, bx, by, bz):
+    """The Hamilton product a * b of two wxyz quaternions given as floats: (w, x, y, z)."""
+    return (aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw)
 
 
 @kernel
@@ -85,7 +95,8 @@ def jacobi_eigen(A: np.ndarray, V: np.ndarray, vectors: bool) -> None:
 
 
 def warm() -> None:
-    """Compile both on a small rotation and a 4x4 and a 3x3 symmetric matrix."""
+    """Compile them on two quaternions, a small rotation and a 4x4 and a 3x3 symmetric matrix."""
+    qmul(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
     out = np.zeros((1, 4))
     matrix_to_quat_into(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0, out, 0)
     for n in (3, 4):

@@ -18,7 +18,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..jit import kernel
+from ..jit import kernel_calling
+from ..kinematics import quat_kernels
+from ..kinematics.quat_kernels import qmul
+
+kernel = kernel_calling(quat_kernels)   # qmul
 
 
 class Sim(NamedTuple):
@@ -157,10 +161,7 @@ def twist_torques_into(sim, bod, rot, gains, tq) -> float:
             continue
         aw, ax_, ay, az = q_t[i, 0], q_t[i, 1], q_t[i, 2], q_t[i, 3]
         bw, bx, by, bz = xquat[b, 0], -xquat[b, 1], -xquat[b, 2], -xquat[b, 3]
-        ew = aw * bw - ax_ * bx - ay * by - az * bz
-        ex = aw * bx + ax_ * bw + ay * bz - az * by
-        ey = aw * by - ax_ * bz + ay * bw + az * bx
-        ez = aw * bz + ax_ * by - ay * bx + az * bw
+        ew, ex, ey, ez = qmul(aw, ax_, ay, az, bw, bx, by, bz)
         s = ex * u0 + ey * u1 + ez * u2
         sign = math.copysign(1.0, ew)
         theta = 2.0 * math.atan2(s * sign, ew * sign)

@@ -14,7 +14,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..jit import kernel, readonly
+from ..jit import kernel_calling, readonly
+from ..kinematics import quat_kernels
+from ..kinematics.quat_kernels import qmul
+
+kernel = kernel_calling(quat_kernels)   # qmul
 
 
 class DBArrays(NamedTuple):
@@ -207,10 +211,7 @@ def orient(pos, rot, root_in, skel, orient_out) -> None:
         else:
             bw, bx, by, bz = 1.0, 0.0, 0.0, 0.0
         aw, ax, ay, az = rest[j, 0], rest[j, 1], rest[j, 2], rest[j, 3]
-        jw = aw * bw - ax * bx - ay * by - az * bz
-        jx = aw * bx + ax * bw + ay * bz - az * by
-        jy = aw * by - ax * bz + ay * bw + az * bx
-        jz = aw * bz + ax * by - ay * bx + az * bw
+        jw, jx, jy, jz = qmul(aw, ax, ay, az, bw, bx, by, bz)
         p = parents[j]
         if p < 0:
             if ok:

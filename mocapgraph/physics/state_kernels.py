@@ -15,7 +15,7 @@ import numpy as np
 from ..jit import kernel_calling
 from ..kinematics import quat_kernels
 
-kernel = kernel_calling(quat_kernels)   # matrix_to_quat_into
+kernel = kernel_calling(quat_kernels)   # matrix_to_quat_into, qmul
 
 
 class GeomLayout(NamedTuple):
@@ -71,10 +71,7 @@ def local_rotations_into(qpos, ball_adr, ball_joints, root_adr, root_joint, rest
     aw, ax, ay, az = rest_root[0], -rest_root[1], -rest_root[2], -rest_root[3]
     bw, bx, by, bz = qpos[r + 3], qpos[r + 4], qpos[r + 5], qpos[r + 6]
     j = root_joint
-    out[j, 0] = aw * bw - ax * bx - ay * by - az * bz
-    out[j, 1] = aw * bx + ax * bw + ay * bz - az * by
-    out[j, 2] = aw * by - ax * bz + ay * bw + az * bx
-    out[j, 3] = aw * bz + ax * by - ay * bx + az * bw
+    out[j, 0], out[j, 1], out[j, 2], out[j, 3] = quat_kernels.qmul(aw, ax, ay, az, bw, bx, by, bz)
     for j in range(out.shape[0]):
         n = math.sqrt(out[j, 0] * out[j, 0] + out[j, 1] * out[j, 1] + out[j, 2] * out[j, 2] + out[j, 3] * out[j, 3])
         for c in range(4):

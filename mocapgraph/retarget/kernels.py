@@ -21,18 +21,18 @@ import math
 
 import numpy as np
 
-from ..jit import kernel
+from ..jit import kernel_calling
+from ..kinematics import quat_kernels
+from ..kinematics.quat_kernels import qmul
 
+kernel = kernel_calling(quat_kernels)   # qmul
 QUALITY_GOOD = 2
 
 
 @kernel
 def _qmul(a0, a1, a2, a3, b0, b1, b2, b3, out, k):
-    """out[k] = a * b (Hamilton, wxyz)."""
-    out[k, 0] = a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3
-    out[k, 1] = a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2
-    out[k, 2] = a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1
-    out[k, 3] = a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0
+    """out[k] = a * b (Hamilton, wxyz: :func:`quat_kernels.qmul`)."""
+    out[k, 0], out[k, 1], out[k, 2], out[k, 3] = qmul(a0, a1, a2, a3, b0, b1, b2, b3)
 
 
 @kernel

@@ -28,11 +28,11 @@ import math
 
 import numpy as np
 
-from ..kinematics.quaternion import quat_multiply_rows
+from ..kinematics.quaternion import quat_multiply, quat_multiply_rows
 from .batched import joint_quality
 from .foot_planting import plant_one
 from .live_fold import FoldedPlan
-from .quat_forms import (ID, N2_HI, N2_LO, ONES3, ONES4, PHASE, between_rows, leg_ik, left_map, mul1,
+from .quat_forms import (ID, N2_HI, N2_LO, ONES3, ONES4, PHASE, between_rows, leg_ik, left_map,
                          power_left, rotate_const, v_rotate)
 from .source import rotations_from_points_frame
 
@@ -156,7 +156,7 @@ class NumpyFrame(FoldedPlan):
         # 2. spread chains (per chain, not per joint: the slerp of two quaternions in plain floats)
         for c in self.chains:
             qs, qe = D[c["start"]].tolist(), D[c["end"]].tolist()
-            rel = mul1([qs[0], -qs[1], -qs[2], -qs[3]], qe)
+            rel = quat_multiply([qs[0], -qs[1], -qs[2], -qs[3]], qe).tolist()
             D[c["joints"]] = power_left(qs, rel, c["f2"], PHASE)
             if c["correct"]:
                 target = c["A"] @ (pts[c["end_src"]] - pts[c["pivot_src"]])
@@ -202,7 +202,7 @@ class NumpyFrame(FoldedPlan):
             pole = [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)]   # the thigh's forward axis
             q1, q2 = leg_ik(hka[i], hka[2 + i], ankle[i], target[i], L["l1"][i], L["l2"][i], pole)
             turns[i] = q1
-            turns[2 + i] = mul1(q2, q1)
+            turns[2 + i] = quat_multiply(q2, q1).tolist()
         aff = L["aff"]
         W = W.copy()
         W[aff] = quat_multiply_rows(np.array(turns)[L["which"]], W[aff])

@@ -82,14 +82,6 @@ def power_left(qs: list, rel: list, f2: np.ndarray, phase: np.ndarray) -> np.nda
     return np.cos(f2 * math.atan2(s, w) + phase) @ np.array([qs, u])
 
 
-def mul1(a: list, b: list) -> list:
-    """a * b for two quaternions as plain floats (wxyz)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return [aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw]
-
-
 def v_between(a: list, b: list) -> list:
     """Shortest-arc unit quaternion (floats) turning direction a onto b (3 floats each); the
     antiparallel case through the batched helpers' own choice."""
