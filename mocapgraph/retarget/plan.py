@@ -23,9 +23,10 @@ from .source import PointRotationPlan, SourceSkeleton, plan_point_rotations
 _EYE3 = np.eye(3)
 
 
-@dataclass
+@dataclass(frozen=True)
 class RetargetPlan:
-    """The constants of one retargeting (see the module docstring for indices and frames)."""
+    """The constants of one retargeting (see the module docstring for indices and frames); frozen:
+    built once, read by every path."""
 
     parents: np.ndarray          # [J] parent index, the root's 0 (for gathers)
     rest_pos: np.ndarray         # [J, 3] rest joint positions, m (world)
