@@ -172,6 +172,12 @@ class CommandSender:
         self.port = self.sock.bind_to_random_port("tcp://127.0.0.1")
         self.seq = 0
 
+    @property
+    def external(self) -> str:
+        """The graph's ``external:`` block declaring this publisher."""
+        return (f"external:\n  - {{topic: {self.topic}, type: NodeCommand, "
+                f"endpoint: \"tcp://127.0.0.1:{self.port}\"}}\n")
+
     def wait_subscriber(self, timeout_s: float = 30.0) -> None:
         from mocapgraph.messages.codec import topic_frame
 

@@ -17,38 +17,9 @@ import warnings
 from pathlib import Path
 
 import pytest
-import zmq
 
-from graph_helpers import read_jsonl, wait_until
-from mocapgraph.messages import NodeCommand, encode
-from mocapgraph.messages.codec import topic_frame
-
-
-class CommandSender:
-    """An external publisher of NodeCommand on ``topic`` (declared in the graph under ``external:``)."""
-
-    def __init__(self, topic: str) -> None:
-        self.topic = topic
-        self.sock = zmq.Context.instance().socket(zmq.XPUB)
-        self.port = self.sock.bind_to_random_port("tcp://127.0.0.1")
-        self.seq = 0
-
-    @property
-    def external(self) -> str:
-        return (f"external:\n  - {{topic: {self.topic}, type: NodeCommand, "
-                f"endpoint: \"tcp://127.0.0.1:{self.port}\"}}\n")
-
-    def wait_subscriber(self) -> None:
-        assert self.sock.poll(60000), "the node never subscribed"
-        assert self.sock.recv() == b"\x01" + topic_frame(self.topic)
-
-    def send(self, command: str, args_json: str = "{}", target: str = "") -> None:
-        self.seq += 1
-        msg = NodeCommand(target=target, command=command, args_json=args_json)
-        self.sock.send_multipart([bytes(f) for f in encode(self.topic, msg, self.seq, time.time_ns(), "probe")])
-
-    def close(self) -> None:
-        self.sock.close(0)
+from graph_helpers import CommandSender, read_jsonl, wait_until
+from mocapgraph.messages import NodeCommand
 
 
 def _model_file(path: Path) -> None:
@@ -107,7 +78,7 @@ nodes:
                ("save", "relative_to_the_working_folder.json")]
     try:
         for i, (command, path) in enumerate(hostile, 1):
-            cmd.send(command, json.dumps({"path": path}))
+            cmd.send(command, path=path)
             st = wait_until(lambda: (s := _status(log)) and json.loads(s["data_json"]).get("commands_refused") == i
                             and s, timeout=20, what=f"refusal of {command} {path}", graph=g)
             assert "refused" in st["detail"] and "\n" not in st["detail"], st["detail"]
@@ -122,7 +93,7 @@ nodes:
     assert stat.S_ISFIFO(os.lstat(models / "pipe.json").st_mode)
     assert g.proc.poll() is None
     # where the graph says, saving still works, and the node is the one that was there all along
-    cmd.send("save", json.dumps({"path": str(models / "copy.json")}))
+    cmd.send("save", path=str(models / "copy.json"))
     wait_until(lambda: "saved to" in _status(log).get("detail", ""), timeout=20, what="the save", graph=g)
     assert json.loads((models / "copy.json").read_text())["layout"] == "kiip_full_body"
     assert "restart" not in g.output and "exited" not in g.output, g.output

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.formats.bvh_file import bvh_to_skeleton, read_bvh
+from mocapgraph.formats.skeleton_trial import offsets_from_rest
 from mocapgraph.retarget.source import SourceSkeleton, skeleton_source
 
 
@@ -15,10 +16,8 @@ def bvh_source(path: Path):
     """(BvhMotion, SkeletonTrial, SourceSkeleton) of a BVH file, as the bvh_player node sends it."""
     motion = read_bvh(path)
     trial = bvh_to_skeleton(motion)
-    rest = motion.rest_positions()
-    p = trial.parents
-    offs = np.where((p >= 0)[:, None], rest - rest[np.maximum(p, 0)], rest)
-    return motion, trial, skeleton_source(trial.names, p, offs, has_orientations=True, kind_hint="bvh")
+    offs = offsets_from_rest(motion.rest_positions(), trial.parents)
+    return motion, trial, skeleton_source(trial.names, trial.parents, offs, has_orientations=True, kind_hint="bvh")
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
