@@ -1,24 +1,14 @@
 """The retargeter's compiled one-frame path: :meth:`Retargeter.process` for a single frame in one kernel call.
 
-Same math and same output as the batched path (to rounding, checked in the tests), but with the
+Same math and same output as the batched path (to rounding, checked in the tests), with the
 world-frame rotations as wxyz quaternions and everything that does not change per frame folded
-into constant arrays when the retargeter is built:
-
-* Eq 4.1's constant factors: Δ = A·Q_k·D·R⁻¹·A⁻¹ is a fixed 4x4 matrix per joint acting on Q_k
-  (a quaternion product with a constant is linear); with no source dependencies one matrix product
-  does the gather of every Q_k and all of Eq 4.1;
-* rotating a constant vector v by a unit quaternion q is a fixed quadratic form in q (16 x 3), so
-  every bone of the forward kinematics is one product of the quaternions' outer products with a
-  constant tensor, and the ancestor sum one matrix product more;
-* inheritance and rest orientations (W = Δ[nearest driven] · rest_world) are one constant linear
-  map; the local rotations (rest⁻¹ · W[parent]⁻¹ · W) one bilinear form.
-
-A numpy call costs microseconds whatever its size, so what counts is the number of calls: a frame
-is a few dozen, none per joint. Joint quality is the batched path's own code, skipped when every
-input is good (then every joint is good). The folding is :mod:`live_fold`, its algebra
-:mod:`quat_forms`; :class:`CompiledFrame` runs the frame through :mod:`kernels` with the
-folded constants in one :class:`frame_plan.FramePlan`, and :class:`live_numpy.NumpyFrame` is the
-same frame in numpy (the reference the tests hold it to).
+when the retargeter is built (:mod:`live_fold`, whose algebra :mod:`live_numpy` explains):
+:class:`CompiledFrame` lays the folded constants and the frame's scratch into one
+:class:`frame_plan.FramePlan` and runs each frame through :mod:`kernels` in one call (for a solved
+actor, the point layout, masks and bone-follow flags included). It holds the plants of the state
+it last ran as arrays and hands them back (:meth:`CompiledFrame.release_state`) before a batched
+call reads them. :class:`live_numpy.NumpyFrame` is the same frame in numpy, the reference the tests
+hold it to. Joint quality is the batched path's own code, skipped when every input is good.
 """
 from __future__ import annotations
 
