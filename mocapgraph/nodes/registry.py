@@ -28,10 +28,11 @@ NODE_TYPES: dict[str, str] = {
     "bag_recorder": "mocapgraph.nodes.bag_recorder:BagRecorder",
     "bag_player": "mocapgraph.nodes.bag_player:BagPlayer",
     "visualizer": "mocapgraph.nodes.visualizer:Visualizer",
-    # outputs to other tools: Foxglove, LabStreamingLayer, OSC
+    # outputs to other tools: Foxglove, LabStreamingLayer, OSC, VMC
     "foxglove_bridge": "mocapgraph.nodes.foxglove_bridge:FoxgloveBridge",
     "lsl_outlet": "mocapgraph.nodes.lsl_outlet:LSLOutlet",
     "osc_outlet": "mocapgraph.nodes.osc_outlet:OSCOutlet",
+    "vmc_outlet": "mocapgraph.nodes.vmc_outlet:VMCOutlet",
 }
 
 

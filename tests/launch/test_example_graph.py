@@ -14,3 +14,9 @@ def test_outlets_example_checks():
     check_graph(spec)  # raises GraphError (file:line: key: message) on any fault
     types = {n.type for n in spec.nodes}
     assert {"foxglove_bridge", "lsl_outlet", "osc_outlet", "visualizer"} <= types
+
+
+def test_vmc_example_checks():
+    spec = load_graph(EXAMPLE.with_name("vmc.yaml"))
+    check_graph(spec)
+    assert {"synthetic_character", "vmc_outlet"} <= {n.type for n in spec.nodes}

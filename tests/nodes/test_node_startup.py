@@ -36,6 +36,7 @@ MUST_NOT_LOAD: dict[str, set[str]] = {
     "bag_player": NOT_FOR_OUTLETS | {"asyncio"},
     "visualizer": NOT_FOR_OUTLETS,
     "osc_outlet": NOT_FOR_OUTLETS | {"asyncio"},
+    "vmc_outlet": NOT_FOR_OUTLETS | {"asyncio"},
     "lsl_outlet": NOT_FOR_OUTLETS | {"asyncio"},
     "foxglove_bridge": {"numba", "ezc3d", "mujoco", "networkx"},
 }

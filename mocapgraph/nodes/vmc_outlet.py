@@ -1,0 +1,98 @@
+"""VMC outlet node: retargeted characters to VSeeFace, Unity, Unreal and Blender over the VMC protocol.
+
+One OSC bundle per ``character_pose`` (the pose rate) to ``host:port`` (default 39539, where VMC
+receivers listen): ``/VMC/Ext/OK``, ``/VMC/Ext/T``, ``/VMC/Ext/Root/Pos`` and one
+``/VMC/Ext/Bone/Pos`` per Unity humanoid bone the character has, in Unity's axes, rotations
+relative to the rest pose (:mod:`mocapgraph.formats.vmc` does the math). The character's skeleton
+comes from the latched ``character_info``; poses before it are skipped (counted). With several
+characters on the topic, ``character`` picks one (VMC drives one avatar per port).
+"""
+from __future__ import annotations
+
+import socket
+from typing import Any
+
+
+from ..bus import Input, Node, Param
+from ..bus.node import NodeConfigError
+from ..messages import CharacterInfo, CharacterPose
+from ..messages.pose_quality import character_quality
+
+
+class VMCOutlet(Node):
+    """Sends each character pose as one VMC bundle (root, bones, availability, time)."""
+
+    summary = "VMC protocol (OSC/UDP) humanoid bones for VSeeFace, Unity (EVMC4U), Unreal (VMC4UE), Blender (VMC4B)"
+
+    character_pose = Input("character_pose", CharacterPose, "retargeted characters")
+    character_info = Input("character_info", CharacterInfo, "character skeletons", latched=True)
+
+    host = Param("127.0.0.1", "receiver address (the machine running VSeeFace, Unity, Unreal, Blender)")
+    port = Param(39539, "receiver UDP port (39539: a VMC 'Marionette')", minimum=1, maximum=65535)
+    character = Param("", "the character to send (empty: the first one seen)")
+    bones = Param({}, "Unity bone -> joint table, e.g. {Hips: pelvis, Spine: spine_01}; empty: the shipped "
+                      "table naming most of the character's joints (mixamo, cmu, standard_20, unity names)")
+
+    def __init__(self, name: str, params: dict[str, Any] | None = None, wiring: Any = None) -> None:
+        super().__init__(name, params, wiring)
+        if not isinstance(self.bones, dict):
+            raise NodeConfigError(f"bones: wants a mapping Unity bone -> joint, got {self.bones!r}")
+        try:
+            infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_DGRAM)
+        except socket.gaierror as exc:
+            raise NodeConfigError(f"host {self.host!r}: {exc.strerror}") from None
+        family, _, _, _, self._addr = infos[0]
+        self._sock = socket.socket(family, socket.SOCK_DGRAM)
+        self.templates: dict[str, Any] = {}   # character -> VMCBundle, or an error text
+        self._t0_ns: int | None = None
+        self._only = self.character
+        self.sent = self.skipped = self.send_errors = 0
+
+    def on_character_info(self, msg: CharacterInfo) -> None:
+        from ..formats.vmc import VMCBundle, VMCError
+        from ..retarget.character import Character, CharacterError
+        if self.character and msg.character != self.character:
+            return
+        try:
+            ch = Character(msg.character, tuple(msg.joint_names), msg.joint_parent, msg.rest_offsets,
+                           msg.rest_rotations, allow_zero_bones=True)
+            bundle = VMCBundle(ch, self.bones or None)
+        except (CharacterError, VMCError) as exc:
+            self.templates[msg.character] = str(exc)
+            self.log.error("character %s: %s; its poses are not sent", msg.character, exc)
+            return
+        self.templates[msg.character] = bundle
+        self.log.info("VMC %s to %s:%d: %d humanoid bones (%s)", msg.character, self.host, self.port,
+                      len(bundle.bone_names), ", ".join(b for b in bundle.bone_names[:6]) + ", ...")
+
+    def on_character_pose(self, msg: CharacterPose) -> None:
+        if self._only and msg.character != self._only:
+            return
+        self._only = msg.character   # VMC drives one avatar: the first one seen
+        bundle = self.templates.get(msg.character)
+        if bundle is None or isinstance(bundle, str) or len(msg.local_rotations) != bundle.character.n_joints:
+            self.skipped += 1
+            if self.skipped in (1, 10, 100) or self.skipped % 1000 == 0:
+                why = bundle if isinstance(bundle, str) else "no character_info that fits yet"
+                self.log.warning("character_pose %s: %s; %d poses skipped", msg.character, why, self.skipped)
+            return
+        env = self._ports["character_pose"].envelope
+        if self._t0_ns is None:
+            self._t0_ns = env.capture_ns
+        data = bundle.encode(msg.local_rotations, msg.root_position, character_quality(msg),
+                             (env.capture_ns - self._t0_ns) * 1e-9)
+        try:
+            self._sock.sendto(data, self._addr)
+            self.sent += 1
+        except OSError as exc:   # nobody listening (ICMP refused) or the network is down: keep going
+            self.send_errors += 1
+            if self.send_errors in (1, 10, 100) or self.send_errors % 1000 == 0:
+                self.log.warning("VMC send to %s:%d failed (%s); %d so far", self.host, self.port, exc,
+                                 self.send_errors)
+
+    def on_stop(self) -> None:
+        self.log.info("%d VMC bundles sent, %d poses skipped, %d send errors", self.sent, self.skipped,
+                      self.send_errors)
+        self._sock.close()
+
+

@@ -1,0 +1,224 @@
+"""VMC protocol out: every bundle parses with python-osc; the sent bones, turned back into our axes
+(Unity's left-handed Y-up frame undone with scipy's own quaternions), rebuild the character's joints
+of ``character_pose`` within 1e-5 m, for the three shipped characters and from a real vmc_outlet
+process; the rest pose sends identities; bones a character lacks and non-finite bones are left out;
+at 60 Hz for 30 s no bundle is lost on loopback."""
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from pythonosc.osc_bundle import OscBundle
+from scipy.spatial.transform import Rotation
+
+from graph_helpers import read_jsonl, wait_until
+from mocapgraph.formats.character_file import load_character
+from mocapgraph.formats.vmc import UNITY_BONES, VMCBundle, humanoid_bones
+from mocapgraph.retarget.character import Character
+
+# Unity (x right, y up, z forward) from ours (x forward, y left, z up): written out here, not imported
+OURS_FROM_UNITY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def parse(data: bytes) -> dict:
+    """One VMC bundle -> {"ok": args, "t": s, "root": (pos, xyzw), "bones": {name: (pos, xyzw)}}."""
+    assert OscBundle.dgram_is_bundle(data)
+    out: dict = {"bones": {}}
+    for m in OscBundle(data):
+        a = m.params
+        if m.address == "/VMC/Ext/OK":
+            out["ok"] = a
+        elif m.address == "/VMC/Ext/T":
+            out["t"] = a[0]
+        elif m.address == "/VMC/Ext/Root/Pos":
+            out["root"] = (np.array(a[1:4]), np.array(a[4:8]))
+        elif m.address == "/VMC/Ext/Bone/Pos":
+            assert a[0] in UNITY_BONES and a[0] not in out["bones"]
+            out["bones"][a[0]] = (np.array(a[1:4]), np.array(a[4:8]))
+        else:
+            raise AssertionError(f"unexpected address {m.address}")
+    return out
+
+
+def unity_world(parsed: dict, ch: Character, bones: dict[str, str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Unity's own forward kinematics over the sent transforms (position = parent position + parent
+    rotation * localPosition), bones hung on their nearest sent ancestor: {bone: (pos ours, R ours)}."""
+    root_p, root_q = parsed["root"]
+    joint_bone = {ch.index(j): b for b, j in bones.items() if b in parsed["bones"]}
+    out = {}
+    for j in sorted(joint_bone):       # parents before children
+        b = joint_bone[j]
+        a = int(ch.parents[j])
+        while a >= 0 and a not in joint_bone:
+            a = int(ch.parents[a])
+        if b == "Hips" or a < 0:
+            pp, pr = root_p, Rotation.from_quat(root_q).as_matrix()
+        else:
+            pp, pr = out[joint_bone[a]]
+        lp, lq = parsed["bones"][b]
+        out[b] = (pp + pr @ lp, pr @ Rotation.from_quat(lq).as_matrix())
+    return {b: (OURS_FROM_UNITY @ p, OURS_FROM_UNITY @ r @ OURS_FROM_UNITY.T) for b, (p, r) in out.items()}
+
+
+def locals_from_bones(world: dict, ch: Character, bones: dict[str, str]) -> np.ndarray:
+    """Our local rotations [J, 4] from the sent bones: a bone's change from rest is its world rotation
+    (normalized humanoid: identity at rest); a joint that is no bone keeps its parent's change."""
+    _, w0 = ch.forward_kinematics(as_matrices=True)
+    change = np.empty((ch.n_joints, 3, 3))
+    by_joint = {ch.index(j): b for b, j in bones.items() if b in world}
+    for j in range(ch.n_joints):
+        p = int(ch.parents[j])
+        change[j] = world[by_joint[j]][1] if j in by_joint else (change[p] if p >= 0 else np.eye(3))
+    w = change @ w0
+    rest = Rotation.from_quat(ch.rest_rotations[:, [1, 2, 3, 0]]).as_matrix()
+    par = np.where(ch.parents >= 0, ch.parents, 0)
+    w_par = np.where((ch.parents >= 0)[:, None, None], w[par], np.eye(3))
+    local = np.swapaxes(rest, 1, 2) @ np.swapaxes(w_par, 1, 2) @ w
+    return Rotation.from_matrix(local).as_quat()[:, [3, 0, 1, 2]]
+
+
+def random_pose(ch: Character, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Every joint turned up to ~50 degrees, the root moved: (local rotations [J, 4] wxyz, root [3])."""
+    rot = Rotation.from_rotvec(rng.normal(scale=0.5, size=(ch.n_joints, 3))).as_quat()[:, [3, 0, 1, 2]]
+    return rot, ch.rest_offsets[ch.root] + rng.normal(scale=0.5, size=3) + [0, 0, 1.0]
+
+
+@pytest.mark.parametrize("name", ["standard_20", "mixamo", "cmu"])
+def test_sent_bones_rebuild_the_characters_joints(name):
+    ch = load_character(name)
+    vb = VMCBundle(ch)
+    rng = np.random.default_rng(7)
+    J = ch.n_joints
+    # rest pose: identities, no displacement, tracking good
+    rest = parse(vb.encode(np.tile([1.0, 0, 0, 0], (J, 1)), ch.rest_offsets[ch.root], np.full(J, 2), 0.0))
+    assert rest["ok"] == [1, 3, 0, 1] and rest["t"] == 0.0
+    np.testing.assert_allclose(rest["root"][0], 0, atol=1e-7)
+    for _b, (_p, q) in rest["bones"].items():
+        np.testing.assert_allclose(np.abs(q), [0, 0, 0, 1], atol=1e-7)
+    worst = 0.0
+    for _ in range(20):
+        local, root = random_pose(ch, rng)
+        truth, _ = ch.forward_kinematics(local, root)          # what character_pose carries
+        parsed = parse(vb.encode(local, root, np.full(J, 2), 1.25))
+        bones = humanoid_bones(ch)
+        assert set(parsed["bones"]) == set(bones) and len(bones) >= 15
+        world = unity_world(parsed, ch, bones)
+        for b, j in bones.items():
+            worst = max(worst, float(np.abs(world[b][0] - truth[ch.index(j)]).max()))
+        # the sent rotations alone, on the character's rest skeleton (our own FK), rebuild every joint
+        # where each joint that moves a child is a humanoid bone (standard_20, mixamo; cmu's
+        # LHipJoint/lhand are not): the issue's bar
+        if name != "cmu":
+            pos, _ = ch.forward_kinematics(locals_from_bones(world, ch, bones), root)
+            np.testing.assert_allclose(pos, truth, atol=1e-5)
+    assert worst < 1e-5, worst
+    print(f"\n{name}: {len(vb.bone_names)} bones, worst joint {worst * 1e6:.2f} um over 20 random poses")
+
+
+def test_bones_the_character_lacks_and_broken_bones_are_left_out():
+    ch = load_character("cmu")
+    vb = VMCBundle(ch)
+    assert "LeftEye" not in vb.bone_names and "LeftIndexProximal" not in vb.bone_names
+    J = ch.n_joints
+    local = np.tile([1.0, 0, 0, 0], (J, 1))
+    local[ch.index("LeftElbow")] = np.nan          # hostile input: the elbow and what hangs below it
+    q = np.full(J, 2)
+    q[ch.index("RightKnee")] = 1
+    parsed = parse(vb.encode(local, ch.rest_offsets[0], q, 0.0))
+    assert {"LeftLowerArm", "LeftHand"}.isdisjoint(parsed["bones"]) and "LeftUpperArm" in parsed["bones"]
+    assert parsed["ok"][3] == 0        # an estimated knee: tracking is not "good"
+
+
+class RawReceiver:
+    """A UDP socket on a free loopback port keeping every datagram whole (parsed by the test)."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.datagrams: list[tuple[float, bytes]] = []
+        self._run = True
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def _loop(self) -> None:
+        while self._run:
+            try:
+                self.datagrams.append((time.monotonic(), self.sock.recv(65536)))
+            except socket.timeout:
+                continue
+
+    def close(self) -> None:
+        self._run = False
+        self.thread.join(2)
+        self.sock.close()
+
+
+def _graph(port: int, log, start_s: float, stop_s: float) -> str:
+    return f"""
+nodes:
+  - name: dancer
+    type: synthetic_character
+    params: {{rate_hz: 60.0, start_s: {start_s}, stop_s: {stop_s}, loop: false}}
+  - name: vmc
+    type: vmc_outlet
+    params: {{port: {port}}}
+  - name: log
+    type: topic_logger
+    params: {{path: "{log}", topics: [character_pose, character_info]}}
+"""
+
+
+def test_a_vmc_outlet_process_sends_what_character_pose_says(launch_graph, tmp_path):
+    rx = RawReceiver()
+    log = tmp_path / "poses.jsonl"
+    try:
+        g = launch_graph(_graph(rx.port, log, 17.0, 20.0))   # 3 s of the walk
+        g.wait_ready()
+        wait_until(lambda: len(rx.datagrams) >= 150, 30, "VMC bundles", g)
+        g.stop()
+    finally:
+        rx.close()
+    info = read_jsonl(log, "character_info")[-1]["msg"]
+    ch = Character(info["character"], tuple(info["joint_names"]), info["joint_parent"], info["rest_offsets"],
+                   info["rest_rotations"], allow_zero_bones=True)
+    poses = [r["msg"] for r in read_jsonl(log, "character_pose")]
+    truth = np.array([p["joint_positions"] for p in poses])
+    bones = humanoid_bones(ch)
+    worst, hips = 0.0, ch.index(bones["Hips"])
+    for _, data in rx.datagrams:
+        parsed = parse(data)
+        world = unity_world(parsed, ch, bones)
+        # the pose this bundle carries: the logged one whose hips are where the bundle puts them
+        k = int(np.argmin(np.abs(truth[:, hips] - world["Hips"][0]).max(axis=1)))
+        pos, _ = ch.forward_kinematics(locals_from_bones(world, ch, bones), world["Hips"][0])
+        worst = max(worst, float(np.abs(pos - truth[k]).max()))
+    print(f"\nVMC from a node: {len(rx.datagrams)} bundles, worst joint {worst * 1e6:.2f} um")
+    assert worst < 1e-5
+
+
+@pytest.mark.timing
+def test_60_hz_for_30_s_loses_nothing_on_loopback(launch_graph, tmp_path):
+    rx = RawReceiver()
+    log = tmp_path / "poses.jsonl"
+    try:
+        g = launch_graph(_graph(rx.port, log, 17.0, 47.0))   # 1800 poses at 60 Hz
+        g.wait_ready()
+        wait_until(lambda: len(read_jsonl(log, "character_pose")) >= 1800, 60, "1800 poses", g)
+        time.sleep(0.5)
+        g.stop()
+    finally:
+        rx.close()
+    poses = len(read_jsonl(log, "character_pose"))
+    times = np.array([t for t, _ in rx.datagrams])
+    for _, data in rx.datagrams:
+        parse(data)
+    rate = (len(times) - 1) / (times[-1] - times[0])
+    print(f"\nVMC 60 Hz x 30 s: {len(times)} bundles received of {poses} poses, {rate:.2f} Hz")
+    assert poses == 1800 and len(times) == poses
+    assert 59.0 < rate < 61.0
