@@ -18,6 +18,16 @@ fi
 # Compile the per-frame kernels once (cached on disk), so no node or test pays for it.
 .venv/bin/python -m mocapgraph.jit
 
+# npm tools of the tests (package.json: the Khronos glTF validator) into node_modules/; without npm
+# the tests that need them are skipped.
+if command -v npm >/dev/null 2>&1; then
+  if [ ! -d node_modules/gltf-validator ] || [ package.json -nt node_modules/.package-lock.json ]; then
+    npm install --no-audit --no-fund --silent || echo "setup: npm install failed; the glTF validator tests will be skipped"
+  fi
+else
+  echo "setup: npm missing (sudo apt-get install npm); the glTF validator tests will be skipped"
+fi
+
 # Debian packages: chromium (browser tests of the viewer), graphviz (graph show --format png).
 missing=""
 command -v chromium >/dev/null 2>&1 || missing="$missing chromium"

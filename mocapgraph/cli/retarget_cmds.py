@@ -4,9 +4,11 @@ Inputs: BVH (a skeleton with orientations), Kinect CSV (positions only), C3D/TRC
 ``--model``, solved by the frame solver first), bags (.mcap: SkeletonPose + SkeletonInfo, ActorPose +
 SkeletonModel, or MarkerFrame with ``--model``). Outputs: BVH (the character's hierarchy, offsets,
 ZXY channels, frame time; centimetres, Y up), a bag (latched ``character_info``, one
-``character_pose`` per frame), or CSV (frame, time, then per joint x/y/z in metres, world, the local
-rotation w/x/y/z and the quality 0/1/2). ``mocapgraph retarget mapping`` writes the automatic
-mapping for a source and a character, to read and edit.
+``character_pose`` per frame), CSV (frame, time, then per joint x/y/z in metres, world, the local
+rotation w/x/y/z and the quality 0/1/2), or glTF (``.glb``/``.gltf``: the skeleton as a skin, the
+animation keyed at the source's frame times; :mod:`mocapgraph.formats.gltf_export`).
+``mocapgraph retarget mapping`` writes the automatic mapping for a source and a character, to read
+and edit.
 """
 from __future__ import annotations
 
@@ -24,7 +26,7 @@ from .progress import Progress
 if TYPE_CHECKING:   # annotations only: the command loads its readers when it runs
     from ..bag.trial_frames import SourceFrames
 
-OUTPUTS = (".bvh", ".mcap", ".csv")
+OUTPUTS = (".bvh", ".mcap", ".csv", ".glb", ".gltf")
 
 
 def read_source(path: str, model: str | None, topic: str | None) -> "SourceFrames":
@@ -49,7 +51,7 @@ def cmd_retarget(args: argparse.Namespace) -> int:
     from ..retarget.mapping import MappingError
     out = Path(args.output)
     if out.suffix.lower() not in OUTPUTS:
-        raise UserError(f"{out}: unknown output type {out.suffix or '(none)'!r} (expected .bvh, .mcap or .csv)")
+        raise UserError(f"{out}: unknown output type {out.suffix or '(none)'!r} (expected .bvh, .mcap, .csv, .glb or .gltf)")
     bar = Progress("retargeting", unit="step", total=3)  # read, retarget, write
     frames = read_source(args.trial, args.model, args.topic)
     bar.advance()
@@ -76,6 +78,9 @@ def cmd_retarget(args: argparse.Namespace) -> int:
             write_character_bvh(out, ch, res, 1.0 / frames.rate_hz)
         elif kind == ".mcap":
             _write_bag(out, ch, res, frames, args.character_name or ch.name)
+        elif kind in (".glb", ".gltf"):
+            from .gltf_out import write_retarget_gltf
+            write_retarget_gltf(out, ch, res, frames.times_s, frames.rate_hz)
         else:
             _write_csv(out, ch, res, frames)
     except OSError as exc:
@@ -167,7 +172,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     for flag, what in (("foot-planting", "foot planting"), ("spread", "spine spread"), ("aim", "clavicle aiming"),
                        ("roll", "roll joints"), ("root-scale", "root scaling")):
         p.add_argument(f"--no-{flag}", action="store_true", help=f"turn {what} off")
-    p.add_argument("-o", "--output", required=True, help="out.bvh, out.mcap or out.csv (mapping: out.yaml)")
+    p.add_argument("-o", "--output", required=True, help="out.bvh, out.mcap, out.csv, out.glb or out.gltf "
+                                                           "(mapping: out.yaml)")
     p.set_defaults(func=_dispatch)
 
 

@@ -1,0 +1,28 @@
+"""glTF output of the retarget command: frame times made usable as glTF keys, errors as one line."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..formats.gltf_export import GltfExportError, write_gltf
+from . import UserError
+
+
+def key_times(times_s: np.ndarray, rate_hz: float) -> tuple[np.ndarray, str]:
+    """The source's frame times from 0 s when they are strictly increasing (as float32, glTF's keys),
+    else frame index / rate; and a note saying which was used."""
+    t = np.asarray(times_s, dtype=np.float64) - float(times_s[0])
+    if np.isfinite(t).all() and (len(t) < 2 or (np.diff(t.astype(np.float32)) > 0).all()):
+        return t, "the source's frame times"
+    return np.arange(len(t)) / rate_hz, f"frame index / {rate_hz:g} Hz (the source's times repeat or go back)"
+
+
+def write_retarget_gltf(out: Path, ch, res, times_s: np.ndarray, rate_hz: float) -> None:
+    """The retargeted animation as .glb/.gltf (written whole or not at all); UserError on a fault."""
+    t, how = key_times(times_s, rate_hz)
+    try:
+        n = write_gltf(out, ch, res.local_rotations, res.root_positions, t)
+    except GltfExportError as exc:
+        raise UserError(str(exc)) from None
+    print(f"glTF: {ch.n_joints} joints, {len(t)} keys at {how}, {n / 1e6:.2f} MB")
