@@ -13,6 +13,7 @@ YAML form (``graph_configs/characters/*.yaml``)::
 
 or a generated character: ``{name: standard_20, generator: standard_20, height_m: 1.75}``, or
 ``{name: cmu, bvh: path/to/file.bvh}`` (relative to the YAML file) to take a BVH's hierarchy.
+A ``.glb``/``.gltf``/``.vrm`` file is read by :mod:`mocapgraph.formats.gltf_character` (its skin).
 
 Every fault is one ``file:line: key: message`` error (:class:`CharacterFileError`).
 """
@@ -43,7 +44,7 @@ def _err(file, line, key: str, message: str) -> CharacterFileError:
 def resolve_character_path(name_or_path: str | Path) -> Path:
     """A path as given, or a shipped character by name (graph_configs/characters/NAME.yaml)."""
     p = Path(name_or_path)
-    if p.suffix.lower() in (".yaml", ".yml", ".bvh") or p.exists():
+    if p.suffix.lower() in (".yaml", ".yml", ".bvh", ".glb", ".gltf", ".vrm") or p.exists():
         return p
     shipped = CHARACTERS_DIR / f"{name_or_path}.yaml"
     if shipped.exists():
@@ -62,9 +63,23 @@ def load_character(name_or_path: str | Path, *, height_m: float | None = None,
     path = resolve_character_path(name_or_path)
     if path.suffix.lower() == ".bvh":
         ch = character_from_bvh(_read_bvh(path, None))
+    elif path.suffix.lower() in (".glb", ".gltf", ".vrm"):
+        ch = _read_gltf(path).character
     else:
         ch = _character_from_yaml(path, height_m)
     return ch.scaled(scale) if scale not in (None, 1.0) else ch
+
+
+def _read_gltf(path: Path):
+    from .gltf_character import GltfCharacterError, load_gltf_character
+    if not path.is_file():
+        raise CharacterFileError(f"{path}: no such file")
+    try:
+        return load_gltf_character(path)
+    except GltfCharacterError as e:
+        raise CharacterFileError(str(e)) from None
+    except OSError as e:
+        raise CharacterFileError(f"{path}: cannot read ({e.strerror or e})") from None
 
 
 def _read_bvh(path: Path, scale: float | None) -> BvhMotion:

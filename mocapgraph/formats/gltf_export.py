@@ -134,6 +134,8 @@ def character_gltf(ch: Character, local_rotations: np.ndarray | None = None, roo
         node = gl.Node(name=name, translation=[float(v) for v in trans[j]], children=children[j] or None)
         if not np.allclose(rest_q[j], [0, 0, 0, 1], atol=1e-12):
             node.rotation = [float(v) for v in rest_q[j]]
+        if ch.end_sites[j]:
+            node.extras = {"end_site": True}   # a leaf marker (BVH End Site), read back by gltf_character
         nodes.append(node)
     ibm = np.linalg.inv(rest_world_matrices(ch))
     ibm[:, 3] = [0.0, 0.0, 0.0, 1.0]

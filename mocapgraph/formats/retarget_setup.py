@@ -60,13 +60,24 @@ def build(character: str | Path | Character, mapping: str | Path | Mapping | Non
     elif mapping:
         m = load_mapping(mapping)
     else:
-        m = derive_mapping(ch, source)
+        m = _derive(ch, character, source)
         derived = True
         if write_derived:
             write_mapping(m, write_derived, comment=f"derived automatically: {source.kinect_like or source.kind} onto "
                                                     f"{ch.name}; edit freely")
     rt = Retargeter(ch, m, source, options)
     return RetargetSetup(ch, m, source, rt, derived)
+
+
+def _derive(ch: Character, character: str | Path | Character, source: SourceSkeleton) -> Mapping:
+    """The automatic mapping; through the humanoid bone map of a VRM character file."""
+    if not isinstance(character, Character) and Path(character).suffix.lower() in (".vrm", ".glb", ".gltf"):
+        from .gltf_character import load_gltf_character
+        from .humanoid_rig import humanoid_mapping
+        humanoid = load_gltf_character(character).humanoid
+        if humanoid:
+            return humanoid_mapping(ch, humanoid, source)
+    return derive_mapping(ch, source)
 
 
 __all__ = ["RetargetSetup", "build", "source_from_model", "source_from_skeleton_info", "MappingError"]

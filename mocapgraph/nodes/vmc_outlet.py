@@ -32,11 +32,21 @@ class VMCOutlet(Node):
     character = Param("", "the character to send (empty: the first one seen)")
     bones = Param({}, "Unity bone -> joint table, e.g. {Hips: pelvis, Spine: spine_01}; empty: the shipped "
                       "table naming most of the character's joints (mixamo, cmu, standard_20, unity names)")
+    avatar = Param("", "a .vrm/.glb/.gltf file whose VRM humanoid map names the bones (the character loaded from it)")
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring: Any = None) -> None:
         super().__init__(name, params, wiring)
         if not isinstance(self.bones, dict):
             raise NodeConfigError(f"bones: wants a mapping Unity bone -> joint, got {self.bones!r}")
+        self._bones = dict(self.bones)
+        if self.avatar and not self._bones:
+            from ..formats.gltf_character import GltfCharacterError, load_gltf_character
+            try:
+                self._bones = load_gltf_character(self.avatar).humanoid
+            except (GltfCharacterError, OSError) as exc:
+                raise NodeConfigError(f"avatar: {exc}") from None
+            if not self._bones:
+                raise NodeConfigError(f"avatar: {self.avatar} has no VRM humanoid map (give `bones`)")
         try:
             infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_DGRAM)
         except socket.gaierror as exc:
@@ -56,7 +66,7 @@ class VMCOutlet(Node):
         try:
             ch = Character(msg.character, tuple(msg.joint_names), msg.joint_parent, msg.rest_offsets,
                            msg.rest_rotations, allow_zero_bones=True)
-            bundle = VMCBundle(ch, self.bones or None)
+            bundle = VMCBundle(ch, self._bones or None)
         except (CharacterError, VMCError) as exc:
             self.templates[msg.character] = str(exc)
             self.log.error("character %s: %s; its poses are not sent", msg.character, exc)
