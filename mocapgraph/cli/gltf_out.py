@@ -18,11 +18,28 @@ def key_times(times_s: np.ndarray, rate_hz: float) -> tuple[np.ndarray, str]:
     return np.arange(len(t)) / rate_hz, f"frame index / {rate_hz:g} Hz (the source's times repeat or go back)"
 
 
-def write_retarget_gltf(out: Path, ch, res, times_s: np.ndarray, rate_hz: float) -> None:
+def character_mesh(ch, character: str, want: bool):
+    """(the mesh to export, what it is): a glTF/VRM character file's own skinned mesh, else the
+    generated mannequin; (None, "no mesh") when not wanted."""
+    from ..formats.gltf_character import GLTF_SUFFIXES, load_gltf_character
+    from ..formats.mannequin import mannequin
+    if not want:
+        return None, "no mesh"
+    if Path(str(character)).suffix.lower() in GLTF_SUFFIXES:
+        own = load_gltf_character(character).mesh
+        if own is not None and own.joints.max(initial=0) < ch.n_joints:
+            return own, f"the character file's mesh ({len(own.positions)} vertices)"
+    m = mannequin(ch)
+    return m, f"a generated mannequin ({len(m.positions)} vertices)"
+
+
+def write_retarget_gltf(out: Path, ch, res, times_s: np.ndarray, rate_hz: float, character: str = "",
+                        with_mesh: bool = True) -> None:
     """The retargeted animation as .glb/.gltf (written whole or not at all); UserError on a fault."""
     t, how = key_times(times_s, rate_hz)
     try:
-        n = write_gltf(out, ch, res.local_rotations, res.root_positions, t)
-    except GltfExportError as exc:
+        mesh, what = character_mesh(ch, character, with_mesh)
+        n = write_gltf(out, ch, res.local_rotations, res.root_positions, t, mesh=mesh)
+    except (GltfExportError, ValueError) as exc:
         raise UserError(str(exc)) from None
-    print(f"glTF: {ch.n_joints} joints, {len(t)} keys at {how}, {n / 1e6:.2f} MB")
+    print(f"glTF: {ch.n_joints} joints, {len(t)} keys at {how}, {what}, {n / 1e6:.2f} MB")

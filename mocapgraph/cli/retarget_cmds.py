@@ -80,7 +80,7 @@ def cmd_retarget(args: argparse.Namespace) -> int:
             _write_bag(out, ch, res, frames, args.character_name or ch.name)
         elif kind in (".glb", ".gltf"):
             from .gltf_out import write_retarget_gltf
-            write_retarget_gltf(out, ch, res, frames.times_s, frames.rate_hz)
+            write_retarget_gltf(out, ch, res, frames.times_s, frames.rate_hz, args.character, not args.no_mesh)
         else:
             _write_csv(out, ch, res, frames)
     except OSError as exc:
@@ -172,6 +172,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     for flag, what in (("foot-planting", "foot planting"), ("spread", "spine spread"), ("aim", "clavicle aiming"),
                        ("roll", "roll joints"), ("root-scale", "root scaling")):
         p.add_argument(f"--no-{flag}", action="store_true", help=f"turn {what} off")
+    p.add_argument("--no-mesh", action="store_true", help="glTF output: the skeleton only (default: the character "
+                                                           "file's own skinned mesh, else a generated mannequin)")
     p.add_argument("-o", "--output", required=True, help="out.bvh, out.mcap, out.csv, out.glb or out.gltf "
                                                            "(mapping: out.yaml)")
     p.set_defaults(func=_dispatch)

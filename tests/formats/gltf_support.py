@@ -54,6 +54,35 @@ def animated_world_positions(path: Path, frames: list[int]) -> tuple[list[str], 
     """(node names, times [F], world positions [len(frames), N, 3] in glTF axes) of the skin's joints:
     the file read by pygltflib, each node's TRS at key ``f`` (its channel's output, else its rest
     value), composed down the node tree."""
+    names, times, _r, world_p, doc, _blob = animated_nodes(path, frames)
+    return names, times, world_p[:, doc.skins[0].joints]
+
+
+def skinned_vertices(path: Path, frames: list[int]) -> np.ndarray:
+    """[len(frames), V, 3] the first mesh's vertices skinned as glTF says (linear blend of joint world
+    matrix x inverse bind matrix, JOINTS_0/WEIGHTS_0), glTF axes."""
+    _names, _t, world_r, world_p, doc, blob = animated_nodes(path, frames)
+    prim = doc.meshes[0].primitives[0]
+    pos = _accessor(doc, blob, prim.attributes.POSITION).astype(np.float64)
+    jts = _accessor(doc, blob, prim.attributes.JOINTS_0).astype(np.int64)
+    wts = _accessor(doc, blob, prim.attributes.WEIGHTS_0).astype(np.float64)
+    ibm = _accessor(doc, blob, doc.skins[0].inverseBindMatrices).astype(np.float64).reshape(-1, 4, 4)
+    ibm = np.swapaxes(ibm, 1, 2)                       # stored column-major
+    skin = np.asarray(doc.skins[0].joints)
+    out = []
+    for k in range(len(frames)):
+        m = np.zeros((len(skin), 4, 4))
+        m[:, :3, :3] = world_r[k, skin]
+        m[:, :3, 3] = world_p[k, skin]
+        m[:, 3, 3] = 1
+        m = m @ ibm
+        blend = np.einsum("vk,vkij->vij", wts, m[jts])
+        out.append((blend[:, :3, :3] @ pos[..., None])[..., 0] + blend[:, :3, 3])
+    return np.stack(out)
+
+
+def animated_nodes(path: Path, frames: list[int]):
+    """(joint names, times, world rotations [K, N, 3, 3], world positions [K, N, 3], doc, blob)."""
     import pygltflib
     doc = pygltflib.GLTF2().load(str(path))
     if doc.binary_blob() is None:      # a .gltf: its buffer is a data URI
@@ -94,4 +123,4 @@ def animated_world_positions(path: Path, frames: list[int]) -> tuple[list[str], 
                 world_p[:, i] = world_p[:, parent[i]] + (pr @ t_anim[:, i][..., None])[..., 0]
             done[i] = True
     joints = doc.skins[0].joints
-    return [doc.nodes[j].name for j in joints], times, world_p[:, joints]
+    return [doc.nodes[j].name for j in joints], times, world_r, world_p, doc, blob
