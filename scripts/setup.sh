@@ -18,11 +18,11 @@ fi
 # Compile the per-frame kernels once (cached on disk), so no node or test pays for it.
 .venv/bin/python -m mocapgraph.jit
 
-# npm tools of the tests (package.json: the Khronos glTF validator) into node_modules/; without npm
-# the tests that need them are skipped.
+# npm tools of the tests (package.json, pinned by package-lock.json: the Khronos glTF validator,
+# three.js) into node_modules/; without npm the tests that need them are skipped.
 if command -v npm >/dev/null 2>&1; then
-  if [ ! -d node_modules/gltf-validator ] || [ package.json -nt node_modules/.package-lock.json ]; then
-    npm install --no-audit --no-fund --silent || echo "setup: npm install failed; the glTF validator tests will be skipped"
+  if [ ! -f node_modules/.package-lock.json ] || [ package-lock.json -nt node_modules/.package-lock.json ]; then
+    npm ci --no-audit --no-fund --silent || echo "setup: npm ci failed; the glTF validator and three.js tests will be skipped"
   fi
 else
   echo "setup: npm missing (sudo apt-get install npm); the glTF validator tests will be skipped"
