@@ -11,8 +11,9 @@ What :func:`load_gltf_character` makes of a ``.glb``, ``.gltf`` or ``.vrm`` (a G
 * the humanoid map (Unity bone -> joint name) of a VRM 0.x (``extensions.VRM.humanoid``) or 1.0
   (``extensions.VRMC_vrm.humanoid``) file, so no mapping file is needed
   (:func:`mocapgraph.formats.retarget_setup.build` derives the mapping through it);
-* the first skinned mesh primitive bound to those joints (positions, normals, triangles, four
-  weights per vertex), when there is one.
+* every skinned triangle primitive bound to those joints, as one mesh at the rest pose (positions,
+  normals, triangles, four weights per vertex: JOINTS_0/WEIGHTS_0; materials and textures are
+  not carried), when there is one.
 
 The container is read here (a GLB is a 12-byte header and two chunks; pygltflib's reader builds a
 dataclass per field, 30 s for 10^5 nodes, and bounds nothing), every count and offset checked
@@ -403,48 +404,63 @@ def _character(doc: _Doc, nodes: list, joints: list[int], parent: np.ndarray, wo
 
 
 def _skinned_mesh(doc: _Doc, skins: list, node_of: np.ndarray, world: np.ndarray) -> SkinnedMesh | None:
-    """The first mesh primitive skinned to these joints, in our axes at the rest pose (None: none)."""
+    """Every triangle primitive skinned to these joints, as one mesh in our axes at the rest pose
+    (None: none). Four influences a vertex (JOINTS_0/WEIGHTS_0); materials are not carried."""
     joint_of_node = {int(nd): k for k, nd in enumerate(node_of)}
+    parts: list[tuple] = []
+    names: list[str] = []
+    meshes = doc._list("meshes")
     for i, nd in enumerate(doc._list("nodes")):
         if not isinstance(nd.get("mesh"), int) or not isinstance(nd.get("skin"), int):
             continue
-        skin = skins[nd["skin"]] if 0 <= nd["skin"] < len(skins) else None
-        meshes = doc._list("meshes")
-        if skin is None or not 0 <= nd["mesh"] < len(meshes):
+        if not 0 <= nd["skin"] < len(skins) or not 0 <= nd["mesh"] < len(meshes):
             raise doc.fail(f"nodes[{i}]: its mesh or skin does not exist")
         for k, prim in enumerate(meshes[nd["mesh"]].get("primitives", [])):
-            att = prim.get("attributes", {})
-            if not {"POSITION", "JOINTS_0", "WEIGHTS_0"} <= set(att) or prim.get("mode", 4) != 4:
-                continue
-            where = f"meshes[{nd['mesh']}].primitives[{k}]"
-            pos = doc.accessor(att["POSITION"], f"{where} POSITION")
-            v = len(pos)
-            nrm = doc.accessor(att["NORMAL"], f"{where} NORMAL") if "NORMAL" in att else np.tile([0.0, 1.0, 0.0], (v, 1))
-            jts = doc.accessor(att["JOINTS_0"], f"{where} JOINTS_0").astype(np.int64)
-            wts = doc.accessor(att["WEIGHTS_0"], f"{where} WEIGHTS_0")
-            tri = (doc.accessor(prim["indices"], f"{where} indices").astype(np.int64) if "indices" in prim
-                   else np.arange(v))
-            if len(nrm) != v or len(jts) != v or len(wts) != v or len(tri) % 3 or (len(tri) and
-                                                                                   (tri.min() < 0 or tri.max() >= v)):
-                raise doc.fail(f"{where}: attribute counts or indices do not agree")
-            skin_joints = np.asarray(skin["joints"])
-            if jts.max(initial=0) >= len(skin_joints):
-                raise doc.fail(f"{where}: JOINTS_0 names joint {int(jts.max())} of a {len(skin_joints)}-joint skin")
-            ours = np.array([joint_of_node.get(int(n), -1) for n in skin_joints])
-            mapped = ours[jts]
-            if (mapped[wts > 0] < 0).any():
-                raise doc.fail(f"{where}: a weighted joint is not a joint of the character")
-            # vertices skinned at the bind pose sit where the skin puts them: joint world x inverse bind
-            if "inverseBindMatrices" in skin:
-                ibm = doc.accessor(skin["inverseBindMatrices"], f"skins[{nd['skin']}] inverseBindMatrices")
-                ibm = ibm.reshape(-1, 4, 4).transpose(0, 2, 1)
-            else:
-                ibm = np.broadcast_to(np.eye(4), (len(skin_joints), 4, 4))
-            skin_m = world[skin_joints] @ ibm                            # [K, 4, 4]
-            blend = np.einsum("vk,vkij->vij", wts / wts.sum(1, keepdims=True).clip(1e-12), skin_m[jts])
-            pw = (blend[:, :3, :3] @ pos[..., None])[..., 0] + blend[:, :3, 3]
-            nw = (blend[:, :3, :3] @ nrm[..., None])[..., 0]
-            nw /= np.linalg.norm(nw, axis=1, keepdims=True).clip(1e-12)
-            return SkinnedMesh(pw @ G, nw @ G, tri.reshape(-1, 3), np.maximum(mapped, 0), wts,
-                               name=str(meshes[nd["mesh"]].get("name") or "mesh"))
-    return None
+            part = _primitive(doc, prim, f"meshes[{nd['mesh']}].primitives[{k}]", skins[nd["skin"]], nd["skin"],
+                              joint_of_node, world)
+            if part is not None:
+                parts.append(part)
+                names.append(str(meshes[nd["mesh"]].get("name") or "mesh"))
+    if not parts:
+        return None
+    base = np.cumsum([0] + [len(p[0]) for p in parts[:-1]])
+    pos, nrm, tri, jts, wts = (np.concatenate(x) for x in zip(*[(p[0], p[1], p[2] + b, p[3], p[4])
+                                                             for p, b in zip(parts, base)]))
+    return SkinnedMesh(pos @ G, nrm @ G, tri, jts, wts, name=names[0] if len(set(names)) == 1 else "body")
+
+
+def _primitive(doc: _Doc, prim: dict, where: str, skin: dict, skin_i: int, joint_of_node: dict, world: np.ndarray):
+    """(positions, normals, triangles, joints, weights) of one skinned primitive at the rest pose,
+    glTF axes; None for what is not a skinned triangle list."""
+    att = prim.get("attributes", {}) if isinstance(prim, dict) else {}
+    if not {"POSITION", "JOINTS_0", "WEIGHTS_0"} <= set(att) or prim.get("mode", 4) != 4:
+        return None
+    pos = doc.accessor(att["POSITION"], f"{where} POSITION")
+    v = len(pos)
+    nrm = doc.accessor(att["NORMAL"], f"{where} NORMAL") if "NORMAL" in att else np.tile([0.0, 1.0, 0.0], (v, 1))
+    jts = doc.accessor(att["JOINTS_0"], f"{where} JOINTS_0").astype(np.int64)
+    wts = doc.accessor(att["WEIGHTS_0"], f"{where} WEIGHTS_0")
+    tri = doc.accessor(prim["indices"], f"{where} indices").astype(np.int64) if "indices" in prim else np.arange(v)
+    if len(nrm) != v or len(jts) != v or len(wts) != v or len(tri) % 3 or (len(tri) and (tri.min() < 0 or tri.max() >= v)):
+        raise doc.fail(f"{where}: attribute counts or indices do not agree")
+    skin_joints = np.asarray(skin["joints"])
+    if jts.max(initial=0) >= len(skin_joints):
+        raise doc.fail(f"{where}: JOINTS_0 names joint {int(jts.max())} of a {len(skin_joints)}-joint skin")
+    ours = np.array([joint_of_node.get(int(n), -1) for n in skin_joints])
+    mapped = ours[jts]
+    if (mapped[wts > 0] < 0).any():
+        raise doc.fail(f"{where}: a weighted joint is not a joint of the character")
+    # a vertex skinned at the bind pose sits where the skin puts it: joint world x inverse bind
+    if "inverseBindMatrices" in skin:
+        ibm = doc.accessor(skin["inverseBindMatrices"], f"skins[{skin_i}] inverseBindMatrices")
+        if len(ibm) != len(skin_joints):
+            raise doc.fail(f"skins[{skin_i}]: {len(ibm)} inverse bind matrices for {len(skin_joints)} joints")
+        ibm = ibm.reshape(-1, 4, 4).transpose(0, 2, 1)
+    else:
+        ibm = np.broadcast_to(np.eye(4), (len(skin_joints), 4, 4))
+    skin_m = world[skin_joints] @ ibm                                   # [K, 4, 4]
+    blend = np.einsum("vk,vkij->vij", wts / wts.sum(1, keepdims=True).clip(1e-12), skin_m[jts])
+    pw = (blend[:, :3, :3] @ pos[..., None])[..., 0] + blend[:, :3, 3]
+    nw = (blend[:, :3, :3] @ nrm[..., None])[..., 0]
+    nw /= np.linalg.norm(nw, axis=1, keepdims=True).clip(1e-12)
+    return pw, nw, tri.reshape(-1, 3), np.maximum(mapped, 0), wts

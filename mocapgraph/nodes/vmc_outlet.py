@@ -42,7 +42,8 @@ class VMCOutlet(Node):
         if self.avatar and not self._bones:
             from ..formats.gltf_character import GltfCharacterError, load_gltf_character
             try:
-                self._bones = load_gltf_character(self.avatar).humanoid
+                from ..formats.vmc import UNITY_BONES
+                self._bones = {b: j for b, j in load_gltf_character(self.avatar).humanoid.items() if b in UNITY_BONES}
             except (GltfCharacterError, OSError) as exc:
                 raise NodeConfigError(f"avatar: {exc}") from None
             if not self._bones:

@@ -65,3 +65,12 @@ def test_a_gltf_characters_own_mesh_comes_back(tmp_path):
     w = mesh.weights > 0
     assert (back.joints[w] == mesh.joints[w]).all()
     np.testing.assert_allclose(back.weights, mesh.weights, atol=1e-6)
+    # an avatar of several skinned primitives (body, face, hair...): all of them, one mesh
+    import pygltflib
+    doc = pygltflib.GLTF2().load(str(tmp_path / "avatar.glb"))
+    doc.meshes[0].primitives.append(doc.meshes[0].primitives[0])
+    doc.save(str(tmp_path / "two.glb"))
+    two = load_gltf_character(tmp_path / "two.glb").mesh
+    V = len(mesh.positions)
+    assert len(two.positions) == 2 * V and (two.triangles[len(mesh.triangles):] == mesh.triangles + V).all()
+    np.testing.assert_allclose(two.positions[V:], mesh.positions, atol=1e-6)
