@@ -8,7 +8,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import os
 import struct
 from pathlib import Path
 from types import SimpleNamespace
@@ -17,11 +16,11 @@ import numpy as np
 import pygltflib
 import pytest
 
+from avatar_support import vroid_name, write_vrm
 from mocapgraph.formats.character_file import CharacterFileError, load_character
 from mocapgraph.formats.gltf_character import load_gltf_character
 from mocapgraph.formats.gltf_export import write_gltf
 from mocapgraph.formats.retarget_setup import build, source_from_skeleton_info
-from mocapgraph.formats.vmc import HUMANOID_TABLES
 from mocapgraph.retarget.mapping import MappingError
 
 
@@ -68,50 +67,6 @@ def test_rest_rotations_and_scaled_nodes_come_through(tmp_path):
 
 
 # ----- VRM ---------------------------------------------------------------------------------------
-def _vroid_name(bone: str) -> str:
-    side = "L_" if bone.startswith("Left") else "R_" if bone.startswith("Right") else "C_"
-    return f"J_Bip_{side}{bone.removeprefix('Left').removeprefix('Right')}"
-
-
-def write_vrm(path: Path, version: str) -> dict[str, str]:
-    """Mixamo's skeleton as a VRM: VRoid-style node names, the humanoid map in the VRM extension
-    (1.0: VRMC_vrm, thumbs shifted by one; 0.x: VRM, the avatar facing -Z). Returns Unity bone ->
-    Mixamo joint."""
-    mix = load_character("mixamo")
-    table = {b: j for b, j in HUMANOID_TABLES["mixamo"].items()}
-    new = {j: _vroid_name(b) for b, j in table.items()}
-    from mocapgraph.retarget.character import Character
-    renamed = Character("avatar", tuple(new.get(n, "J_Sec_" + n) for n in mix.joint_names), mix.parents,
-                        mix.rest_offsets + np.eye(3)[2] * (mix.parents < 0)[:, None] * 0.9, mix.rest_rotations,
-                        mix.end_sites, allow_zero_bones=True)
-    tmp = path.with_suffix(".glb")
-    write_gltf(tmp, renamed)
-    doc = pygltflib.GLTF2().load(str(tmp))
-    node = {n.name: i for i, n in enumerate(doc.nodes)}
-    if version == "1.0":
-        def vrm1(b: str) -> str:
-            for side in ("Left", "Right"):
-                for unity, v1 in (("ThumbProximal", "ThumbMetacarpal"), ("ThumbIntermediate", "ThumbProximal")):
-                    if b == side + unity:
-                        b = side + v1
-            return b[0].lower() + b[1:]
-        doc.extensionsUsed = ["VRMC_vrm"]
-        doc.extensions = {"VRMC_vrm": {"specVersion": "1.0", "meta": {"name": "test avatar"},
-                                       "humanoid": {"humanBones": {vrm1(b): {"node": node[new[j]]}
-                                                                   for b, j in table.items()}}}}
-    else:
-        doc.extensionsUsed = ["VRM"]
-        doc.extensions = {"VRM": {"specVersion": "0.0", "humanoid": {"humanBones": [
-            {"bone": b[0].lower() + b[1:], "node": node[new[j]], "useDefaultValues": True} for b, j in table.items()]}}}
-        root = doc.nodes[doc.scenes[0].nodes[0]]
-        root.rotation = [0.0, 1.0, 0.0, 0.0]                     # half a turn about Y: facing -Z
-        x, y, z = root.translation
-        root.translation = [-x, y, -z]
-    doc.save(str(path.with_suffix(".glb")))
-    os.replace(path.with_suffix(".glb"), path)
-    return table
-
-
 def _source():
     """A BVH-like skeleton stream to retarget from: standard_20 (Kinect v1 names) with orientations."""
     s20 = load_character("standard_20")
@@ -124,7 +79,7 @@ def test_a_vrm_avatar_needs_no_mapping_file(tmp_path, version):
     table = write_vrm(path, version)
     gc = load_gltf_character(path)
     assert gc.vrm == version
-    assert gc.humanoid == {b: _vroid_name(b) for b in table}    # every Unity bone found, thumbs too
+    assert gc.humanoid == {b: vroid_name(b) for b in table}    # every Unity bone found, thumbs too
     mix = load_character("mixamo")
     # the same skeleton as the rig it was built from, facing forward (0.x turned back)
     pos_vrm, _ = gc.character.rest_pose()
@@ -135,7 +90,7 @@ def test_a_vrm_avatar_needs_no_mapping_file(tmp_path, version):
     on_mix = build("mixamo", None, src)
     by_name = {e.joint: e for e in on_mix.mapping.joints}
     mine = {e.joint: e for e in on_vrm.mapping.joints}
-    rename = {j: _vroid_name(b) for b, j in table.items()}
+    rename = {j: vroid_name(b) for b, j in table.items()}
     assert {rename.get(j, "J_Sec_" + j) for j in by_name} == set(mine) and len(mine) >= 15
     for j, e in by_name.items():
         f = mine[rename.get(j, "J_Sec_" + j)]

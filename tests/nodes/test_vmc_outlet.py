@@ -11,73 +11,13 @@ import time
 
 import numpy as np
 import pytest
-from pythonosc.osc_bundle import OscBundle
 from scipy.spatial.transform import Rotation
 
+from avatar_support import locals_from_bones, parse, unity_world
 from graph_helpers import read_jsonl, wait_until
 from mocapgraph.formats.character_file import load_character
-from mocapgraph.formats.vmc import UNITY_BONES, VMCBundle, humanoid_bones
+from mocapgraph.formats.vmc import VMCBundle, humanoid_bones
 from mocapgraph.retarget.character import Character
-
-# Unity (x right, y up, z forward) from ours (x forward, y left, z up): written out here, not imported
-OURS_FROM_UNITY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-
-
-def parse(data: bytes) -> dict:
-    """One VMC bundle -> {"ok": args, "t": s, "root": (pos, xyzw), "bones": {name: (pos, xyzw)}}."""
-    assert OscBundle.dgram_is_bundle(data)
-    out: dict = {"bones": {}}
-    for m in OscBundle(data):
-        a = m.params
-        if m.address == "/VMC/Ext/OK":
-            out["ok"] = a
-        elif m.address == "/VMC/Ext/T":
-            out["t"] = a[0]
-        elif m.address == "/VMC/Ext/Root/Pos":
-            out["root"] = (np.array(a[1:4]), np.array(a[4:8]))
-        elif m.address == "/VMC/Ext/Bone/Pos":
-            assert a[0] in UNITY_BONES and a[0] not in out["bones"]
-            out["bones"][a[0]] = (np.array(a[1:4]), np.array(a[4:8]))
-        else:
-            raise AssertionError(f"unexpected address {m.address}")
-    return out
-
-
-def unity_world(parsed: dict, ch: Character, bones: dict[str, str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Unity's own forward kinematics over the sent transforms (position = parent position + parent
-    rotation * localPosition), bones hung on their nearest sent ancestor: {bone: (pos ours, R ours)}."""
-    root_p, root_q = parsed["root"]
-    joint_bone = {ch.index(j): b for b, j in bones.items() if b in parsed["bones"]}
-    out = {}
-    for j in sorted(joint_bone):       # parents before children
-        b = joint_bone[j]
-        a = int(ch.parents[j])
-        while a >= 0 and a not in joint_bone:
-            a = int(ch.parents[a])
-        if b == "Hips" or a < 0:
-            pp, pr = root_p, Rotation.from_quat(root_q).as_matrix()
-        else:
-            pp, pr = out[joint_bone[a]]
-        lp, lq = parsed["bones"][b]
-        out[b] = (pp + pr @ lp, pr @ Rotation.from_quat(lq).as_matrix())
-    return {b: (OURS_FROM_UNITY @ p, OURS_FROM_UNITY @ r @ OURS_FROM_UNITY.T) for b, (p, r) in out.items()}
-
-
-def locals_from_bones(world: dict, ch: Character, bones: dict[str, str]) -> np.ndarray:
-    """Our local rotations [J, 4] from the sent bones: a bone's change from rest is its world rotation
-    (normalized humanoid: identity at rest); a joint that is no bone keeps its parent's change."""
-    _, w0 = ch.forward_kinematics(as_matrices=True)
-    change = np.empty((ch.n_joints, 3, 3))
-    by_joint = {ch.index(j): b for b, j in bones.items() if b in world}
-    for j in range(ch.n_joints):
-        p = int(ch.parents[j])
-        change[j] = world[by_joint[j]][1] if j in by_joint else (change[p] if p >= 0 else np.eye(3))
-    w = change @ w0
-    rest = Rotation.from_quat(ch.rest_rotations[:, [1, 2, 3, 0]]).as_matrix()
-    par = np.where(ch.parents >= 0, ch.parents, 0)
-    w_par = np.where((ch.parents >= 0)[:, None, None], w[par], np.eye(3))
-    local = np.swapaxes(rest, 1, 2) @ np.swapaxes(w_par, 1, 2) @ w
-    return Rotation.from_matrix(local).as_quat()[:, [3, 0, 1, 2]]
 
 
 def random_pose(ch: Character, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -222,3 +162,54 @@ def test_60_hz_for_30_s_loses_nothing_on_loopback(launch_graph, tmp_path):
     print(f"\nVMC 60 Hz x 30 s: {len(times)} bundles received of {poses} poses, {rate:.2f} Hz")
     assert poses == 1800 and len(times) == poses
     assert 59.0 < rate < 61.0
+
+
+def test_a_vrm_avatar_live_from_a_bvh_with_no_mapping_file(launch_graph, tmp_path, shared_data):
+    """bvh_player (CMU 131_01) -> retargeter onto a VRM the test wrote (VRoid-style names, no mapping
+    file) -> vmc_outlet naming the bones from the same file's humanoid map: Unity's forward kinematics
+    over the bundles puts every sent bone where the logged character_pose has its joint."""
+    from avatar_support import write_vrm
+    from mocapgraph.formats.gltf_character import load_gltf_character
+    avatar = tmp_path / "avatar.vrm"
+    write_vrm(avatar, "1.0")
+    gc = load_gltf_character(avatar)
+    rx = RawReceiver()
+    log = tmp_path / "poses.jsonl"
+    try:
+        g = launch_graph(f"""
+nodes:
+  - name: reader
+    type: bvh_player
+    params: {{file: "{shared_data / 'bvh/cmu/131_01.bvh'}", loop: false}}
+  - name: retargeter
+    type: retargeter
+    params: {{source: skeleton, character: "{avatar}"}}
+  - name: vmc
+    type: vmc_outlet
+    params: {{port: {rx.port}, avatar: "{avatar}"}}
+  - name: log
+    type: topic_logger
+    params: {{path: "{log}", topics: [character_pose, character_info]}}
+""")
+        g.wait_ready()
+        wait_until(lambda: len(rx.datagrams) >= 120, 60, "VMC bundles from the retargeted avatar", g)
+        g.stop()
+    finally:
+        rx.close()
+    info = read_jsonl(log, "character_info")[-1]["msg"]
+    assert tuple(info["joint_names"]) == gc.character.joint_names
+    ch = gc.character
+    truth = np.array([r["msg"]["joint_positions"] for r in read_jsonl(log, "character_pose")])
+    hips = ch.index(gc.humanoid["Hips"])
+    worst, moved = 0.0, 0.0
+    for _, data in rx.datagrams:
+        parsed = parse(data)
+        assert set(parsed["bones"]) == set(gc.humanoid)            # all 54 bones, by the VRM's map
+        world = unity_world(parsed, ch, gc.humanoid)
+        k = int(np.argmin(np.abs(truth[:, hips] - world["Hips"][0]).max(axis=1)))
+        for b, j in gc.humanoid.items():
+            worst = max(worst, float(np.abs(world[b][0] - truth[k, ch.index(j)]).max()))
+        moved = max(moved, float(np.abs(parsed["bones"]["LeftLowerLeg"][1][:3]).max()))
+    print(f"\nVRM avatar live: {len(rx.datagrams)} bundles of {len(gc.humanoid)} bones; worst bone {worst * 1e6:.2f} um "
+          f"from character_pose")
+    assert worst < 1e-5 and moved > 0.05       # the knee does bend: a walk, not the rest pose
