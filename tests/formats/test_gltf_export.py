@@ -112,3 +112,11 @@ def test_nothing_is_written_half(tmp_path):
         write_gltf(tmp_path / "dir.glb", ch, _random_take(ch, 2)[0], root[:2], [0, 0.1])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.glb", "keep.glb"]
     assert list((tmp_path / "dir.glb").iterdir()) == []
+
+
+def test_key_times_from_the_source_or_from_the_rate():
+    from mocapgraph.cli.gltf_out import key_times
+    t, how = key_times(np.array([10.0, 10.01, 10.02]), 100.0)
+    assert np.allclose(t, [0, 0.01, 0.02]) and how == "the source's frame times"
+    t, how = key_times(np.array([10.0, 10.0, 10.02, 10.01]), 50.0)      # repeats and goes back (a Kinect log)
+    assert np.allclose(t, [0, 0.02, 0.04, 0.06]) and "50 Hz" in how

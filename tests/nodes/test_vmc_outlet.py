@@ -26,9 +26,19 @@ def random_pose(ch: Character, rng) -> tuple[np.ndarray, np.ndarray]:
     return rot, ch.rest_offsets[ch.root] + rng.normal(scale=0.5, size=3) + [0, 0, 1.0]
 
 
-@pytest.mark.parametrize("name", ["standard_20", "mixamo", "cmu"])
+def _character(name: str) -> Character:
+    """A shipped character, or "turned": standard_20 with random rest orientations (as a glTF rig
+    has), which a normalized VMC humanoid must not see: its rest pose still sends identities."""
+    if name != "turned":
+        return load_character(name)
+    ch = load_character("standard_20")
+    rest = Rotation.random(ch.n_joints, random_state=3).as_quat()[:, [3, 0, 1, 2]]
+    return Character("turned", ch.joint_names, ch.parents, ch.rest_offsets, rest)
+
+
+@pytest.mark.parametrize("name", ["standard_20", "mixamo", "cmu", "turned"])
 def test_sent_bones_rebuild_the_characters_joints(name):
-    ch = load_character(name)
+    ch = _character(name)
     vb = VMCBundle(ch)
     rng = np.random.default_rng(7)
     J = ch.n_joints
