@@ -33,13 +33,26 @@ def character_mesh(ch, character: str, want: bool):
     return m, f"a generated mannequin ({len(m.positions)} vertices)"
 
 
+def humanoid_of(ch, character: str) -> dict[str, str]:
+    """Unity bone -> joint of the character: a VRM character file's own map, else the shipped table
+    that fits its joint names (:func:`mocapgraph.formats.vmc.humanoid_bones`)."""
+    from ..formats.gltf_character import GLTF_SUFFIXES, load_gltf_character
+    from ..formats.vmc import UNITY_BONES, humanoid_bones
+    if Path(str(character)).suffix.lower() in GLTF_SUFFIXES:
+        own = load_gltf_character(character).humanoid
+        if own:
+            return {b: j for b, j in own.items() if b in UNITY_BONES}
+    return humanoid_bones(ch)
+
+
 def write_retarget_gltf(out: Path, ch, res, times_s: np.ndarray, rate_hz: float, character: str = "",
                         with_mesh: bool = True) -> None:
     """The retargeted animation as .glb/.gltf (written whole or not at all); UserError on a fault."""
     t, how = key_times(times_s, rate_hz)
     try:
         mesh, what = character_mesh(ch, character, with_mesh)
-        n = write_gltf(out, ch, res.local_rotations, res.root_positions, t, mesh=mesh)
+        humanoid = humanoid_of(ch, character) if Path(out).suffix.lower() == ".vrm" else None
+        n = write_gltf(out, ch, res.local_rotations, res.root_positions, t, mesh=mesh, vrm_humanoid=humanoid)
     except (GltfExportError, ValueError) as exc:
         raise UserError(str(exc)) from None
     print(f"glTF: {ch.n_joints} joints, {len(t)} keys at {how}, {what}, {n / 1e6:.2f} MB")

@@ -6,9 +6,9 @@ SkeletonModel, or MarkerFrame with ``--model``). Outputs: BVH (the character's h
 ZXY channels, frame time; centimetres, Y up), a bag (latched ``character_info``, one
 ``character_pose`` per frame), CSV (frame, time, then per joint x/y/z in metres, world, the local
 rotation w/x/y/z and the quality 0/1/2), or glTF (``.glb``/``.gltf``: the skeleton as a skin, the
-animation keyed at the source's frame times; :mod:`mocapgraph.formats.gltf_export`).
-``mocapgraph retarget mapping`` writes the automatic mapping for a source and a character, to read
-and edit.
+animation keyed at the source's frame times; :mod:`mocapgraph.formats.gltf_export`; ``.vrm``: the
+same GLB with a VRM 1.0 humanoid map). ``mocapgraph retarget mapping`` writes the automatic
+mapping for a source and a character, to read and edit.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from .progress import Progress
 if TYPE_CHECKING:   # annotations only: the command loads its readers when it runs
     from ..bag.trial_frames import SourceFrames
 
-OUTPUTS = (".bvh", ".mcap", ".csv", ".glb", ".gltf")
+OUTPUTS = (".bvh", ".mcap", ".csv", ".glb", ".gltf", ".vrm")
 
 
 def read_source(path: str, model: str | None, topic: str | None) -> "SourceFrames":
@@ -51,7 +51,7 @@ def cmd_retarget(args: argparse.Namespace) -> int:
     from ..retarget.mapping import MappingError
     out = Path(args.output)
     if out.suffix.lower() not in OUTPUTS:
-        raise UserError(f"{out}: unknown output type {out.suffix or '(none)'!r} (expected .bvh, .mcap, .csv, .glb or .gltf)")
+        raise UserError(f"{out}: unknown output type {out.suffix or '(none)'!r} (expected .bvh, .mcap, .csv, .glb, .gltf or .vrm)")
     bar = Progress("retargeting", unit="step", total=3)  # read, retarget, write
     frames = read_source(args.trial, args.model, args.topic)
     bar.advance()
@@ -78,7 +78,7 @@ def cmd_retarget(args: argparse.Namespace) -> int:
             write_character_bvh(out, ch, res, 1.0 / frames.rate_hz)
         elif kind == ".mcap":
             _write_bag(out, ch, res, frames, args.character_name or ch.name)
-        elif kind in (".glb", ".gltf"):
+        elif kind in (".glb", ".gltf", ".vrm"):
             from .gltf_out import write_retarget_gltf
             write_retarget_gltf(out, ch, res, frames.times_s, frames.rate_hz, args.character, not args.no_mesh)
         else:
@@ -174,7 +174,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         p.add_argument(f"--no-{flag}", action="store_true", help=f"turn {what} off")
     p.add_argument("--no-mesh", action="store_true", help="glTF output: the skeleton only (default: the character "
                                                            "file's own skinned mesh, else a generated mannequin)")
-    p.add_argument("-o", "--output", required=True, help="out.bvh, out.mcap, out.csv, out.glb or out.gltf "
+    p.add_argument("-o", "--output", required=True, help="out.bvh, out.mcap, out.csv, out.glb, out.gltf or out.vrm "
                                                            "(mapping: out.yaml)")
     p.set_defaults(func=_dispatch)
 

@@ -116,9 +116,11 @@ def rest_world_matrices(ch: Character) -> np.ndarray:
 
 
 def character_gltf(ch: Character, local_rotations: np.ndarray | None = None, root_positions: np.ndarray | None = None,
-                   times_s: np.ndarray | None = None, *, mesh: SkinnedMesh | None = None):
+                   times_s: np.ndarray | None = None, *, mesh: SkinnedMesh | None = None,
+                   vrm_humanoid: dict[str, str] | None = None):
     """The glTF document (pygltflib.GLTF2, its buffer set) of a character and, with local rotations
-    [F, J, 4] wxyz, root positions [F, 3] m and strictly increasing frame times [F] s, its animation."""
+    [F, J, 4] wxyz, root positions [F, 3] m and strictly increasing frame times [F] s, its animation;
+    with ``vrm_humanoid`` (Unity bone -> joint), the VRM 1.0 extension that makes it a VRM avatar."""
     gl = __import__("pygltflib")
     J = ch.n_joints
     if J > MAX_JOINTS:
@@ -153,6 +155,10 @@ def character_gltf(ch: Character, local_rotations: np.ndarray | None = None, roo
     doc = gl.GLTF2(asset=gl.Asset(version="2.0", generator="mocapgraph (pygltflib)"), scene=0,
                    scenes=[gl.Scene(name=ch.name, nodes=scene_nodes)], nodes=nodes, skins=[skin],
                    meshes=meshes, animations=animations, accessors=blob.accessors, bufferViews=blob.views)
+    if vrm_humanoid is not None:
+        from .vrm_export import vrm_extension
+        doc.extensionsUsed = ["VRMC_vrm"]
+        doc.extensions = {"VRMC_vrm": vrm_extension(ch.name, vrm_humanoid, {n: j for j, n in enumerate(ch.joint_names)})}
     data = blob.bytes()
     doc.buffers = [gl.Buffer(byteLength=len(data))]
     doc.set_binary_blob(data)
@@ -212,7 +218,7 @@ def _mesh(blob: _Blob, mesh: SkinnedMesh, n_joints: int):
 
 def gltf_file_bytes(doc, kind: str) -> bytes:
     """The bytes of a ``.glb`` (binary container) or ``.gltf`` (JSON, buffer as a data URI)."""
-    if kind == ".glb":
+    if kind in (".glb", ".vrm"):
         return b"".join(doc.save_to_bytes())
     data = doc.binary_blob()
     doc.buffers[0].uri = "data:application/octet-stream;base64," + base64.b64encode(data).decode("ascii")
@@ -239,12 +245,17 @@ def write_atomic(path: str | Path, data: bytes) -> None:
 
 def write_gltf(path: str | Path, ch: Character, local_rotations: np.ndarray | None = None,
                root_positions: np.ndarray | None = None, times_s: np.ndarray | None = None, *,
-               mesh: SkinnedMesh | None = None) -> int:
-    """A character (and its animation, and a mesh) as ``.glb`` or ``.gltf``, written atomically;
-    returns the bytes written. GltfExportError (one line) for what glTF cannot hold."""
+               mesh: SkinnedMesh | None = None, vrm_humanoid: dict[str, str] | None = None) -> int:
+    """A character (and its animation, and a mesh) as ``.glb``, ``.gltf`` or ``.vrm`` (a GLB with the
+    VRM 1.0 humanoid map ``vrm_humanoid``), written atomically; returns the bytes written.
+    GltfExportError (one line) for what glTF cannot hold."""
     kind = Path(path).suffix.lower()
-    if kind not in (".glb", ".gltf"):
-        raise GltfExportError(f"{path}: not a .glb or .gltf name")
-    data = gltf_file_bytes(character_gltf(ch, local_rotations, root_positions, times_s, mesh=mesh), kind)
+    if kind not in (".glb", ".gltf", ".vrm"):
+        raise GltfExportError(f"{path}: not a .glb, .gltf or .vrm name")
+    if kind == ".vrm" and not vrm_humanoid:
+        raise GltfExportError(f"{path}: a .vrm needs the character's humanoid bone map")
+    doc = character_gltf(ch, local_rotations, root_positions, times_s, mesh=mesh,
+                         vrm_humanoid=vrm_humanoid if kind == ".vrm" else None)
+    data = gltf_file_bytes(doc, kind)
     write_atomic(path, data)
     return len(data)

@@ -216,3 +216,23 @@ def test_vmc_names_a_vrm_avatars_bones_from_its_humanoid_map(tmp_path):
         np.testing.assert_allclose(a[k][3:], b[k][3:], atol=1e-6)        # rotations
         if k != "Hips":
             np.testing.assert_allclose(a[k][:3], b[k][:3], atol=1e-6)    # bone places
+
+
+@pytest.mark.parametrize("name", ["mixamo", "standard_20"])
+def test_a_character_goes_out_as_vrm_and_comes_back_with_its_map(tmp_path, name):
+    from gltf_support import khronos_report
+    from mocapgraph.formats.gltf_export import GltfExportError
+    from mocapgraph.formats.mannequin import mannequin
+    from mocapgraph.formats.vmc import humanoid_bones
+    ch = load_character(name)
+    table = humanoid_bones(ch)
+    write_gltf(tmp_path / "out.vrm", ch, mesh=mannequin(ch), vrm_humanoid=table)
+    report = khronos_report(tmp_path / "out.vrm")
+    assert report["issues"]["numErrors"] == 0 and report["issues"]["numWarnings"] == 0
+    back = load_gltf_character(tmp_path / "out.vrm")
+    assert back.vrm == "1.0" and back.humanoid == table           # thumbs and all, through VRM 1.0's names
+    _same_joints(back.character, ch)
+    # a rig without the bones VRM requires is refused in one line, nothing written
+    with pytest.raises(GltfExportError, match="cannot be a VRM avatar: no joint for the humanoid bones Spine"):
+        write_gltf(tmp_path / "bad.vrm", ch, vrm_humanoid={b: j for b, j in table.items() if b != "Spine"})
+    assert not (tmp_path / "bad.vrm").exists()
