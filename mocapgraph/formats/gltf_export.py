@@ -156,9 +156,13 @@ def character_gltf(ch: Character, local_rotations: np.ndarray | None = None, roo
                    scenes=[gl.Scene(name=ch.name, nodes=scene_nodes)], nodes=nodes, skins=[skin],
                    meshes=meshes, animations=animations, accessors=blob.accessors, bufferViews=blob.views)
     if vrm_humanoid is not None:
-        from .vrm_export import vrm_extension
+        from .vrm_export import VrmExportError, vrm_extension
+        try:
+            ext = vrm_extension(ch.name, vrm_humanoid, {n: j for j, n in enumerate(ch.joint_names)})
+        except VrmExportError as exc:
+            raise GltfExportError(str(exc)) from None
         doc.extensionsUsed = ["VRMC_vrm"]
-        doc.extensions = {"VRMC_vrm": vrm_extension(ch.name, vrm_humanoid, {n: j for j, n in enumerate(ch.joint_names)})}
+        doc.extensions = {"VRMC_vrm": ext}
     data = blob.bytes()
     doc.buffers = [gl.Buffer(byteLength=len(data))]
     doc.set_binary_blob(data)
