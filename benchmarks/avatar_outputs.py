@@ -3,13 +3,16 @@
 Prints: a VMC bundle (our python-osc template filled with numpy) per character, beside building
 every message of the same bundle with python-osc's builders, us/frame and the share of a core at
 240 Hz; `retarget -o out.glb`'s writer on a 994-frame take (CMU 131_01's length) onto Mixamo with
-the generated mannequin, seconds and MB; the mannequin alone; and reading the file back as a
-character. Compare ratios, not times (the machine is shared).
-Run: .venv/bin/python benchmarks/avatar_outputs.py [--frames 994]
+the generated mannequin, seconds and MB; the mannequin alone; reading the file back as a
+character; and a launched graph (synthetic_character, standard_20 at 240 Hz -> vmc_outlet -> a UDP
+socket here): bundles received per second and the vmc_outlet process's CPU (/proc). Compare ratios,
+not times (the machine is shared).
+Run: .venv/bin/python benchmarks/avatar_outputs.py [--frames 994] [--graph-seconds 10]
 """
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -94,9 +97,52 @@ def gltf(frames: int) -> None:
           f"{len(back.mesh.positions)} vertices")
 
 
+def _cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def graph(seconds: float) -> None:
+    import socket
+    from _launched import launched_graph
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(0.2)
+    yaml = f"""
+nodes:
+  - name: dancer
+    type: synthetic_character
+    params: {{rate_hz: 240.0}}
+  - name: vmc
+    type: vmc_outlet
+    params: {{port: {rx.getsockname()[1]}}}
+"""
+    with tempfile.TemporaryDirectory() as tmp, launched_graph(yaml, "character_pose", Path(tmp)) as manifest:
+        pid = next(n["pid"] for n in manifest["nodes"] if n["name"] == "vmc")
+        t_end = time.monotonic() + 2.0
+        while time.monotonic() < t_end:            # warm-up
+            try:
+                rx.recv(65536)
+            except socket.timeout:
+                pass
+        n, c0, t0 = 0, _cpu_s(pid), time.monotonic()
+        while time.monotonic() < t0 + seconds:
+            try:
+                rx.recv(65536)
+                n += 1
+            except socket.timeout:
+                pass
+        cpu = 100 * (_cpu_s(pid) - c0) / (time.monotonic() - t0)
+    rx.close()
+    print(f"vmc_outlet in a graph, standard_20 at 240 Hz, {seconds:g} s: {n / seconds:.1f} bundles/s received, "
+          f"node CPU {cpu:.1f} % of a core")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=994)
+    ap.add_argument("--graph-seconds", type=float, default=10.0)
     args = ap.parse_args()
     print_context("0 (np.random.default_rng: rotation vectors N(0, 0.4), roots N(0, 0.3))",
                   "generated poses of the shipped characters (mixamo, cmu, standard_20)", section="VMC")
@@ -105,6 +151,10 @@ def main() -> None:
     print_context("1 (np.random.default_rng: rotation vectors N(0, 0.4), roots N(0, 0.3))",
                   f"a generated {args.frames}-frame take onto mixamo at 120 Hz", section="glTF")
     gltf(args.frames)
+    if args.graph_seconds > 0:
+        print_context(None, "synthetic_character (standard_20, the synthetic performer's walk) at 240 Hz",
+                      section="graph")
+        graph(args.graph_seconds)
 
 
 if __name__ == "__main__":
