@@ -165,7 +165,7 @@ def test_bad_files_are_one_clear_line_each(tmp_path):
             load_character(path)
         msg = str(info.value)
         assert needle in msg and "\n" not in msg and msg.startswith(str(path)), (what, msg)
-        assert time.perf_counter() - t0 < 2.0, what
+        assert time.perf_counter() - t0 < 10.0, what     # bounded work, never a hang (0.3 s for 10^5 idle)
         print(f"\n{what}: {msg}")
 
 
