@@ -38,7 +38,12 @@ class VMCOutlet(Node):
         super().__init__(name, params, wiring)
         if not isinstance(self.bones, dict):
             raise NodeConfigError(f"bones: wants a mapping Unity bone -> joint, got {self.bones!r}")
-        self._bones = dict(self.bones)
+        self._bones = {str(b): str(j) for b, j in self.bones.items()}
+        from ..formats.vmc import UNITY_BONES
+        unknown = sorted(b for b in self._bones if b not in UNITY_BONES)
+        if unknown:
+            raise NodeConfigError(f"bones: {', '.join(unknown[:3])} are not Unity humanoid bones "
+                                  "(Hips, Spine, Chest, LeftUpperArm, ...)")
         if self.avatar and not self._bones:
             from ..formats.gltf_character import GltfCharacterError, load_gltf_character
             try:

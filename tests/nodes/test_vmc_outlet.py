@@ -223,3 +223,20 @@ nodes:
     print(f"\nVRM avatar live: {len(rx.datagrams)} bundles of {len(gc.humanoid)} bones; worst bone {worst * 1e6:.2f} um "
           f"from character_pose")
     assert worst < 1e-5 and moved > 0.05       # the knee does bend: a walk, not the rest pose
+
+
+def test_bone_tables_that_do_not_fit_are_one_line():
+    from mocapgraph.bus.node import NodeConfigError
+    from mocapgraph.formats.vmc import VMCError
+    from mocapgraph.nodes.vmc_outlet import VMCOutlet
+    ch = load_character("mixamo")
+    for table, needle in (({"Hips": "Hips", "LeftElbow": "LeftForeArm"}, "not Unity humanoid bones"),
+                          ({"Hips": "Pelvis"}, "has no joint 'Pelvis'"),
+                          ({"Spine": "Spine"}, "no joint maps to the Hips"),
+                          ({"Hips": "Hips", "Spine": "Hips"}, "one joint is given to two Unity bones")):
+        with pytest.raises(VMCError, match=needle):
+            humanoid_bones(ch, table)
+    with pytest.raises(VMCError, match="no joint maps to the Hips"):   # a rig no table knows
+        humanoid_bones(Character("odd", ("a", "b"), [-1, 0], [[0, 0, 1], [0, 0, 0.5]], [[1, 0, 0, 0]] * 2))
+    with pytest.raises(NodeConfigError, match="LeftElbow"):            # refused when the node is built
+        VMCOutlet("vmc", {"bones": {"Hips": "Hips", "LeftElbow": "LeftForeArm"}})
