@@ -12,7 +12,6 @@ arrive before their names are skipped (counted in the log).
 """
 from __future__ import annotations
 
-import socket
 import time
 from typing import Any
 
@@ -23,6 +22,7 @@ from ..bus.node import NodeConfigError
 from ..formats.osc_frames import JointBundle
 from ..messages import ActorPose, CharacterInfo, CharacterPose, SkeletonInfo, SkeletonModel, SkeletonPose
 from ..messages.pose_quality import character_quality
+from ..net.datagram_out import DatagramOut, HostError
 
 
 class OSCOutlet(Node):
@@ -46,19 +46,15 @@ class OSCOutlet(Node):
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring: Any = None) -> None:
         super().__init__(name, params, wiring)
         try:
-            infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_DGRAM)
-        except socket.gaierror as exc:
-            raise NodeConfigError(f"host {self.host!r}: {exc.strerror}") from None
-        family, _, _, _, self._addr = infos[0]
-        self._sock = socket.socket(family, socket.SOCK_DGRAM)
+            self.out = DatagramOut(self.host, self.port, self.log, "OSC")
+        except HostError as exc:
+            raise NodeConfigError(str(exc)) from None
         self.models: list[SkeletonModel] = []
         self.characters: dict[str, CharacterInfo] = {}
         self.skeletons: list[SkeletonInfo] = []
         self.bundles: dict[tuple[str, str, tuple[str, ...]], JointBundle] = {}
         self._last_sent: dict[str, float] = {}
-        self.sent = 0
         self.skipped = 0
-        self.send_errors = 0
 
     # ----- names ---------------------------------------------------------------------------------
     def on_skeleton_model(self, msg: SkeletonModel) -> None:
@@ -122,16 +118,9 @@ class OSCOutlet(Node):
                           bundle.addresses["frame"].rsplit("/", 1)[0], len(joints))
         env = self._ports[port].envelope
         data = bundle.encode(frame, pos, rot, np.asarray(quality), env.capture_ns * 1e-9)
-        try:
-            self._sock.sendto(data, self._addr)
-            self.sent += 1
-        except OSError as exc:  # nobody listening (ICMP refused) or the network is down: keep going
-            self.send_errors += 1
-            if self.send_errors in (1, 10, 100) or self.send_errors % 1000 == 0:
-                self.log.warning("OSC send to %s:%d failed (%s); %d so far", self.host, self.port, exc,
-                                 self.send_errors)
+        self.out.send(data)
 
     def on_stop(self) -> None:
-        self.log.info("%d OSC bundles sent, %d frames skipped, %d send errors", self.sent, self.skipped,
-                      self.send_errors)
-        self._sock.close()
+        self.log.info("%d OSC bundles sent, %d frames skipped, %d send errors", self.out.sent, self.skipped,
+                      self.out.send_errors)
+        self.out.close()

@@ -9,7 +9,6 @@ characters on the topic, ``character`` picks one (VMC drives one avatar per port
 """
 from __future__ import annotations
 
-import socket
 from typing import Any
 
 
@@ -17,6 +16,7 @@ from ..bus import Input, Node, Param
 from ..bus.node import NodeConfigError
 from ..messages import CharacterInfo, CharacterPose
 from ..messages.pose_quality import character_quality
+from ..net.datagram_out import DatagramOut, HostError
 
 
 class VMCOutlet(Node):
@@ -54,15 +54,13 @@ class VMCOutlet(Node):
             if not self._bones:
                 raise NodeConfigError(f"avatar: {self.avatar} has no VRM humanoid map (give `bones`)")
         try:
-            infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_DGRAM)
-        except socket.gaierror as exc:
-            raise NodeConfigError(f"host {self.host!r}: {exc.strerror}") from None
-        family, _, _, _, self._addr = infos[0]
-        self._sock = socket.socket(family, socket.SOCK_DGRAM)
+            self.out = DatagramOut(self.host, self.port, self.log, "VMC")
+        except HostError as exc:
+            raise NodeConfigError(str(exc)) from None
         self.templates: dict[str, Any] = {}   # character -> VMCBundle, or an error text
         self._t0_ns: int | None = None
         self._only = self.character
-        self.sent = self.skipped = self.send_errors = 0
+        self.skipped = 0
 
     def on_character_info(self, msg: CharacterInfo) -> None:
         from ..formats.vmc import VMCBundle, VMCError
@@ -97,18 +95,11 @@ class VMCOutlet(Node):
             self._t0_ns = env.capture_ns
         data = bundle.encode(msg.local_rotations, msg.root_position, character_quality(msg),
                              (env.capture_ns - self._t0_ns) * 1e-9)
-        try:
-            self._sock.sendto(data, self._addr)
-            self.sent += 1
-        except OSError as exc:   # nobody listening (ICMP refused) or the network is down: keep going
-            self.send_errors += 1
-            if self.send_errors in (1, 10, 100) or self.send_errors % 1000 == 0:
-                self.log.warning("VMC send to %s:%d failed (%s); %d so far", self.host, self.port, exc,
-                                 self.send_errors)
+        self.out.send(data)
 
     def on_stop(self) -> None:
-        self.log.info("%d VMC bundles sent, %d poses skipped, %d send errors", self.sent, self.skipped,
-                      self.send_errors)
-        self._sock.close()
+        self.log.info("%d VMC bundles sent, %d poses skipped, %d send errors", self.out.sent, self.skipped,
+                      self.out.send_errors)
+        self.out.close()
 
 
