@@ -40,7 +40,7 @@ from .bound_ports import InputPort, OutputPort
 from .curve import CurveKeys, make_server, release_authenticator, start_authenticator
 from .peer_guard import PeerGuard, limit_inbound
 from .subscriptions import Subscriptions
-from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, EdgeRecord, build_diagnostics,
+from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, ClockRecord, EdgeRecord, build_diagnostics,
                           input_edge_records)
 from .loop import EventLoop, Timer
 from .ports import Input, Interface, Output, Param, ParamError, declared_interface
@@ -269,10 +269,14 @@ class Node:
         return [r for p in self._ports.values() if isinstance(p, InputPort)
                 for r in input_edge_records(p.topic, p.stats)]
 
+    def clock_records(self) -> list[ClockRecord]:
+        """Clocks this node maps onto its own (device readers add their devices')."""
+        return []
+
     def diagnostics(self) -> Diagnostics:
         """Current statistics as a message."""
         outs = [(p.topic, p.seq) for p in self._ports.values() if isinstance(p, OutputPort)]
-        return build_diagnostics(self.name, self.uptime_s, self.edge_records(), outs)
+        return build_diagnostics(self.name, self.uptime_s, self.edge_records(), outs, self.clock_records())
 
     def _publish_diagnostics(self) -> None:
         self._ports[_DIAGNOSTICS_PORT].publish(self.diagnostics())

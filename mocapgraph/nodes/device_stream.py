@@ -10,9 +10,12 @@ transform, the device clock, counters, and waking the node's loop when the devic
 - Channel labels come from the device file's ``channels``; without them the channels are the
   layout's markers in layout order (the counts must agree), or ``M0..`` with ``layout: ""``.
   A frame with another marker count is rejected and counted.
-- Capture stamps: the device's own time stamps, mapped to our clock by the offset seen on the
-  first frame (device time + offset = arrival time). If the mapping drifts more than
-  ``RESYNC_S`` from arrival times (device restarted, clock jumped) it is re-anchored and counted.
+- Capture stamps: the device's own time stamps, mapped to our clock by a
+  :class:`~mocapgraph.messages.clock_sync.ClockSync` that follows the device clock's offset and
+  drift continuously from the frames that arrive fastest (so no one frame's delay is baked into
+  every stamp). A device clock that restarts or jumps is re-seeded and counted (``clock_resyncs``);
+  a reopened stream starts the estimate again (not counted). Offset, drift and jitter are in the
+  node's Diagnostics (``clock_*``) and in ``reader_status`` (``clock``).
 - The device's file descriptor is registered with the node's poller, so its bytes wake the
   event loop at once (no polling timer); they are read right after each loop turn.
 """
@@ -25,12 +28,14 @@ import numpy as np
 import zmq
 
 from ..bus import Param
+from ..bus.diagnostics import ClockRecord
+from ..messages.clock_sync import ClockSync
 from ..formats.wire_protocol import WireFrame, make_decoder
 from ..formats.device_file import DeviceConfig, device_or_default
 from .marker_source import LayoutMap, MarkerSourceNode, check_device_param, device_up_axis
 from .source_base import INPUT_ERRORS
 
-RESYNC_S = 0.5
+RESYNC_S = 0.5   # a device clock that jumps further than this (either way) is re-seeded
 
 
 class WireDeviceSource(MarkerSourceNode):
@@ -67,9 +72,9 @@ class WireDeviceSource(MarkerSourceNode):
         self.frames = 0
         self.device_gaps = 0
         self.count_mismatches = 0
-        self.clock_resyncs = 0
         self.disconnects = 0
-        self._offset_ns: int | None = None
+        self.clock = ClockSync(reset_s=RESYNC_S)
+        self._resets_seen = 0
         self._last_frame: int | None = None
         self._last_dev_ns = 0
         self._rate_est = 0.0
@@ -163,28 +168,28 @@ class WireDeviceSource(MarkerSourceNode):
         self.frames += 1
         self.last_arrival = time.monotonic()
 
-    def map_clock(self, device_ns: int, arrival_ns: int) -> int:
-        """Device time -> our clock (offset from the first frame; re-anchored on a jump)."""
-        if self._offset_ns is None:
-            self._offset_ns = arrival_ns - device_ns
-        mapped = device_ns + self._offset_ns
-        if abs(mapped - arrival_ns) > RESYNC_S * 1e9:
-            self.clock_resyncs += 1
-            self.warn_limited("clock", "%s: device clock jumped by %.3f s (restart?): re-anchored",
-                              self.endpoint, (mapped - arrival_ns) / 1e9)
-            self._offset_ns = arrival_ns - device_ns
-            mapped = arrival_ns
-        return mapped
+    def map_clock(self, device_ns: int, arrival_ns: int, latency_ns: int = 0) -> int:
+        """Device time -> capture time on our clock (the ClockSync estimate; restarts logged)."""
+        capture = self.clock.update(device_ns, arrival_ns, latency_ns)
+        if self.clock.resets != self._resets_seen:
+            self._resets_seen = self.clock.resets
+            self.warn_limited("clock", "%s: device clock restarted or jumped (%d so far): re-seeded",
+                              self.endpoint, self.clock.resets, count=False)
+        return capture
+
+    @property
+    def clock_resyncs(self) -> int:
+        return self.clock.resets
 
     def nominal_rate(self) -> float:
         return self.rate_hz or self.dev.rate_hz or round(self._rate_est, 3)
 
     def reset_stream(self) -> None:
         """The byte stream broke (device lost): drop a half frame, forget frame numbering and the
-        clock offset (a reconnected device may have restarted: its next frame anchors again)."""
+        clock estimate (a reconnected device may have restarted: its next frames seed it again)."""
         self.decoder.flush()
         self._last_frame = None
-        self._offset_ns = None
+        self.clock.forget()
 
     # ----- reporting -------------------------------------------------------------------------
     def status_data(self) -> dict[str, Any]:
@@ -194,11 +199,21 @@ class WireDeviceSource(MarkerSourceNode):
                 "crc_errors": st.crc_errors, "count_mismatches": self.count_mismatches,
                 "reject_reasons": dict(st.errors), "clock_resyncs": self.clock_resyncs,
                 "disconnects": self.disconnects, "rate_hz": self.nominal_rate(),
+                "clock": self.clock.stats().as_dict(),
                 "last_frame_age_s": (time.monotonic() - self.last_arrival) if self.last_arrival else None}
+
+    def device_topic(self) -> str:
+        return f"{type(self).__name__.replace('Reader', '').lower()}:{self.endpoint}"
+
+    def clock_records(self) -> list[ClockRecord]:
+        c = self.clock.stats()
+        if not c.samples:
+            return []
+        return [ClockRecord(self.device_topic(), c.offset_ns / 1e6, c.drift_ppm, c.jitter_ms, c.resets)]
 
     def device_edges(self) -> list[dict[str, Any]]:
         st = self.decoder.stats
-        return [{"topic": f"{type(self).__name__.replace('Reader', '').lower()}:{self.endpoint}",
+        return [{"topic": self.device_topic(),
                  "sender": self.dev.name, "rate_hz": self._rate_est, "received": self.frames,
                  "gaps": self.device_gaps, "rejected": st.rejected_frames + self.count_mismatches}]
 
