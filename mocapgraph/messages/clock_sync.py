@@ -187,15 +187,15 @@ class ClockSync:
     def _take(self, x: float, y: float) -> None:
         """The sample into its window; a window closing refits the line."""
         win = int(x // self.window_ns)
-        if win != self._win and self._win_min is not None:
-            if win > self._win:
-                self._points.append(self._win_min)
-                self._win, self._win_min = win, (x, y)
-                self._refit()
-                return
-            # a late frame from an earlier window: keep it with the current one
-        if self._win_min is None or y < self._win_min[1]:
-            self._win_min = (x, y)
+        if win > self._win:
+            self._points.append(self._win_min)
+            self._win, self._win_min = win, (x, y)
+            self._refit()
+        elif win == self._win:
+            if y < self._win_min[1]:
+                self._win_min = (x, y)
+        elif win == self._win - 1 and self._points and y < self._points[-1][1]:
+            self._points[-1] = (x, y)            # overtaken on the way: still its window's fastest
 
     def _refit(self) -> None:
         pts = list(self._points) + [self._win_min]

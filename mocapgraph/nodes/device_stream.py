@@ -7,6 +7,9 @@ transform, the device clock, counters, and waking the node's loop when the devic
   and in the log (rate-limited).
 - Axes: the device file's ``to_world``, or the ``up_axis`` param where the file sets no up axis
   (:meth:`~mocapgraph.formats.device_file.DeviceConfig.with_up_axis`).
+- Frame numbers: a jump forward counts the frames skipped as ``device_gaps``; a frame up to
+  ``REORDER_FRAMES`` behind the last one was overtaken on the way (UDP): it is published, counted
+  as ``reordered`` and takes its gap back.
 - Channel labels come from the device file's ``channels``; without them the channels are the
   layout's markers in layout order (the counts must agree), or ``M0..`` with ``layout: ""``.
   A frame with another marker count is rejected and counted.
@@ -36,6 +39,7 @@ from .marker_source import LayoutMap, MarkerSourceNode, check_device_param, devi
 from .source_base import INPUT_ERRORS
 
 RESYNC_S = 0.5   # a device clock that jumps further than this (either way) is re-seeded
+REORDER_FRAMES = 64   # a frame this far behind the last one was overtaken (UDP); further back: renumbered
 
 
 class WireDeviceSource(MarkerSourceNode):
@@ -71,6 +75,7 @@ class WireDeviceSource(MarkerSourceNode):
         self._fd: int | None = None
         self.frames = 0
         self.device_gaps = 0
+        self.reordered = 0
         self.count_mismatches = 0
         self.disconnects = 0
         self.clock = ClockSync(reset_s=RESYNC_S)
@@ -154,19 +159,28 @@ class WireDeviceSource(MarkerSourceNode):
             self.warn_limited("count", "frame %d has %d markers, the device is configured for %d: rejected",
                               wf.frame, n, self.lmap.n_source)
             return
+        self._count_frame(wf)
+        capture = self.map_clock(wf.device_time_ns, arrival_ns)
+        pos = self.lmap.positions(self.dev.points_to_world(wf.positions))
+        self.publish_frame(wf.frame, self.nominal_rate(), pos, capture)
+        self.frames += 1
+        self.last_arrival = time.monotonic()
+
+    def _count_frame(self, wf: WireFrame) -> None:
+        """Gaps and the measured rate from frame numbers; a frame overtaken on the way (a little
+        behind the last one) fills the gap counted when the next one jumped over it."""
         if self._last_frame is not None:
             step = wf.frame - self._last_frame
+            if -REORDER_FRAMES <= step < 0:
+                self.reordered += 1
+                self.device_gaps = max(0, self.device_gaps - 1)
+                return
             if step > 1:
                 self.device_gaps += step - 1
             if step > 0 and wf.device_time_ns > self._last_dev_ns:
                 inst = step * 1e9 / (wf.device_time_ns - self._last_dev_ns)
                 self._rate_est = inst if not self._rate_est else 0.9 * self._rate_est + 0.1 * inst
         self._last_frame, self._last_dev_ns = wf.frame, wf.device_time_ns
-        capture = self.map_clock(wf.device_time_ns, arrival_ns)
-        pos = self.lmap.positions(self.dev.points_to_world(wf.positions))
-        self.publish_frame(wf.frame, self.nominal_rate(), pos, capture)
-        self.frames += 1
-        self.last_arrival = time.monotonic()
 
     def map_clock(self, device_ns: int, arrival_ns: int, latency_ns: int = 0) -> int:
         """Device time -> capture time on our clock (the ClockSync estimate; restarts logged)."""
@@ -198,6 +212,7 @@ class WireDeviceSource(MarkerSourceNode):
                 "rejected_bytes": st.rejected_bytes, "rejected_frames": st.rejected_frames,
                 "crc_errors": st.crc_errors, "count_mismatches": self.count_mismatches,
                 "reject_reasons": dict(st.errors), "clock_resyncs": self.clock_resyncs,
+                "reordered": self.reordered,
                 "disconnects": self.disconnects, "rate_hz": self.nominal_rate(),
                 "clock": self.clock.stats().as_dict(),
                 "last_frame_age_s": (time.monotonic() - self.last_arrival) if self.last_arrival else None}

@@ -9,12 +9,14 @@ frame with the inverse of the device file's ``to_world``, in the device's channe
 Clock faults, for the readers' clock estimate (:mod:`mocapgraph.messages.clock_sync`): with
 ``drift_ppm`` the device's clock runs that much fast, so its frames (stamped ``k / rate`` on its
 own clock) are captured every ``1 / (rate * (1 + drift))`` s of ours; with ``delay_ms`` each frame
-leaves 0..delay_ms (uniform) after its capture, in order (a link that delays, never reorders).
+leaves 0..delay_ms (uniform, independently) after its capture, so a frame may overtake the one
+before it when the delay exceeds the frame period (as ``netem delay`` with jitter does).
 :meth:`SimulatedDevice.capture_ns` gives the true capture time of the k-th frame sent, on our
 clock, once :meth:`SimulatedDevice.paced` has started.
 """
 from __future__ import annotations
 
+import heapq
 import os
 import socket
 import time
@@ -89,9 +91,21 @@ class SimulatedDevice:
         period = 1.0 / (self.rate_hz * (1 + self.drift_ppm * 1e-6))
         t0 = time.monotonic()
         self.t0_ns = time.time_ns()
-        leave = 0.0
-        for k, f in enumerate(frames):
-            leave = max(leave, k * period + (rng.uniform(0.0, self.delay_ms * 1e-3) if self.delay_ms else 0.0))
+        due: list[tuple[float, int, DeviceFrame]] = []      # (leaves at, k, frame): a heap
+        source = enumerate(frames)
+        k_next, ahead = -1, None
+        while True:
+            # take frames while the next one could leave before the earliest waiting one
+            while ahead is None or not due or k_next * period <= due[0][0]:
+                if ahead is not None:
+                    delay = rng.uniform(0.0, self.delay_ms * 1e-3) if self.delay_ms else 0.0
+                    heapq.heappush(due, (k_next * period + delay, k_next, ahead))
+                k_next, ahead = next(source, (-1, None))
+                if ahead is None:
+                    break
+            if not due:
+                return
+            leave, _, f = heapq.heappop(due)
             wait = t0 + leave - time.monotonic()
             if wait > 0:
                 time.sleep(wait)
