@@ -45,9 +45,23 @@ points per window; no I/O, no bus.
 from __future__ import annotations
 
 import math
+import os
+import time
 from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Any
+
+#: Tests only: this process's clock reads this many ns off the kernel's (two "machines" sharing
+#: one kernel in network namespaces). Bus stamps (publish, receive) and the launcher's clock
+#: exchange read :func:`wall_ns`; 0 (unset) makes it ``time.time_ns`` itself.
+TEST_OFFSET_NS = int(os.environ.get("MOCAPGRAPH_TEST_CLOCK_OFFSET_NS", "0") or 0)
+
+
+def _offset_wall_ns() -> int:
+    return time.time_ns() + TEST_OFFSET_NS
+
+
+wall_ns = _offset_wall_ns if TEST_OFFSET_NS else time.time_ns
 
 
 @dataclass(frozen=True)
@@ -217,3 +231,49 @@ class ClockSync:
                           jitter_ms=math.sqrt(max(self._d_var, 0.0)) / 1e6 if seen else math.nan,
                           delay_ms=self._d_mean / 1e6 if seen else math.nan,
                           samples=self.samples, resets=self.resets, points=len(pts), span_s=span)
+
+
+@dataclass(frozen=True)
+class PeerStats:
+    """Another machine's clock as :class:`PeerClock` sees it (NaN before the first exchange)."""
+
+    #: the peer's clock minus ours, ns (from the exchange of least round trip)
+    offset_ns: float
+    #: that exchange's round trip less the peer's turnaround, ms (the offset is good to half of it)
+    delay_ms: float
+    #: standard deviation of the kept exchanges' offsets, ms
+    jitter_ms: float
+    samples: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class PeerClock:
+    """Another machine's clock from two-way exchanges (NTP's on-wire arithmetic and clock filter).
+
+    ``update(t1, t2, t3, t4)``: we sent at t1 (our clock), the peer received at t2 and answered at
+    t3 (its clock), we received at t4. Offset = ((t2 - t1) + (t3 - t4)) / 2, exact when the two
+    ways take equally long; delay = (t4 - t1) - (t3 - t2). Of the last ``keep`` exchanges the one
+    with the least delay gives the offset (queueing only ever adds delay, and asymmetry with it).
+    """
+
+    def __init__(self, keep: int = 16) -> None:
+        self._kept: deque[tuple[int, float]] = deque(maxlen=keep)   # (delay ns, offset ns)
+        self.samples = 0
+
+    def update(self, t1: int, t2: int, t3: int, t4: int) -> None:
+        delay = (t4 - t1) - (t3 - t2)
+        if delay < 0 or t3 < t2:
+            return                       # not a real exchange (a clock stepped mid-way)
+        self._kept.append((delay, ((t2 - t1) + (t3 - t4)) / 2))
+        self.samples += 1
+
+    def stats(self) -> PeerStats:
+        if not self._kept:
+            return PeerStats(math.nan, math.nan, math.nan, 0)
+        delay, offset = min(self._kept)
+        offs = [o for _, o in self._kept]
+        mean = sum(offs) / len(offs)
+        jitter = math.sqrt(sum((o - mean) ** 2 for o in offs) / len(offs))
+        return PeerStats(offset, delay / 1e6, jitter / 1e6, self.samples)

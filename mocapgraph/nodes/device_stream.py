@@ -223,8 +223,9 @@ class WireDeviceSource(MarkerSourceNode):
     def clock_records(self) -> list[ClockRecord]:
         c = self.clock.stats()
         if not c.samples:
-            return []
-        return [ClockRecord(self.device_topic(), c.offset_ns / 1e6, c.drift_ppm, c.jitter_ms, c.resets)]
+            return super().clock_records()
+        return super().clock_records() + [ClockRecord(self.device_topic(), c.offset_ns / 1e6, c.drift_ppm,
+                                                      c.jitter_ms, c.resets)]
 
     def device_edges(self) -> list[dict[str, Any]]:
         st = self.decoder.stats
