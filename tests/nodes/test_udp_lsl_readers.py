@@ -125,6 +125,7 @@ def test_lsl_wrong_channel_count_is_refused_then_the_right_stream_is_read(run_no
         try:
             recs = n.wait_for(lambda: n.records("markers") if len(n.records("markers")) >= 40 else None,
                               timeout=90, what="frames from the right stream")
+            diag = n.diagnostics()                                   # while the stream is up
         finally:
             right.kill()
             right.wait()
@@ -147,3 +148,5 @@ def test_lsl_wrong_channel_count_is_refused_then_the_right_stream_is_read(run_no
     lag = np.array([r.env.publish_ns - r.env.capture_ns for r in recs]) / 1e6
     assert np.median(lag) < 50 and (lag > -5).all()
     assert len(status(n)["refused_streams"]) == 1
+    # LSL's own clock correction is the followed clock: same host, so none (0 ms)
+    assert diag.clock_names == [f"lsl:name='{name}' and type='Mocap'"] and diag.clock_offset_ms.tolist() == [0.0]
