@@ -7,9 +7,10 @@ transform, the device clock, counters, and waking the node's loop when the devic
   and in the log (rate-limited).
 - Axes: the device file's ``to_world``, or the ``up_axis`` param where the file sets no up axis
   (:meth:`~mocapgraph.formats.device_file.DeviceConfig.with_up_axis`).
-- Frame numbers: a jump forward counts the frames skipped as ``device_gaps``; a frame up to
-  ``REORDER_FRAMES`` behind the last one was overtaken on the way (UDP): it is published, counted
-  as ``reordered`` and takes its gap back.
+- Frame numbers: a jump forward counts the frames skipped as ``device_gaps``; one of the last
+  ``REORDER_FRAMES`` skipped numbers arriving later was overtaken on the way (UDP): it is
+  published, counted as ``reordered`` and takes its gap back. Any other step back is a device
+  that renumbered (restarted).
 - Channel labels come from the device file's ``channels``; without them the channels are the
   layout's markers in layout order (the counts must agree), or ``M0..`` with ``layout: ""``.
   A frame with another marker count is rejected and counted.
@@ -39,7 +40,7 @@ from .marker_source import LayoutMap, MarkerSourceNode, check_device_param, devi
 from .source_base import INPUT_ERRORS
 
 RESYNC_S = 0.5   # a device clock that jumps further than this (either way) is re-seeded
-REORDER_FRAMES = 64   # a frame this far behind the last one was overtaken (UDP); further back: renumbered
+REORDER_FRAMES = 64   # the last this many skipped frame numbers may still come (overtaken on a UDP link)
 
 
 class WireDeviceSource(MarkerSourceNode):
@@ -76,6 +77,7 @@ class WireDeviceSource(MarkerSourceNode):
         self.frames = 0
         self.device_gaps = 0
         self.reordered = 0
+        self._missing: dict[int, None] = {}   # skipped frame numbers that may still come, oldest first
         self.count_mismatches = 0
         self.disconnects = 0
         self.clock = ClockSync(reset_s=RESYNC_S)
@@ -167,16 +169,21 @@ class WireDeviceSource(MarkerSourceNode):
         self.last_arrival = time.monotonic()
 
     def _count_frame(self, wf: WireFrame) -> None:
-        """Gaps and the measured rate from frame numbers; a frame overtaken on the way (a little
-        behind the last one) fills the gap counted when the next one jumped over it."""
+        """Gaps and the measured rate from frame numbers; a frame overtaken on the way (one of the
+        last gaps' numbers) fills its gap; any other step back is a renumbered (restarted) device."""
         if self._last_frame is not None:
             step = wf.frame - self._last_frame
-            if -REORDER_FRAMES <= step < 0:
+            if step < 0 and wf.frame in self._missing:
+                del self._missing[wf.frame]
                 self.reordered += 1
-                self.device_gaps = max(0, self.device_gaps - 1)
+                self.device_gaps -= 1
                 return
             if step > 1:
                 self.device_gaps += step - 1
+                if step - 1 <= REORDER_FRAMES:
+                    self._missing.update(dict.fromkeys(range(self._last_frame + 1, wf.frame)))
+                    while len(self._missing) > REORDER_FRAMES:
+                        del self._missing[next(iter(self._missing))]
             if step > 0 and wf.device_time_ns > self._last_dev_ns:
                 inst = step * 1e9 / (wf.device_time_ns - self._last_dev_ns)
                 self._rate_est = inst if not self._rate_est else 0.9 * self._rate_est + 0.1 * inst
@@ -203,6 +210,7 @@ class WireDeviceSource(MarkerSourceNode):
         clock estimate (a reconnected device may have restarted: its next frames seed it again)."""
         self.decoder.flush()
         self._last_frame = None
+        self._missing.clear()
         self.clock.forget()
 
     # ----- reporting -------------------------------------------------------------------------
