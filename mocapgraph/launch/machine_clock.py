@@ -67,6 +67,7 @@ class MachineClocks:
         self._next_id = int.from_bytes(os.urandom(4), "little")
         self._started = time.monotonic()
         self._due = 0.0
+        self._warned: set[str] = set()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setblocking(False)
         self.sock.bind(addrs[machine])
@@ -139,6 +140,14 @@ class MachineClocks:
                 self.sock.sendto(self._pack(ASK, self._next_id, t1), p.address)
             except OSError:
                 pass
+
+    def silent_peers(self, after_s: float) -> list[Peer]:
+        """Peers never heard from ``after_s`` after start, each returned once (for one log line)."""
+        if time.monotonic() - self._started < after_s:
+            return []
+        out = [p for p in self.peers if not self.clocks[p.machine].samples and p.machine not in self._warned]
+        self._warned.update(p.machine for p in out)
+        return out
 
     # ----- results -------------------------------------------------------------------------------
     def stats(self) -> dict[str, PeerStats]:

@@ -132,6 +132,9 @@ class Supervisor:
     def _tend_clocks(self) -> None:
         """Answer and ask; tell the nodes (at most once a second) and the console (when it moved)."""
         self.clocks.probe()
+        for p in self.clocks.silent_peers(after_s=10.0):
+            self.say(f"[launch] machine {p.machine} does not answer time requests at {p.address[0]}:{p.address[1]} "
+                     "(udp) yet: latencies from it stay uncorrected until it does")
         if not self.clocks.serve():
             return
         stats = self.clocks.stats()

@@ -100,3 +100,20 @@ def test_two_services_measure_each_other_and_drop_foreign_packets(tmp_path: Path
     finally:
         a.close()
         b.close()
+
+
+def test_a_machine_that_never_answers_is_named_once(tmp_path: Path) -> None:
+    g = _graph(tmp_path, "{insecure: true}")
+    a = MachineClocks(g, "capture")                        # render's launcher never started
+    try:
+        assert a.silent_peers(after_s=10.0) == []          # too early to say
+        a._started -= 11.0
+        for _ in range(3):
+            a.probe()
+            a._due = 0.0
+            a.serve()
+        assert [p.machine for p in a.silent_peers(after_s=10.0)] == ["render"]
+        assert a.silent_peers(after_s=10.0) == []          # once
+        assert a.sender_offsets() == {} and a.stats()["render"].samples == 0
+    finally:
+        a.close()
