@@ -94,7 +94,8 @@ def live(seconds: float) -> None:
     t = k / 240.0
     late = t >= 2
     st = sync.stats()
-    print(f"live UDP {seconds:.0f} s at 240 Hz, +100 ppm, 0-20 ms: after 2 s max|err| {np.abs(err[late]).max():.3f} ms, "
+    print(f"live UDP {seconds:.0f} s at 240 Hz, +100 ppm, 0-20 ms: "
+          f"after 2 s max|err| {np.abs(err[late]).max():.3f} ms, "
           f"median {np.median(err[late]):.3f} ms; fastest path (arrival - true) {path.min():.3f} ms; "
           f"drift {st.drift_ppm:+.1f} ppm, jitter {st.jitter_ms:.2f} ms")
 

@@ -82,7 +82,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--noise-mm", type=float, default=0.0, help="marker noise, mm")
         p.add_argument("--count", type=int, default=0, help="frames to send (0 = until Ctrl-C)")
         p.add_argument("--drift-ppm", type=float, default=0.0, help="the device clock runs this fast, ppm")
-        p.add_argument("--delay-ms", type=float, default=0.0, help="each frame leaves 0..this late (uniform, per frame: frames may overtake)")
+        p.add_argument("--delay-ms", type=float, default=0.0,
+                       help="each frame leaves 0..this late (uniform, per frame: frames may overtake)")
 
     s = ss.add_parser("serial", help="wire protocol on a serial port, or on a new pseudo-terminal")
     s.add_argument("--port", default="pty", help="serial port to write to, or 'pty' to create one")
