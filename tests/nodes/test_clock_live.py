@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import json
 import socket
-import time
 
 import numpy as np
 import pytest
 
+from graph_helpers import wait_until
 from mocapgraph.bag.reader import BagReader
+from mocapgraph.bus.manifest import fetch_manifest, subscribe
+from mocapgraph.messages import decode
 from mocapgraph.testing.device_simulator import SimulatedDevice, run_udp
 
 pytestmark = pytest.mark.timing   # (slow too: conftest marks what starts a graph)
@@ -43,8 +45,22 @@ def test_stamps_within_1ms_of_true_capture_with_20ms_delay_and_100ppm_drift(laun
     sim = SimulatedDevice("plug_in_gait", "example_udp_bridge", rate_hz=RATE, seed=7, start_frame=START,
                           drift_ppm=100.0, delay_ms=20.0)
     n = int(RATE * SECONDS)
+    watch = subscribe(fetch_manifest(g.master), ["reader_status", "diagnostics"])
     assert run_udp(sim, "127.0.0.1", port, count=n) == n
-    time.sleep(2.5)                                  # two more diagnostics after the last frame
+    # the reader's status once it has every frame, then its next diagnostics (into the bag too)
+    seen = {"all": False, "diag_after": False}
+
+    def settled() -> bool:
+        while watch.poll(0):
+            env, msg = decode(watch.recv_multipart())
+            if env.topic == "reader_status" and json.loads(msg.data_json)["clock"]["samples"] == n:
+                seen["all"] = True
+            elif env.topic == "diagnostics" and env.sender == "reader" and seen["all"]:
+                seen["diag_after"] = True
+        return seen["diag_after"]
+
+    wait_until(settled, 20, "the reader's diagnostics after the last frame", g)
+    watch.close(0)
     assert g.stop() == 0
     with BagReader(bag) as r:
         frames = [(msg.frame_number, env.capture_ns) for env, msg in r.decoded("markers")]
