@@ -189,7 +189,10 @@ def diagnostics_json(msg: Diagnostics) -> dict[str, Any]:
             "latency_max_ms": per_edge(msg.edge_latency_max_ms), "received": per_edge(msg.edge_received),
             "gaps": per_edge(msg.edge_gaps), "rejected": per_edge(msg.edge_rejected),
             "anomalies": per_edge(msg.edge_anomalies) if msg.edge_anomalies is not None else {},
-            "sent": {t.replace(".", "_"): int(n) for t, n in zip(msg.output_topics, msg.output_sent.tolist())}}
+            "sent": {t.replace(".", "_"): int(n) for t, n in zip(msg.output_topics, msg.output_sent.tolist())},
+            **{f"clock_{k}": {c.replace(".", "_"): _finite(float(v)) for c, v in zip(msg.clock_names, arr.tolist())}
+               for k, arr in (("offset_ms", msg.clock_offset_ms), ("drift_ppm", msg.clock_drift_ppm),
+                              ("jitter_ms", msg.clock_jitter_ms), ("resets", msg.clock_resets))}}
 
 
 DIAGNOSTICS_JSON_SCHEMA = {
@@ -199,7 +202,7 @@ DIAGNOSTICS_JSON_SCHEMA = {
                    "cpu_s": {"type": "number"},
                    **{k: {"type": "object", "additionalProperties": {"type": ["number", "null"]}}
                       for k in ("rate_hz", "latency_ms", "latency_max_ms", "received", "gaps", "rejected", "anomalies",
-                                "sent")}},
+                                "sent", "clock_offset_ms", "clock_drift_ppm", "clock_jitter_ms", "clock_resets")}},
 }
 
 

@@ -16,6 +16,7 @@ import zmq
 
 from ..messages import DecodeError, Envelope, Message, decode_envelope, decode_payload
 from ..messages.codec import array_frames, encode_head, local_copy, local_envelope, topic_frame
+from ..messages.clock_sync import wall_ns
 from ..messages.registry import UnknownTypeError, lookup
 from .curve import CurveKeys, make_client
 from .ports import Input, Output
@@ -59,7 +60,7 @@ class OutputPort:
         if not isinstance(msg, self.decl.msg_type):
             raise TypeError(f"{self.decl.name} publishes {self.decl.type_name}, not {type(msg).__name__}")
         self.seq += 1
-        head, arrays = encode_head(self.topic, msg, self.seq, time.time_ns() if capture_ns is None else capture_ns,
+        head, arrays = encode_head(self.topic, msg, self.seq, wall_ns() if capture_ns is None else capture_ns,
                                    self.node.name, None, self.latched)
         if self.latched or not self.local:
             frames = head + array_frames(arrays)
@@ -236,7 +237,7 @@ class InputPort:
               env: Envelope | None = None) -> tuple | None:
         """Check, count and hand on one message (``msg``, ``env``: already decoded, from this
         process); returns the newest held back (``latest_only``)."""
-        now = time.time_ns()
+        now = wall_ns()
         if env is None:
             try:
                 env = decode_envelope(frames)

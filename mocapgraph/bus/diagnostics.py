@@ -29,6 +29,17 @@ class EdgeRecord:
     anomalies: int = 0
 
 
+@dataclass(frozen=True)
+class ClockRecord:
+    """One clock a node maps onto its own (a device's, another machine's): offset, drift, jitter."""
+
+    name: str
+    offset_ms: float = math.nan
+    drift_ppm: float = math.nan
+    jitter_ms: float = math.nan
+    resets: int = 0
+
+
 UNEXPECTED_SENDER = "(unexpected)"
 
 
@@ -49,10 +60,12 @@ def input_edge_records(topic: str, stats: InputStats) -> list[EdgeRecord]:
 
 
 def build_diagnostics(node: str, uptime_s: float, edges: Iterable[EdgeRecord],
-                      outputs: Iterable[tuple[str, int]]) -> Diagnostics:
-    """The Diagnostics message of this process: edges, (output topic, messages sent), CPU time."""
+                      outputs: Iterable[tuple[str, int]], clocks: Iterable[ClockRecord] = ()) -> Diagnostics:
+    """The Diagnostics message of this process: edges, (output topic, messages sent), CPU time,
+    the clocks it follows."""
     edges = list(edges)
     outputs = list(outputs)
+    clocks = list(clocks)
     ru = resource.getrusage(resource.RUSAGE_SELF)
     return Diagnostics(
         node=node, pid=os.getpid(), uptime_s=uptime_s, cpu_s=ru.ru_utime + ru.ru_stime,
@@ -62,4 +75,7 @@ def build_diagnostics(node: str, uptime_s: float, edges: Iterable[EdgeRecord],
         edge_received=[int(e.received) for e in edges], edge_gaps=[int(e.gaps) for e in edges],
         edge_rejected=[int(e.rejected) for e in edges], edge_anomalies=[int(e.anomalies) for e in edges],
         output_topics=[t for t, _ in outputs], output_sent=[n for _, n in outputs],
+        clock_names=[c.name for c in clocks], clock_offset_ms=[float(c.offset_ms) for c in clocks],
+        clock_drift_ppm=[float(c.drift_ppm) for c in clocks], clock_jitter_ms=[float(c.jitter_ms) for c in clocks],
+        clock_resets=[int(c.resets) for c in clocks],
     )

@@ -100,6 +100,8 @@ class Manifest:
     #: {"key": .key_secret file, "authorized": folder} when the bus is CurveZMQ (paths, not keys:
     #: the manifest is served to this user only, and the tools read the files themselves)
     security: dict[str, str] = field(default_factory=dict)
+    #: with --machine: the other machines' clocks as this launcher measures them (launch.machine_clock)
+    clocks: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def _topic(self, topic: str, type_name: str) -> dict[str, Any]:
         return self.topics.setdefault(topic, {"type": type_name, "publishers": [], "subscribers": []})
@@ -112,7 +114,8 @@ class Manifest:
 
     def to_dict(self) -> dict[str, Any]:
         return {"graph": self.graph, "launcher_pid": self.launcher_pid,
-                "nodes": [n.to_dict() for n in self.nodes], "topics": self.topics, "security": self.security}
+                "nodes": [n.to_dict() for n in self.nodes], "topics": self.topics, "security": self.security,
+                "clocks": self.clocks}
 
 
 def _answers(ctx: zmq.Context, endpoint: str, timeout_s: float) -> bytes | None:

@@ -28,8 +28,11 @@ hand (the bag player CLI), `input_ports`/`output_ports`/`iface`, `edge_records`.
 """
 from __future__ import annotations
 
+import json
 import logging
+import math
 import time
+from dataclasses import replace
 from typing import Any, Callable
 
 import zmq
@@ -40,11 +43,11 @@ from .bound_ports import InputPort, OutputPort
 from .curve import CurveKeys, make_server, release_authenticator, start_authenticator
 from .peer_guard import PeerGuard, limit_inbound
 from .subscriptions import Subscriptions
-from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, EdgeRecord, build_diagnostics,
+from .diagnostics import (DIAGNOSTICS_PERIOD_S, DIAGNOSTICS_TOPIC, ClockRecord, EdgeRecord, build_diagnostics,
                           input_edge_records)
 from .loop import EventLoop, Timer
 from .ports import Input, Interface, Output, Param, ParamError, declared_interface
-from .protocol import READY, START, STARTED, STOP, LauncherLink, ParentWatchdog, Wiring
+from .protocol import CLOCKS, READY, START, STARTED, STOP, LauncherLink, ParentWatchdog, Wiring
 
 SEND_QUEUE = 1000  # messages per subscriber held by a publisher before it drops (counted downstream)
 LOG_FORMAT = "%(levelname)s %(message)s"
@@ -99,6 +102,8 @@ class Node:
                                    lambda: self._guard is not None and self._guard.check())
         self._ready_sent = False
         self._launcher: LauncherLink | None = None
+        self._sender_clock_ns: dict[str, int] = {}          # other machines' nodes: their clock - ours
+        self._machine_clocks: dict[str, dict[str, Any]] = {}
         self._watchdog = ParentWatchdog()
         self._stop_requested = False
         #: subscriptions to our topics served inside this process (not counted by the XPUB)
@@ -262,17 +267,39 @@ class Node:
                 self._start()
             elif cmd == STOP:
                 self.request_stop()
+            elif cmd.startswith(CLOCKS):
+                self._take_clocks(cmd[len(CLOCKS):])
+
+    def _take_clocks(self, data: bytes) -> None:
+        """The launcher's measure of the other machines' clocks (launch.machine_clock): each sender
+        node's clock minus ours (ns), and per machine offset, delay and jitter."""
+        try:
+            d = json.loads(data)
+            self._sender_clock_ns = {str(k): int(v) for k, v in d.get("senders", {}).items()}
+            self._machine_clocks = {str(k): dict(v) for k, v in d.get("machines", {}).items()}
+        except (ValueError, TypeError, AttributeError) as exc:
+            self.log.warning("clocks from the launcher not understood (%s)", exc)
 
     # ----- diagnostics ------------------------------------------------------------------------
     def edge_records(self) -> list[EdgeRecord]:
-        """Every incoming edge's figures (sources add their device streams)."""
-        return [r for p in self._ports.values() if isinstance(p, InputPort)
+        """Every incoming edge's figures (sources add their device streams); the latency of an edge
+        from another machine counts that machine's clock offset (a publish stamp is its clock)."""
+        recs = [r for p in self._ports.values() if isinstance(p, InputPort)
                 for r in input_edge_records(p.topic, p.stats)]
+        if self._sender_clock_ns:
+            recs = [replace(r, latency_ms=r.latency_ms + off / 1e6, latency_max_ms=r.latency_max_ms + off / 1e6)
+                    if (off := self._sender_clock_ns.get(r.sender)) else r for r in recs]
+        return recs
+
+    def clock_records(self) -> list[ClockRecord]:
+        """Clocks this node maps onto its own: the other machines' (device readers add their devices')."""
+        return [ClockRecord(f"machine:{m}", -float(c.get("offset_ns", math.nan)) / 1e6, math.nan,
+                            float(c.get("jitter_ms", math.nan))) for m, c in self._machine_clocks.items()]
 
     def diagnostics(self) -> Diagnostics:
         """Current statistics as a message."""
         outs = [(p.topic, p.seq) for p in self._ports.values() if isinstance(p, OutputPort)]
-        return build_diagnostics(self.name, self.uptime_s, self.edge_records(), outs)
+        return build_diagnostics(self.name, self.uptime_s, self.edge_records(), outs, self.clock_records())
 
     def _publish_diagnostics(self) -> None:
         self._ports[_DIAGNOSTICS_PORT].publish(self.diagnostics())

@@ -4,7 +4,8 @@ A node started by the launcher connects a DEALER socket (identity = node name) t
 launcher's ROUTER at ``Wiring.control`` and speaks these one-frame messages:
 
     node -> launcher: HELLO pid, READY (every expected subscriber is connected), STARTED, BYE
-    launcher -> node: START (run on_start, sources begin publishing), STOP
+    launcher -> node: START (run on_start, sources begin publishing), STOP,
+                      CLOCKS + JSON (the other machines' clocks: launch.machine_clock)
 
 Both sides import the constants from here, so the protocol is written once.
 """
@@ -24,6 +25,7 @@ STARTED = b"started"
 BYE = b"bye"
 START = b"start"
 STOP = b"stop"
+CLOCKS = b"clocks"
 
 PR_SET_PDEATHSIG = 1
 

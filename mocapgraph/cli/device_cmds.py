@@ -14,7 +14,8 @@ def _sim(args: argparse.Namespace):
     from ..testing.device_simulator import SimulatedDevice
 
     try:
-        return SimulatedDevice(args.layout, args.device, args.rate, args.seed, args.noise_mm)
+        return SimulatedDevice(args.layout, args.device, args.rate, args.seed, args.noise_mm,
+                               drift_ppm=args.drift_ppm, delay_ms=args.delay_ms)
     except (DeviceConfigError, LayoutError, ValueError) as exc:
         raise UserError(str(exc)) from None
 
@@ -80,6 +81,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--seed", type=int, default=0)
         p.add_argument("--noise-mm", type=float, default=0.0, help="marker noise, mm")
         p.add_argument("--count", type=int, default=0, help="frames to send (0 = until Ctrl-C)")
+        p.add_argument("--drift-ppm", type=float, default=0.0, help="the device clock runs this fast, ppm")
+        p.add_argument("--delay-ms", type=float, default=0.0,
+                       help="each frame leaves 0..this late (uniform, per frame: frames may overtake)")
 
     s = ss.add_parser("serial", help="wire protocol on a serial port, or on a new pseudo-terminal")
     s.add_argument("--port", default="pty", help="serial port to write to, or 'pty' to create one")

@@ -34,12 +34,13 @@ from typing import IO, Any
 import zmq
 
 from ..bus.diagnostics import DIAGNOSTICS_TOPIC
-from ..bus.protocol import BYE, READY, START, STARTED, STOP
+from ..bus.protocol import BYE, CLOCKS, READY, START, STARTED, STOP
 from .check import CheckedGraph, ResolvedNode, process_groups, shutdown_order
 from ..bus.curve import CurveKeys
 from .liveness import STALL_S, Liveness, OutputWatch, diagnostics_socket, drain_diagnostics, heard_lines
 from .processes import Child, Process, group_processes
 from ..bus.manifest import Manifest, ManifestBusyError, ManifestServer, NodeEntry, default_master  # noqa: F401
+from .machine_clock import MachineClocks, machine_addresses
 from .wiring_plan import plan_wiring
 
 READY_TIMEOUT_S = 30.0
@@ -87,6 +88,9 @@ class Supervisor:
         self.processes: dict[str, Process] = {}
         self._stop_requested = False
         self._exit_code = 0
+        self.clocks: MachineClocks | None = None
+        self._clocks_told = 0.0
+        self._clocks_said: dict[str, float] = {}
         self._plan()
 
     # ----- planning -----------------------------------------------------------------------
@@ -108,8 +112,45 @@ class Supervisor:
 
     def manifest(self) -> Manifest:
         """Nodes, topics, types and endpoints of the running graph."""
-        return graph_manifest(self.graph, self.endpoints, list(self.children.values()), self.liveness,
-                              self.outputs)
+        m = graph_manifest(self.graph, self.endpoints, list(self.children.values()), self.liveness, self.outputs)
+        if self.clocks is not None:
+            m.clocks = {k: st.as_dict() for k, st in self.clocks.stats().items()}
+        return m
+
+    # ----- other machines' clocks ------------------------------------------------------------
+    def _start_clocks(self) -> None:
+        """With --machine in a graph of several machines: the time service (launch.machine_clock)."""
+        if self.machine is None or len(machine_addresses(self.graph)) < 2:
+            return
+        sec = self.graph.spec.security
+        key = CurveKeys.load(sec.key, sec.authorized).secret if sec.curve else None
+        try:
+            self.clocks = MachineClocks(self.graph, self.machine, key)
+        except OSError as exc:
+            self.say(f"[launch] clock exchange with the other machines off: cannot listen ({exc})")
+
+    def _tend_clocks(self) -> None:
+        """Answer and ask; tell the nodes (at most once a second) and the console (when it moved)."""
+        self.clocks.probe()
+        for p in self.clocks.silent_peers(after_s=10.0):
+            self.say(f"[launch] machine {p.machine} does not answer time requests at {p.address[0]}:{p.address[1]} "
+                     "(udp) yet: latencies from it stay uncorrected until it does")
+        if not self.clocks.serve():
+            return
+        stats = self.clocks.stats()
+        for m, st in stats.items():
+            last = self._clocks_said.get(m)
+            if st.samples >= 8 and (last is None or abs(st.offset_ns - last) > 1e6):
+                self._clocks_said[m] = st.offset_ns
+                self.say(f"[launch] clock of machine {m}: {st.offset_ns / 1e6:+.3f} ms from this one's "
+                         f"(round trip {st.delay_ms:.3f} ms)")
+        now = time.monotonic()
+        if now - self._clocks_told >= 1.0 and any(st.samples >= 8 for st in stats.values()):
+            self._clocks_told = now
+            msg = CLOCKS + json.dumps({"senders": self.clocks.sender_offsets(),
+                                       "machines": {m: st.as_dict() for m, st in stats.items() if st.samples}}).encode()
+            for name in self.children:
+                self._send(name, msg)
 
     # ----- logging --------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -210,6 +251,7 @@ class Supervisor:
                 self._serve_master()  # a node's on_start may ask for the manifest (a recorder's metadata)
         self.ready_time_s = time.monotonic() - t0
         self._watch_diagnostics()
+        self._start_clocks()
         grouped = len(self.processes) != len(self.children)
         self.say(f"[launch] {len(self.children)} nodes ready in {self.ready_time_s:.2f} s "
                  + (f"in {len(self.processes)} processes " if grouped else "") + f"(manifest at {self.master})")
@@ -261,10 +303,13 @@ class Supervisor:
         while not self._stop_requested:
             self._watch()
             self._serve_master()
+            if self.clocks is not None:
+                self._tend_clocks()
             if all(p.finished and p.respawn_at is None for p in self.processes.values()):
                 self.say("[launch] every node has finished")
                 break
-            zmq.select([self.control, self.master_sock] + ([self.diag] if self.diag is not None else []), [], [], 0.05)
+            zmq.select([self.control, self.master_sock] + ([self.diag] if self.diag is not None else [])
+                       + ([self.clocks.fileno()] if self.clocks is not None else []), [], [], 0.05)
         return self._exit_code
 
     def request_stop(self) -> None:
@@ -301,6 +346,8 @@ class Supervisor:
             self.diag.close(0)
         if hasattr(self, "master_server"):
             self.master_server.close()
+        if self.clocks is not None:
+            self.clocks.close()
         shutil.rmtree(self.run_dir, ignore_errors=True)
 
     def _await_bye(self, c: Child, timeout_s: float) -> None:

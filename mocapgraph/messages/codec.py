@@ -31,13 +31,13 @@ import math
 import operator
 import os
 import struct
-import time
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from .bounded_json import loads_bounded
+from .clock_sync import wall_ns
 from .registry import UnknownTypeError, lookup
 from .schema import SCALAR_TYPES as SCALAR_PY
 from .schema import Message, MessageError
@@ -254,7 +254,7 @@ def encode_head(
         names[1],
         seq,
         capture_ns,
-        time.time_ns() if publish_ns is None else publish_ns,  # stamped last: encoding is not latency
+        wall_ns() if publish_ns is None else publish_ns,  # stamped last: encoding is not latency
         STREAM_ID,
     )
     return [topic_frame(topic), header + names[2], block], arrays

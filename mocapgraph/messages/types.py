@@ -169,7 +169,7 @@ class Diagnostics(Message):
     """A node's health: per incoming edge rate, latency, gaps and rejects; per output counts."""
 
     type_name = "Diagnostics"
-    version = 2
+    version = 3
     node: str = scalar("str", "node name")
     pid: int = scalar("int", "process id")
     uptime_s: float = scalar("float", "seconds since the node started")
@@ -185,6 +185,11 @@ class Diagnostics(Message):
     edge_anomalies = array("int64", ("E",), "sequence anomalies (restarts, jumps beyond belief) resynchronised since start")
     output_topics = strings("published topics")
     output_sent = array("int64", ("O",), "messages published per output since start")
+    clock_names = strings("clocks this node maps onto its own: device streams (messages.clock_sync), other machines")
+    clock_offset_ms = array("float64", ("C",), "our clock minus that clock at its latest sample, ms")
+    clock_drift_ppm = array("float64", ("C",), "how much faster that clock runs than ours, ppm")
+    clock_jitter_ms = array("float64", ("C",), "standard deviation of the delay above the fastest samples, ms")
+    clock_resets = array("int64", ("C",), "times that clock restarted or jumped and was re-seeded since start")
 
 
 class NodeCommand(Message):

@@ -7,12 +7,19 @@ transform, the device clock, counters, and waking the node's loop when the devic
   and in the log (rate-limited).
 - Axes: the device file's ``to_world``, or the ``up_axis`` param where the file sets no up axis
   (:meth:`~mocapgraph.formats.device_file.DeviceConfig.with_up_axis`).
+- Frame numbers: a jump forward counts the frames skipped as ``device_gaps``; one of the last
+  ``REORDER_FRAMES`` skipped numbers arriving later was overtaken on the way (UDP): it is
+  published, counted as ``reordered`` and takes its gap back. Any other step back is a device
+  that renumbered (restarted).
 - Channel labels come from the device file's ``channels``; without them the channels are the
   layout's markers in layout order (the counts must agree), or ``M0..`` with ``layout: ""``.
   A frame with another marker count is rejected and counted.
-- Capture stamps: the device's own time stamps, mapped to our clock by the offset seen on the
-  first frame (device time + offset = arrival time). If the mapping drifts more than
-  ``RESYNC_S`` from arrival times (device restarted, clock jumped) it is re-anchored and counted.
+- Capture stamps: the device's own time stamps, mapped to our clock by a
+  :class:`~mocapgraph.messages.clock_sync.ClockSync` that follows the device clock's offset and
+  drift continuously from the frames that arrive fastest (so no one frame's delay is baked into
+  every stamp). A device clock that restarts or jumps is re-seeded and counted (``clock_resyncs``);
+  a reopened stream starts the estimate again (not counted). Offset, drift and jitter are in the
+  node's Diagnostics (``clock_*``) and in ``reader_status`` (``clock``).
 - The device's file descriptor is registered with the node's poller, so its bytes wake the
   event loop at once (no polling timer); they are read right after each loop turn.
 """
@@ -25,12 +32,15 @@ import numpy as np
 import zmq
 
 from ..bus import Param
+from ..bus.diagnostics import ClockRecord
+from ..messages.clock_sync import ClockSync
 from ..formats.wire_protocol import WireFrame, make_decoder
 from ..formats.device_file import DeviceConfig, device_or_default
 from .marker_source import LayoutMap, MarkerSourceNode, check_device_param, device_up_axis
 from .source_base import INPUT_ERRORS
 
-RESYNC_S = 0.5
+RESYNC_S = 0.5   # a device clock that jumps further than this (either way) is re-seeded
+REORDER_FRAMES = 64   # the last this many skipped frame numbers may still come (overtaken on a UDP link)
 
 
 class WireDeviceSource(MarkerSourceNode):
@@ -66,10 +76,12 @@ class WireDeviceSource(MarkerSourceNode):
         self._fd: int | None = None
         self.frames = 0
         self.device_gaps = 0
+        self.reordered = 0
+        self._missing: dict[int, None] = {}   # skipped frame numbers that may still come, oldest first
         self.count_mismatches = 0
-        self.clock_resyncs = 0
         self.disconnects = 0
-        self._offset_ns: int | None = None
+        self.clock = ClockSync(reset_s=RESYNC_S)
+        self._resets_seen = 0
         self._last_frame: int | None = None
         self._last_dev_ns = 0
         self._rate_est = 0.0
@@ -149,42 +161,57 @@ class WireDeviceSource(MarkerSourceNode):
             self.warn_limited("count", "frame %d has %d markers, the device is configured for %d: rejected",
                               wf.frame, n, self.lmap.n_source)
             return
-        if self._last_frame is not None:
-            step = wf.frame - self._last_frame
-            if step > 1:
-                self.device_gaps += step - 1
-            if step > 0 and wf.device_time_ns > self._last_dev_ns:
-                inst = step * 1e9 / (wf.device_time_ns - self._last_dev_ns)
-                self._rate_est = inst if not self._rate_est else 0.9 * self._rate_est + 0.1 * inst
-        self._last_frame, self._last_dev_ns = wf.frame, wf.device_time_ns
+        self._count_frame(wf)
         capture = self.map_clock(wf.device_time_ns, arrival_ns)
         pos = self.lmap.positions(self.dev.points_to_world(wf.positions))
         self.publish_frame(wf.frame, self.nominal_rate(), pos, capture)
         self.frames += 1
         self.last_arrival = time.monotonic()
 
-    def map_clock(self, device_ns: int, arrival_ns: int) -> int:
-        """Device time -> our clock (offset from the first frame; re-anchored on a jump)."""
-        if self._offset_ns is None:
-            self._offset_ns = arrival_ns - device_ns
-        mapped = device_ns + self._offset_ns
-        if abs(mapped - arrival_ns) > RESYNC_S * 1e9:
-            self.clock_resyncs += 1
-            self.warn_limited("clock", "%s: device clock jumped by %.3f s (restart?): re-anchored",
-                              self.endpoint, (mapped - arrival_ns) / 1e9)
-            self._offset_ns = arrival_ns - device_ns
-            mapped = arrival_ns
-        return mapped
+    def _count_frame(self, wf: WireFrame) -> None:
+        """Gaps and the measured rate from frame numbers; a frame overtaken on the way (one of the
+        last gaps' numbers) fills its gap; any other step back is a renumbered (restarted) device."""
+        if self._last_frame is not None:
+            step = wf.frame - self._last_frame
+            if step < 0 and wf.frame in self._missing:
+                del self._missing[wf.frame]
+                self.reordered += 1
+                self.device_gaps -= 1
+                return
+            if step > 1:
+                self.device_gaps += step - 1
+                if step - 1 <= REORDER_FRAMES:
+                    self._missing.update(dict.fromkeys(range(self._last_frame + 1, wf.frame)))
+                    while len(self._missing) > REORDER_FRAMES:
+                        del self._missing[next(iter(self._missing))]
+            if step > 0 and wf.device_time_ns > self._last_dev_ns:
+                inst = step * 1e9 / (wf.device_time_ns - self._last_dev_ns)
+                self._rate_est = inst if not self._rate_est else 0.9 * self._rate_est + 0.1 * inst
+        self._last_frame, self._last_dev_ns = wf.frame, wf.device_time_ns
+
+    def map_clock(self, device_ns: int, arrival_ns: int, latency_ns: int = 0) -> int:
+        """Device time -> capture time on our clock (the ClockSync estimate; restarts logged)."""
+        capture = self.clock.update(device_ns, arrival_ns, latency_ns)
+        if self.clock.resets != self._resets_seen:
+            self._resets_seen = self.clock.resets
+            self.warn_limited("clock", "%s: device clock restarted or jumped (%d so far): re-seeded",
+                              self.endpoint, self.clock.resets, count=False)
+        return capture
+
+    @property
+    def clock_resyncs(self) -> int:
+        return self.clock.resets
 
     def nominal_rate(self) -> float:
         return self.rate_hz or self.dev.rate_hz or round(self._rate_est, 3)
 
     def reset_stream(self) -> None:
         """The byte stream broke (device lost): drop a half frame, forget frame numbering and the
-        clock offset (a reconnected device may have restarted: its next frame anchors again)."""
+        clock estimate (a reconnected device may have restarted: its next frames seed it again)."""
         self.decoder.flush()
         self._last_frame = None
-        self._offset_ns = None
+        self._missing.clear()
+        self.clock.forget()
 
     # ----- reporting -------------------------------------------------------------------------
     def status_data(self) -> dict[str, Any]:
@@ -193,12 +220,24 @@ class WireDeviceSource(MarkerSourceNode):
                 "rejected_bytes": st.rejected_bytes, "rejected_frames": st.rejected_frames,
                 "crc_errors": st.crc_errors, "count_mismatches": self.count_mismatches,
                 "reject_reasons": dict(st.errors), "clock_resyncs": self.clock_resyncs,
+                "reordered": self.reordered,
                 "disconnects": self.disconnects, "rate_hz": self.nominal_rate(),
+                "clock": self.clock.stats().as_dict(),
                 "last_frame_age_s": (time.monotonic() - self.last_arrival) if self.last_arrival else None}
+
+    def device_topic(self) -> str:
+        return f"{type(self).__name__.replace('Reader', '').lower()}:{self.endpoint}"
+
+    def clock_records(self) -> list[ClockRecord]:
+        c = self.clock.stats()
+        if not c.samples:
+            return super().clock_records()
+        return super().clock_records() + [ClockRecord(self.device_topic(), c.offset_ns / 1e6, c.drift_ppm,
+                                                      c.jitter_ms, c.resets)]
 
     def device_edges(self) -> list[dict[str, Any]]:
         st = self.decoder.stats
-        return [{"topic": f"{type(self).__name__.replace('Reader', '').lower()}:{self.endpoint}",
+        return [{"topic": self.device_topic(),
                  "sender": self.dev.name, "rate_hz": self._rate_est, "received": self.frames,
                  "gaps": self.device_gaps, "rejected": st.rejected_frames + self.count_mismatches}]
 

@@ -11,6 +11,7 @@ import pylsl
 from pylsl.util import InternalError, LostError, TimeoutError as LSLTimeoutError
 
 from ..bus import Param
+from ..bus.diagnostics import ClockRecord
 from ..formats.device_file import DeviceConfig, device_or_default
 from .marker_source import LayoutMap, MarkerSourceNode, check_device_param, device_up_axis
 from .source_base import INPUT_ERRORS, SourceError
@@ -239,6 +240,12 @@ class LSLReader(MarkerSourceNode):
     def status_data(self) -> dict[str, Any]:
         return {"frames": self.frames, "stream": self.stream_desc, "refused_streams": list(self.refused.values()),
                 "streams_lost": self.streams_lost, "stale_dropped": self.stale_dropped}
+
+    def clock_records(self) -> list[ClockRecord]:
+        """LSL's own clock correction of the outlet's host (local minus remote), as a followed clock."""
+        if self._tc is None or self.inlet is None:
+            return super().clock_records()
+        return super().clock_records() + [ClockRecord(f"lsl:{self._predicate()}", self._tc * 1e3)]
 
     def device_edges(self) -> list[dict[str, Any]]:
         return [{"topic": f"lsl:{self._predicate()}", "sender": self.stream_desc or "?", "rate_hz": self._rate,

@@ -88,10 +88,15 @@ def test_text_protocol_in_pieces_with_garbage_gives_world_positions(run_node, pt
     lay = n.messages("marker_layout")[0]
     assert lay.labels == labels and lay.unplaced == []
     assert "example_serial_bridge" in lay.units_note
-    # Device time stamps, mapped to our clock on the first frame.
+    # Device time stamps mapped to our clock by the frames that came fastest (messages.clock_sync):
+    # 0.33 s of frames written at once cannot have been captured after they arrived, so no stamp
+    # lies after its frame was published (a first-frame offset put the last one 0.32 s ahead of
+    # it), the stamps never go back, and none spreads wider than the device's own spacing.
     cap = np.array([r.env.capture_ns for r in recs])
-    np.testing.assert_array_equal(np.diff(cap), np.diff([f.t_us * 1000 for f in frames]))
-    assert abs(cap[0] - recs[0].env.publish_ns) < 50e6
+    assert np.all(cap <= [r.env.publish_ns for r in recs])
+    dev_step = np.diff([f.t_us * 1000 for f in frames])
+    assert np.all(np.diff(cap) >= 0) and np.all(np.diff(cap) <= dev_step)
+    assert abs(cap[-1] - recs[-1].env.publish_ns) < 50e6
     n.wait_for(lambda: status(n)["count_mismatches"] >= 1 and status(n)["rejected_frames"] >= 2,
                what="rejects in the status")
     st = status(n)
