@@ -35,6 +35,10 @@ def cv2_module():
         import cv2
     except ImportError:
         raise VideoUnavailable("OpenCV is not installed: pip install 'mocapgraph[video]'") from None
+    try:   # OpenCV's own warnings on stderr (a file it cannot open): VideoError says it in one line
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    except AttributeError:
+        pass
     return cv2
 
 

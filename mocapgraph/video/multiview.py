@@ -152,7 +152,7 @@ def read_calibration(path: str | Path) -> list[Camera]:
     return read_opencv_calibration(p)
 
 
-def match_cameras(cameras: list[Camera], names: list[str], *, where: str = "calibration") -> list[Camera]:
+def match_cameras(cameras: list[Camera], names: list[str], *, path: str | Path | None = None) -> list[Camera]:
     """The calibration's camera for each name (a video's stem), in the names' order; CalibrationError
     naming the videos the calibration lacks and the cameras it has."""
     by = {c.name: c for c in cameras}
@@ -162,7 +162,7 @@ def match_cameras(cameras: list[Camera], names: list[str], *, where: str = "cali
         c = by.get(n) or by_low.get(n.lower().replace("_", ""))
         (out if c is not None else lost).append(c if c is not None else n)
     if lost:
-        raise CalibrationError(None, f"{where} has no camera for {', '.join(lost)} "
+        raise CalibrationError(path, f"no camera for {', '.join(lost)} "
                                      f"(its cameras: {', '.join(sorted(by))})")
     return out
 

@@ -1,0 +1,91 @@
+"""Video files to skeleton trials: one camera's metric estimate, or N calibrated cameras triangulated.
+
+The glue of the pure parts (:mod:`.frames`, :mod:`.estimator`, :mod:`.multiview`) that the
+nodes and the batch commands share. Every unusable input is a one-line FormatError
+(VideoError, CalibrationError): a video that does not decode, a calibration without a camera
+for a video, cameras whose frame rates differ, a clip with no person in it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..formats.skeleton_trial import SkeletonTrial
+from .estimator import Detections, detect_video, landmarks_trial, single_view_trial
+from .frames import VideoError
+from .multiview import CalibrationError, Camera, Triangulation, match_cameras, read_calibration, triangulate_frames
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v")
+
+
+def require_person(det: Detections) -> Detections:
+    """The detections, or VideoError when no frame shows a person."""
+    if det.n_frames and not det.found.any():
+        raise VideoError(None if det.info.name.startswith("camera:") else Path(det.info.name),
+                         f"no person found in any of its {det.n_frames} frames")
+    return det
+
+
+def video_trial(path: str | Path, *, good: float = 0.8, missing: float = 0.5, ground: str = "feet",
+                progress=None) -> tuple[SkeletonTrial, Detections]:
+    """One camera's Kinect v2 trial (see :func:`single_view_trial`) and its detections."""
+    det = require_person(detect_video(path, progress=progress))
+    return single_view_trial(det, good=good, missing=missing, ground=ground), det
+
+
+def videos_beside(calibration: str | Path) -> list[Path]:
+    """The video files in the calibration's folder, sorted by name."""
+    folder = Path(calibration).parent
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES)
+
+
+def cameras_for(calibration: str | Path, videos: list[Path]) -> list[Camera]:
+    """The calibration's camera of each video (matched by file stem), CalibrationError otherwise."""
+    if len(videos) < 2:
+        raise CalibrationError(Path(calibration), f"needs at least two videos to triangulate, got {len(videos)}")
+    return match_cameras(read_calibration(calibration), [v.stem for v in videos], path=calibration)
+
+
+def aligned(dets: list[Detections], names: list[str]) -> tuple[list[Detections], list[str]]:
+    """Detections cut to their common length; VideoError naming the cameras whose rates differ."""
+    rates = np.array([d.info.fps for d in dets])
+    if np.ptp(rates) > 0.01 * rates.max():
+        listing = ", ".join(f"{n} {r:g} fps" for n, r in zip(names, rates))
+        raise VideoError(None, f"the cameras' frame rates differ ({listing}): not synchronised videos")
+    n = min(d.n_frames for d in dets)
+    notes = []
+    if any(d.n_frames != n for d in dets):
+        notes.append("frame counts differ (" + ", ".join(f"{nm} {d.n_frames}" for nm, d in zip(names, dets))
+                     + f"): the first {n} of each used")
+    cut = [Detections(d.info, d.image[:n], d.visibility[:n], d.world[:n], d.found[:n], d.times_s[:n],
+                      d.ms_per_frame, d.notes) for d in dets]
+    return cut, notes
+
+
+def multiview_trial(dets: list[Detections], cameras: list[Camera], **tri_kw) -> tuple[SkeletonTrial, Triangulation]:
+    """N cameras' detections (same rate, same length) triangulated into a Kinect v2 trial
+    (world of the calibration, m) and the triangulation (errors, cameras used, quality)."""
+    uv = np.stack([d.image for d in dets])
+    conf = np.stack([d.visibility for d in dets])
+    tri = triangulate_frames(cameras, uv, conf, **tri_kw)
+    T = uv.shape[1]
+    notes = [n for d in dets for n in d.notes]
+    trial = landmarks_trial(tri.points, np.ones(tri.quality.shape), dets[0].times_s[:T], dets[0].info.fps,
+                            good=0.5, missing=0.5, quality=tri.quality, source="video_multiview",
+                            conversions=[f"{len(cameras)} cameras ({', '.join(c.name for c in cameras)}) "
+                                         "triangulated; calibration world frame, mm to m"], notes=notes)
+    return trial, tri
+
+
+def multiview_from_files(calibration: str | Path, videos: list[Path] | None = None, progress=None,
+                         **tri_kw) -> tuple[SkeletonTrial, Triangulation, list[Detections], list[Camera]]:
+    """Read the calibration, match every video to its camera (before any estimation), detect, align,
+    triangulate."""
+    videos = [Path(v) for v in videos] if videos else videos_beside(calibration)
+    cams = cameras_for(calibration, videos)
+    dets = [require_person(detect_video(v, progress=progress)) for v in videos]
+    dets, notes = aligned(dets, [v.stem for v in videos])
+    trial, tri = multiview_trial(dets, cams, **tri_kw)
+    trial.notes.extend(notes)
+    return trial, tri, dets, cams
