@@ -221,34 +221,52 @@ class Triangulation:
 
 
 def _dlt(xn: np.ndarray, w: np.ndarray, Rt: np.ndarray) -> np.ndarray:
-    """Weighted DLT: xn [C, N, 2] normalised coords, w [C, N] weights (0: unused), Rt [C, 3, 4]
-    -> points [N, 3] (NaN with fewer than two weighted cameras)."""
+    """Weighted DLT: xn [C, ..., 2] normalised coords, w [C, ...] weights (0: unused), Rt [C, 3, 4]
+    -> points [..., 3] (NaN with fewer than two weighted cameras)."""
     x = np.nan_to_num(xn)
-    rows_u = x[..., 0:1] * Rt[:, None, 2, :] - Rt[:, None, 0, :]        # [C, N, 4]
-    rows_v = x[..., 1:2] * Rt[:, None, 2, :] - Rt[:, None, 1, :]
-    A = np.concatenate([rows_u * w[..., None], rows_v * w[..., None]], axis=0)   # [2C, N, 4]
-    A = np.moveaxis(A, 1, 0)                                             # [N, 2C, 4]
-    _, _, vt = np.linalg.svd(A)
-    h = vt[:, -1, :]
+    P = Rt.reshape(Rt.shape[:1] + (1,) * (x.ndim - 2) + (3, 4))           # [C, 1.., 3, 4]
+    rows_u = x[..., 0:1] * P[..., 2, :] - P[..., 0, :]                    # [C, ..., 4]
+    rows_v = x[..., 1:2] * P[..., 2, :] - P[..., 1, :]
+    A = np.concatenate([rows_u * w[..., None], rows_v * w[..., None]], axis=0)   # [2C, ..., 4]
+    _, _, vt = np.linalg.svd(np.moveaxis(A, 0, -2))                      # [..., 2C, 4]
+    h = vt[..., -1, :]
     with np.errstate(all="ignore"):
-        X = h[:, :3] / h[:, 3:4]
+        X = h[..., :3] / h[..., 3:4]
     X[(w > 0).sum(axis=0) < 2] = np.nan
     return X
 
 
+def _project_all(cameras: list[Camera], X: np.ndarray) -> np.ndarray:
+    """Pixels [C, ..., 2] of points X [..., 3] in every camera (NaN behind a camera)."""
+    R = np.stack([c.R for c in cameras])
+    t = np.stack([c.t for c in cameras])
+    K = np.stack([c.K for c in cameras])
+    k1, k2, p1, p2, k3 = np.stack([c.dist for c in cameras]).T.reshape(5, -1, *([1] * (X.ndim - 1)))
+    Xc = np.einsum("cij,...j->c...i", R, X) + t.reshape(t.shape[:1] + (1,) * (X.ndim - 1) + (3,))
+    z = np.where(Xc[..., 2] > 1e-9, Xc[..., 2], np.nan)
+    x, y = Xc[..., 0] / z, Xc[..., 1] / z
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    sh = (-1,) + (1,) * (X.ndim - 1)
+    return np.stack([K[:, 0, 0].reshape(sh) * xd + K[:, 0, 1].reshape(sh) * yd + K[:, 0, 2].reshape(sh),
+                     K[:, 1, 1].reshape(sh) * yd + K[:, 1, 2].reshape(sh)], axis=-1)
+
+
 def reprojection_errors(cameras: list[Camera], X: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """[C, N] pixel distance between each camera's detection uv [C, N, 2] and the projection of X [N, 3]."""
-    return np.stack([np.linalg.norm(project(c, X) - uv[k], axis=-1) for k, c in enumerate(cameras)])
+    return np.linalg.norm(_project_all(cameras, X) - uv, axis=-1)
 
 
 def triangulate(cameras: list[Camera], uv: np.ndarray, conf: np.ndarray, *, min_conf: float = 0.5,
                 reject_px: float = 50.0, good_px: float = 30.0, good_cameras: int = 3) -> Triangulation:
     """Triangulate detections uv [C, N, 2] px (NaN: not seen) with confidences conf [C, N] in [0, 1].
 
-    Consensus, all N points at once: every pair of cameras is triangulated (weighted DLT) and
-    each camera whose reprojection error to that point is within ``reject_px`` agrees with the
-    pair; the pair with most agreeing cameras (then the lowest summed error) wins, and the point
-    is solved again from its agreeing cameras (weighted by confidence). A camera whose ray
+    Consensus, all N points and all camera pairs at once: every pair of cameras is triangulated
+    (DLT) and each camera whose reprojection error to that point is within ``reject_px`` agrees
+    with the pair; the pair with most agreeing cameras (then the most confident ones) wins, and the
+    point is solved again from its agreeing cameras, weighted by confidence. A camera whose ray
     disagrees is thus dropped for that point. Quality per point: good with >= ``good_cameras``
     agreeing cameras all within ``good_px``, estimated with two agreeing, else missing.
     """
@@ -259,22 +277,20 @@ def triangulate(cameras: list[Camera], uv: np.ndarray, conf: np.ndarray, *, min_
     seen = np.isfinite(uv).all(-1) & (conf >= min_conf)                  # [C, N]
     xn = np.stack([undistort(c, uv[k]) for k, c in enumerate(cameras)])  # [C, N, 2]
     Rt = np.stack([np.hstack([c.R, c.t[:, None]]) for c in cameras])     # [C, 3, 4]
-    best_n = np.zeros(N, dtype=np.int64)
-    best_cost = np.full(N, np.inf)
-    used = np.zeros((C, N), dtype=bool)
-    for a in range(C):
-        for b in range(a + 1, C):
-            w = np.zeros((C, N))
-            w[a], w[b] = seen[a], seen[b]
-            X = _dlt(xn, w, Rt)
-            err = reprojection_errors(cameras, X, uv)
-            agree = seen & (err <= reject_px)                            # NaN errors never agree
-            n = agree.sum(axis=0)
-            support = np.where(agree, conf, 0.0).sum(axis=0)   # confidence of the agreeing cameras
-            cost = -support + 1e-3 * np.where(agree, err, 0.0).sum(axis=0)
-            better = (n >= 2) & ((n > best_n) | ((n == best_n) & (cost < best_cost)))
-            best_n[better], best_cost[better] = n[better], cost[better]
-            used[:, better] = agree[:, better]
+    a, b = np.triu_indices(C, 1)                                         # camera pairs [Q]
+    w = np.zeros((C, len(a), N))
+    w[a, np.arange(len(a))] = seen[a]
+    w[b, np.arange(len(a))] = seen[b]
+    Xq = _dlt(np.broadcast_to(xn[:, None], (C, len(a), N, 2)), w, Rt)   # [Q, N, 3]
+    err_q = np.linalg.norm(_project_all(cameras, Xq) - uv[:, None], axis=-1)   # [C, Q, N]
+    with np.errstate(invalid="ignore"):
+        agree = seen[:, None] & (err_q <= reject_px)
+    n = agree.sum(axis=0)                                                # [Q, N]
+    score = n * 1e3 + np.where(agree, conf[:, None], 0.0).sum(axis=0) \
+        - 1e-3 * np.where(agree, err_q, 0.0).sum(axis=0)
+    score = np.where(n >= 2, score, -np.inf)
+    best = np.argmax(score, axis=0)                                      # [N]
+    used = agree[:, best, np.arange(N)] & np.isfinite(score[best, np.arange(N)])   # [C, N]
     X = _dlt(xn, np.where(used, np.maximum(conf, 1e-3), 0.0), Rt)
     err = np.where(seen, reprojection_errors(cameras, X, uv), np.nan)
     kept_err = np.where(used, err, -np.inf).max(axis=0)
