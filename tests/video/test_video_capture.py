@@ -240,3 +240,50 @@ def test_calibration_missing_a_camera_or_names_mismatch_are_one_line(tmp_path) -
     with pytest.raises(CalibrationError) as e:
         read_calibration(tmp_path / "nothing.qca.txt")
     assert _one_line(e.value) == "nothing.qca.txt: no such calibration file"
+
+
+# ----- into the pipeline: retargeted onto standard_20, tracked by the physical character ----------
+def test_triangulated_skeleton_retargeted_and_tracked_without_a_fall(four) -> None:
+    from mocapgraph.formats.retarget_setup import build, source_from_skeleton_info
+    from mocapgraph.formats.skeleton_trial import observed_rest_offsets
+    from mocapgraph.physics.tracker import TargetConditioner
+    from mocapgraph.physics.world import PhysicsWorld, TrackerParams
+    trial, _ = four
+    good = np.where((trial.tracking_state == 2)[..., None], trial.positions, np.nan)
+    src = source_from_skeleton_info(trial.names, trial.parents, observed_rest_offsets(good, trial.parents),
+                                    has_orientations=False)
+    rig = build("standard_20", "kinect_v2_standard_20", src)
+    ok = np.isfinite(trial.positions).all(-1) & (trial.tracking_state >= 1)
+    res = rig.retargeter.process(trial.positions, ok, None, None, trial.times_s)
+    ch = rig.character
+    assert np.isfinite(res.joint_positions).all() and (res.joint_quality == 2).mean() > 0.8
+    params = TrackerParams(virtual_joints=True)
+    w = PhysicsWorld([ch], params=params)
+    cond = TargetConditioner(ch)
+    w.set_pose(0, res.local_rotations[0], res.root_positions[0])
+    feet = w.bodies[0].feet
+    dt = 1.0 / trial.rate_hz
+    sim, lowest = [], []
+    for i in range(len(res.joint_positions)):
+        c = cond.condition(res.joint_positions[i], res.local_rotations[i], res.root_positions[i], res.joint_quality[i])
+        w.set_target(0, c.positions, c.orientations, float(trial.times_s[i]))
+        w.step(dt)
+        sim.append(w.joint_positions(0))
+        lowest.append(w.lowest_point(0))
+    sim, lowest = np.array(sim), np.array(lowest)
+    root = sim[:, ch.root, 2]
+    standing = w.bodies[0].standing_height
+    err = np.linalg.norm(sim - res.joint_positions, axis=-1)
+    pen = np.maximum(0.0, -lowest) * 1000
+    contact = res.contact[1:] & res.contact[:-1]                         # [F-1, 2] (l, r) in contact twice
+    step = np.linalg.norm(np.diff(sim[:, feet, :2], axis=0), axis=2) * 1000   # [F-1, n feet] mm/frame
+    legs = [0 if ch.joint_names[f].lower().find("left") >= 0 or ch.joint_names[f].endswith(("L", "_l")) else 1
+            for f in feet]
+    skate = np.concatenate([step[contact[:, s], k] for k, s in enumerate(legs)])
+    print(f"\nroot {root.min():.3f}-{root.max():.3f} m (standing {standing:.3f}); tracking error mean "
+          f"{1000 * err.mean():.0f} mm; floor penetration p95 {np.percentile(pen, 95):.1f} mm, max {pen.max():.1f} mm; "
+          f"skating over {skate.size} contact foot-frames mean {skate.mean() if skate.size else 0:.2f} mm/frame, "
+          f"max {skate.max() if skate.size else 0:.2f}; resets {w.resets}")
+    assert root.min() > 0.5 * standing and w.resets == 0                 # no fall
+    assert pen.max() <= 10.0                                              # feet on the floor, not in it
+    assert err.mean() < 0.08
