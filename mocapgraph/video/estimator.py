@@ -15,8 +15,11 @@ estimated, below ``missing`` it is missing (NaN), never good.
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -109,6 +112,26 @@ class Detections:
         return int(len(self.found))
 
 
+@contextlib.contextmanager
+def _native_stderr_silenced():
+    """File descriptor 2 to /dev/null for a moment: mediapipe's C++ side (TFLite, absl) prints a
+    few lines on its graph's start and first frame that are no fault of the input."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 class PoseEstimator:
     """mediapipe's pose landmarker on BGR frames (model from the wheel; CPU)."""
 
@@ -120,6 +143,9 @@ class PoseEstimator:
             raise VideoUnavailable("mediapipe is not installed: pip install 'mocapgraph[video]'") from None
         from .frames import cv2_module
         self._cv2 = cv2_module()
+        # mediapipe 0.10.14 calls a protobuf API that protobuf 4.25 marks deprecated, on every frame
+        warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype", category=UserWarning)
+        self._started = False
         self._pose = mp_pose.Pose(static_image_mode=static_images, model_complexity=1, smooth_landmarks=smooth,
                                   enable_segmentation=False, min_detection_confidence=min_detection,
                                   min_tracking_confidence=min_tracking)
@@ -127,7 +153,13 @@ class PoseEstimator:
     def process(self, frame_bgr: np.ndarray):
         """(image [33, 2] px, visibility [33], world [33, 3] m) of one frame, or None: no person."""
         h, w = frame_bgr.shape[:2]
-        res = self._pose.process(self._cv2.cvtColor(frame_bgr, self._cv2.COLOR_BGR2RGB))
+        rgb = self._cv2.cvtColor(frame_bgr, self._cv2.COLOR_BGR2RGB)
+        if self._started:
+            res = self._pose.process(rgb)
+        else:                              # the graph starts on the first frame: its notes unprinted
+            with _native_stderr_silenced():
+                res = self._pose.process(rgb)
+            self._started = True
         if res.pose_landmarks is None:
             return None
         lm = np.array([(p.x, p.y, p.visibility) for p in res.pose_landmarks.landmark], dtype=np.float64)

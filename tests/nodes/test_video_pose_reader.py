@@ -50,6 +50,13 @@ def test_missing_camera_and_no_person_fail_in_one_line(run_node, shared_data, tm
     assert n.wait_exit(30) == 1
     detail = n.messages("reader_status")[-1].detail
     assert detail == "Calib.qca.txt: no camera for side (its cameras: cam01, cam02, cam03, cam04)"
+    assert n.log().strip().splitlines() == [f"ERROR {detail}"]
+    (tmp_path / "broken.mp4").write_bytes((demo / "cam01.mp4").read_bytes()[:3000])   # the header only
+    n = run_node("video_pose_reader", {"file": str(tmp_path / "broken.mp4")})
+    assert n.wait_exit(30) == 1
+    detail = n.messages("reader_status")[-1].detail
+    assert detail.startswith("broken.mp4: ") and n.log().strip().splitlines() == [f"ERROR {detail}"]
+    print(detail)
     import cv2
     path = tmp_path / "nobody.mp4"
     out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (320, 240))
@@ -59,4 +66,4 @@ def test_missing_camera_and_no_person_fail_in_one_line(run_node, shared_data, tm
     n = run_node("video_pose_reader", {"file": str(path)})
     assert n.wait_exit(30) == 1
     assert n.messages("reader_status")[-1].detail == "nobody.mp4: no person found in any of its 10 frames"
-    assert "Traceback" not in n.log()
+    assert n.log().strip().splitlines() == ["ERROR nobody.mp4: no person found in any of its 10 frames"]
