@@ -52,7 +52,7 @@ def aligned(dets: list[Detections], names: list[str]) -> tuple[list[Detections],
     rates = np.array([d.info.fps for d in dets])
     if np.ptp(rates) > 0.01 * rates.max():
         listing = ", ".join(f"{n} {r:g} fps" for n, r in zip(names, rates))
-        raise VideoError(None, f"the cameras' frame rates differ ({listing}): not synchronised videos")
+        raise VideoError("videos", f"the cameras' frame rates differ ({listing}): not synchronised videos")
     n = min(d.n_frames for d in dets)
     notes = []
     if any(d.n_frames != n for d in dets):

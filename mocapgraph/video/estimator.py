@@ -208,6 +208,21 @@ def detect_video(source, *, max_frames: int = 0, progress=None, **estimator_kw) 
 CAMERA_TO_WORLD = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
+def single_view_points(world: np.ndarray, visibility: np.ndarray, *, missing: float = 0.5,
+                       ground: str = "feet") -> np.ndarray:
+    """Landmarks [T, 33, 3] m in world axes (X toward the camera, Y to the camera's right, Z up)
+    from the estimator's camera-aligned, hip-centred ones; ``ground='feet'`` puts each frame's
+    lowest foot landmark seen with at least ``missing`` confidence at Z = 0."""
+    P = np.asarray(world, dtype=np.float64) @ CAMERA_TO_WORLD.T
+    if ground == "feet":
+        feet_z = np.where(np.asarray(visibility)[:, FOOT_LANDMARKS] >= missing, P[:, FOOT_LANDMARKS, 2], np.inf)
+        low = feet_z.min(axis=1)
+        seen = np.isfinite(low)
+        low = np.where(seen, low, np.median(low[seen]) if seen.any() else 0.0)
+        P[..., 2] -= low[:, None]
+    return P
+
+
 def single_view_trial(det: Detections, *, good: float = 0.8, missing: float = 0.5, ground: str = "feet") -> SkeletonTrial:
     """A one-camera Kinect v2 SkeletonTrial from the estimator's metric landmarks.
 
@@ -215,13 +230,7 @@ def single_view_trial(det: Detections, *, good: float = 0.8, missing: float = 0.
     centred between the hips (no travel through the room): ``ground='feet'`` puts each frame's
     lowest visible foot landmark at Z = 0, ``'hips'`` keeps the hips at the origin.
     """
-    P = det.world @ CAMERA_TO_WORLD.T                                   # [T, 33, 3]
-    if ground == "feet":
-        feet_z = np.where(det.visibility[:, FOOT_LANDMARKS] >= missing, P[:, FOOT_LANDMARKS, 2], np.nan)
-        with np.errstate(all="ignore"):
-            low = np.nanmin(np.where(np.isfinite(feet_z), feet_z, np.inf), axis=1)
-        low = np.where(np.isfinite(low), low, np.nanmedian(low[np.isfinite(low)]) if np.isfinite(low).any() else 0.0)
-        P = P - np.stack([np.zeros_like(low), np.zeros_like(low), low], axis=1)[:, None, :]
+    P = single_view_points(det.world, det.visibility, missing=missing, ground=ground)
     return landmarks_trial(P, det.visibility, det.times_s, det.info.fps, good=good, missing=missing,
                            source="video_mediapipe", conversions=[
                                f"{det.info.name}: mediapipe pose landmarks (metric, hip-centred) as Kinect v2 "
@@ -229,19 +238,27 @@ def single_view_trial(det: Detections, *, good: float = 0.8, missing: float = 0.
                            notes=list(det.notes))
 
 
-def landmarks_trial(points: np.ndarray, confidence: np.ndarray, times_s: np.ndarray, rate_hz: float, *,
-                    good: float, missing: float, source: str, conversions: list[str], notes: list[str],
-                    quality: np.ndarray | None = None) -> SkeletonTrial:
-    """Kinect v2 SkeletonTrial from landmark positions [T, 33, 3] (m, world) and confidences [T, 33]
-    (or explicit landmark ``quality`` codes [T, 33], which then cap the joints' own)."""
+def kinect_joints(points: np.ndarray, confidence: np.ndarray, *, good: float, missing: float,
+                  quality: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Kinect v2 joints [T, 25, 3] (NaN where missing) and their quality [T, 25] from landmark
+    positions [T, 33, 3] and confidences [T, 33] (or explicit landmark ``quality`` codes [T, 33],
+    which then cap the joints' own)."""
     joints = np.einsum("jl,tlk->tjk", KINECT_FROM_LANDMARKS, np.nan_to_num(points, nan=0.0))
-    conf = kinect_confidence(confidence)
-    q = quality_from_confidence(conf, good, missing)
+    q = quality_from_confidence(kinect_confidence(confidence), good, missing)
     if quality is not None:
         q = np.minimum(q, kinect_confidence(quality).astype(np.int8))
     bad = ~np.isfinite(points).all(-1)                                  # [T, 33]
     q[(bad[:, None, :] & (KINECT_FROM_LANDMARKS > 0)[None]).any(-1)] = QUALITY_MISSING
     joints[q == QUALITY_MISSING] = np.nan
+    return joints, q
+
+
+def landmarks_trial(points: np.ndarray, confidence: np.ndarray, times_s: np.ndarray, rate_hz: float, *,
+                    good: float, missing: float, source: str, conversions: list[str], notes: list[str],
+                    quality: np.ndarray | None = None) -> SkeletonTrial:
+    """Kinect v2 SkeletonTrial from landmark positions [T, 33, 3] (m, world) and confidences [T, 33]
+    (see :func:`kinect_joints`)."""
+    joints, q = kinect_joints(points, confidence, good=good, missing=missing, quality=quality)
     ts = np.round(np.asarray(times_s) * 1e9).astype(np.int64)
     return SkeletonTrial(list(KINECT_V2_JOINTS), np.array(KINECT_V2_PARENTS), joints, q, ts, rate_hz,
                          source=source, conversions=conversions, notes=notes)

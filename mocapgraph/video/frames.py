@@ -89,7 +89,7 @@ class VideoFrames:
             self.cap = cv2.VideoCapture(self.camera)
             name = f"camera:{self.camera}"
             if not self.cap.isOpened():
-                raise VideoError(None, f"camera {self.camera} cannot be opened (no such device, or busy)")
+                raise VideoError(name, "cannot be opened (no such camera device, or busy)")
             if width and height:
                 self.cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
                 self.cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)

@@ -67,3 +67,31 @@ def test_missing_camera_and_no_person_fail_in_one_line(run_node, shared_data, tm
     assert n.wait_exit(30) == 1
     assert n.messages("reader_status")[-1].detail == "nobody.mp4: no person found in any of its 10 frames"
     assert n.log().strip().splitlines() == ["ERROR nobody.mp4: no person found in any of its 10 frames"]
+
+
+def test_video_camera_reader_streams_a_video_as_if_live(run_node, shared_data) -> None:
+    path = shared_data / "video" / "pose2sim_demo" / "cam01.mp4"
+    n = run_node("video_camera_reader", {"camera": str(path), "calibrate_s": 0.2})
+    assert n.wait_exit(60) == 0
+    info = n.messages("skeleton_info")
+    assert len(info) == 1 and info[0].joint_names == list(KINECT_V2_JOINTS)
+    thigh = np.linalg.norm(info[0].rest_offsets[KINECT_V2_JOINTS.index("KneeLeft")])
+    assert 0.3 < thigh < 0.5                                   # observed over the first 0.2 s
+    st = json.loads(n.messages("reader_status")[-1].data_json)
+    print(st)
+    # 100 frames at 60 fps: each read, then estimated or skipped (the estimator slower than 60 fps)
+    assert st["read"] == 100 and st["estimated"] + st["skipped"] >= 100 and st["no_person"] == 0
+    poses = n.messages("skeleton_pose")
+    assert len(poses) == st["published"] >= 10
+    stamps = np.array([r.env.capture_ns for r in n.records("skeleton_pose")])
+    assert (np.diff(stamps) > 0).all()
+    P = np.array([p.joint_positions for p in poses])
+    assert np.isfinite(P[:, 0]).all()
+
+
+def test_video_camera_reader_without_the_camera_fails_in_one_line(run_node) -> None:
+    n = run_node("video_camera_reader", {"camera": "camera:57"})
+    assert n.wait_exit(30) == 1
+    detail = n.messages("reader_status")[-1].detail
+    assert detail == "camera:57: cannot be opened (no such camera device, or busy)"
+    assert n.log().strip().splitlines() == [f"ERROR {detail}"]

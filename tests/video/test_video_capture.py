@@ -12,8 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import SHARED_DATA
-
 pytestmark = pytest.mark.slow          # runs the pose estimator on 4 x 100 frames (~10 s)
 
 cv2 = pytest.importorskip("cv2")
@@ -25,7 +23,8 @@ from mocapgraph.video.frames import VideoError  # noqa: E402
 from mocapgraph.video.multiview import (CalibrationError, camera_report, project, read_calibration,  # noqa: E402
                                         read_opencv_calibration, triangulate_frames, undistort)
 
-DEMO = SHARED_DATA / "video" / "pose2sim_demo"
+# the shared_data fixture's folder (tests/conftest.py), here for the module-scoped detections
+DEMO = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "video" / "pose2sim_demo").resolve()
 CAMS = ["cam01", "cam02", "cam03", "cam04"]
 L = {n: i for i, n in enumerate(LANDMARK_NAMES)}
 BONES = {"thigh": ("hip", "knee"), "shank": ("knee", "ankle"), "upper arm": ("shoulder", "elbow"),
@@ -287,3 +286,16 @@ def test_triangulated_skeleton_retargeted_and_tracked_without_a_fall(four) -> No
     assert root.min() > 0.5 * standing and w.resets == 0                 # no fall
     assert pen.max() <= 10.0                                              # feet on the floor, not in it
     assert err.mean() < 0.08
+
+
+def test_cameras_of_different_rates_are_refused_naming_them(demo) -> None:
+    import dataclasses
+    dets = list(demo["dets"])
+    dets[2] = dataclasses.replace(dets[2], info=dataclasses.replace(dets[2].info, fps=30.0))
+    with pytest.raises(VideoError) as e:
+        aligned(dets, CAMS)
+    assert _one_line(e.value) == ("videos: the cameras' frame rates differ (cam01 60 fps, cam02 60 fps, cam03 30 fps, "
+                                  "cam04 60 fps): not synchronised videos")
+    short = dataclasses.replace(dets[0], found=dets[0].found[:80])
+    cut, notes = aligned([short] + list(demo["dets"][1:]), CAMS)
+    assert all(d.n_frames == 80 for d in cut) and "the first 80 of each used" in notes[0]
