@@ -68,7 +68,9 @@ class MultiviewPose(SkeletonFilePlayer):
     the calibration's, metres. Per joint: tracked when at least three cameras agree within
     ``good_px``, inferred with two, else not tracked; a camera whose ray disagrees by more than
     ``reject_px`` is dropped for that joint. Per-camera median reprojection errors are in the
-    status, and a camera far off the others (a wrong calibration) is logged.
+    status, and a camera far off the others (a wrong calibration) is logged. Bones are held at
+    their lengths over the first ``hold_bones_s`` seconds (as the marker calibration holds its
+    segments; 0 keeps the raw triangulation).
     """
 
     summary = "triangulate several calibrated videos' markerless poses (mediapipe) into one SkeletonPose"
@@ -76,6 +78,8 @@ class MultiviewPose(SkeletonFilePlayer):
                        "in the calibration's folder")
     reject_px = Param(50.0, "a camera farther than this from a joint's consensus is dropped for it, px", minimum=1.0)
     good_px = Param(30.0, "reprojection error up to which a joint seen by >= 3 cameras is good, px", minimum=1.0)
+    hold_bones_s = Param(1.0, "hold every bone at its median length over the first seconds (0: raw triangulation)",
+                         minimum=0.0)
 
     def read_trial(self, path: Path) -> SkeletonTrial:
         capture = _video()
@@ -85,6 +89,8 @@ class MultiviewPose(SkeletonFilePlayer):
         names = [d.info.name for d in dets]
         self.camera_errors = {n: round(float(np.nanmedian(tri.error_px[k])), 1) for k, n in enumerate(names)}
         from ..video.multiview import camera_report
+        if self.hold_bones_s > 0:
+            trial, _ = capture.hold_bone_lengths(trial, self.hold_bones_s)
         for line in camera_report(cams, tri):
             self.log.warning("%s", line)
         return trial

@@ -89,3 +89,35 @@ def multiview_from_files(calibration: str | Path, videos: list[Path] | None = No
     trial, tri = multiview_trial(dets, cams, **tri_kw)
     trial.notes.extend(notes)
     return trial, tri, dets, cams
+
+
+def hold_bone_lengths(trial: SkeletonTrial, calibrate_s: float) -> tuple[SkeletonTrial, np.ndarray]:
+    """The trial with every bone held at its length calibrated over the first ``calibrate_s``
+    seconds (median over the frames whose two ends are tracked), as the marker calibration holds
+    its segments: each child is put back along its observed direction from its (already placed)
+    parent, parents first; a joint whose parent is missing keeps its position. Returns the new
+    trial and the lengths [J] (NaN for roots and bones never seen in the calibration)."""
+    P = trial.positions
+    par = trial.parents
+    calib = trial.times_s <= calibrate_s
+    good = trial.tracking_state == 2
+    child = np.flatnonzero(par >= 0)
+    lengths = np.full(len(par), np.nan)
+    seg = np.linalg.norm(P[:, child] - P[:, par[child]], axis=-1)       # [T, C]
+    both = good[:, child] & good[:, par[child]] & calib[:, None]
+    seen = both.any(axis=0)
+    lengths[child[seen]] = np.nanmedian(np.where(both, seg, np.nan)[:, seen], axis=0)
+    out = P.copy()
+    for j in trial.topological_order:          # once per joint for the whole clip (vectorised over frames)
+        p = par[j]
+        if p < 0 or not np.isfinite(lengths[j]):
+            continue
+        d = P[:, j] - P[:, p]
+        n = np.linalg.norm(d, axis=-1, keepdims=True)
+        ok = np.isfinite(out[:, p]).all(-1) & np.isfinite(n[:, 0]) & (n[:, 0] > 1e-9)
+        out[ok, j] = out[ok, p] + d[ok] / n[ok] * lengths[j]
+    held = SkeletonTrial(trial.names, trial.parents, out, trial.tracking_state, trial.timestamps_ns, trial.rate_hz,
+                         source=trial.source, notes=list(trial.notes), extra=dict(trial.extra),
+                         conversions=list(trial.conversions) + [f"bone lengths held at their median over the "
+                                                                f"first {calibrate_s:g} s"])
+    return held, lengths

@@ -39,6 +39,8 @@ def test_multiview_pose_triangulates_the_four_cameras(run_node, shared_data) -> 
     feet = np.nanmin(P[:, [15, 19], 2], axis=1)
     head = P[:, 3, 2]
     assert np.nanmedian(head - feet) > 1.3          # a standing adult, metres, Z up
+    thigh = np.linalg.norm(P[:, 13] - P[:, 12], axis=-1)   # KneeLeft - HipLeft: held at its first-second length
+    assert np.nanstd(thigh) < 1e-9 and 0.3 < np.nanmean(thigh) < 0.5
     assert "reprojection_px" in n.messages("reader_status")[-1].data_json
 
 

@@ -17,7 +17,8 @@ pytestmark = pytest.mark.slow          # runs the pose estimator on 4 x 100 fram
 cv2 = pytest.importorskip("cv2")
 pytest.importorskip("mediapipe")
 
-from mocapgraph.video.capture import aligned, cameras_for, multiview_trial, require_person  # noqa: E402
+from mocapgraph.video.capture import (aligned, cameras_for, hold_bone_lengths, multiview_trial,  # noqa: E402
+                                      require_person)
 from mocapgraph.video.estimator import LANDMARK_NAMES, detect_video, single_view_trial  # noqa: E402
 from mocapgraph.video.frames import VideoError  # noqa: E402
 from mocapgraph.video.multiview import (CalibrationError, camera_report, project, read_calibration,  # noqa: E402
@@ -299,3 +300,18 @@ def test_cameras_of_different_rates_are_refused_naming_them(demo) -> None:
     short = dataclasses.replace(dets[0], found=dets[0].found[:80])
     cut, notes = aligned([short] + list(demo["dets"][1:]), CAMS)
     assert all(d.n_frames == 80 for d in cut) and "the first 80 of each used" in notes[0]
+
+
+def test_bones_held_at_their_first_second_lengths_move_the_joints_little(four) -> None:
+    trial, _ = four
+    held, lengths = hold_bone_lengths(trial, 1.0)
+    bl = held.bone_lengths()
+    kept = np.isfinite(lengths)
+    assert kept.sum() == 24                                   # every bone but the root's
+    spread = np.nanmax(np.abs(bl[:, kept] - lengths[kept]))
+    moved = np.linalg.norm(held.positions - trial.positions, axis=-1) * 1000
+    print(f"held: bone length spread {spread:.1e} m; joints moved median {np.nanmedian(moved):.0f} mm, "
+          f"p95 {np.nanpercentile(moved, 95):.0f} mm")
+    assert spread < 1e-9
+    assert np.nanmedian(moved) < 20 and np.nanpercentile(moved, 95) < 70     # measured 10 and 45 mm
+    np.testing.assert_array_equal(np.isfinite(held.positions), np.isfinite(trial.positions))
