@@ -145,21 +145,25 @@ class PoseEstimator:
         self._cv2 = cv2_module()
         # mediapipe 0.10.14 calls a protobuf API that protobuf 4.25 marks deprecated, on every frame
         warnings.filterwarnings("ignore", message="SymbolDatabase.GetPrototype", category=UserWarning)
-        self._started = False
-        self._pose = mp_pose.Pose(static_image_mode=static_images, model_complexity=1, smooth_landmarks=smooth,
-                                  enable_segmentation=False, min_detection_confidence=min_detection,
-                                  min_tracking_confidence=min_tracking)
+        self._quiet = True              # until the first person: the landmark model starts then
+        # the graph opens its calculators in threads after the constructor returns, printing as they
+        # go: a blank frame run at once waits for them, inside the window where fd 2 is silenced
+        with _native_stderr_silenced():
+            self._pose = mp_pose.Pose(static_image_mode=static_images, model_complexity=1, smooth_landmarks=smooth,
+                                      enable_segmentation=False, min_detection_confidence=min_detection,
+                                      min_tracking_confidence=min_tracking)
+            self._pose.process(np.zeros((64, 64, 3), np.uint8))
 
     def process(self, frame_bgr: np.ndarray):
         """(image [33, 2] px, visibility [33], world [33, 3] m) of one frame, or None: no person."""
         h, w = frame_bgr.shape[:2]
         rgb = self._cv2.cvtColor(frame_bgr, self._cv2.COLOR_BGR2RGB)
-        if self._started:
-            res = self._pose.process(rgb)
-        else:                              # the graph starts on the first frame: its notes unprinted
+        if self._quiet:                    # its start-up notes (anything else on fd 2 then is lost too)
             with _native_stderr_silenced():
                 res = self._pose.process(rgb)
-            self._started = True
+            self._quiet = res.pose_landmarks is None
+        else:
+            res = self._pose.process(rgb)
         if res.pose_landmarks is None:
             return None
         lm = np.array([(p.x, p.y, p.visibility) for p in res.pose_landmarks.landmark], dtype=np.float64)
