@@ -1,4 +1,5 @@
-"""The video graphs are the Kinect skeleton graph with another reader (wiring only: no estimator)."""
+"""The video graphs: the Kinect skeleton graph with another reader, and a broken video stopping only
+its reader (one line, the rest of the graph running)."""
 from __future__ import annotations
 
 import json
@@ -23,3 +24,25 @@ def test_video_graphs_differ_from_kinect_playback_in_the_reader_only() -> None:
         reader, rest = _rest(name)
         assert reader.spec.type == node_type and rest == kinect
         assert set(reader.outputs.values()) == set(kinect_reader.outputs.values())
+
+
+def test_a_broken_video_is_one_line_and_the_rest_of_the_graph_keeps_running(launch_graph, tmp_path,
+                                                                              shared_data) -> None:
+    from graph_helpers import pid_alive, read_jsonl
+    from mocapgraph.bus.manifest import fetch_manifest
+    import time
+    broken = tmp_path / "broken.mp4"
+    broken.write_bytes((shared_data / "video" / "pose2sim_demo" / "cam01.mp4").read_bytes()[:5000])
+    g = launch_graph(CONFIGS / "video_playback.yaml", f"recording:={broken}", "viewer:=false",
+                     f"session_log:={tmp_path / 's.jsonl'}")
+    g.wait_ready(60)
+    line = g.wait_for("broken.mp4:")
+    assert "[reader] ERROR broken.mp4: cannot be opened as a video" in line
+    g.wait_for("node reader exited with code 1")
+    pids = {n["name"]: n["pid"] for n in fetch_manifest(g.master)["nodes"]}
+    time.sleep(0.3)
+    assert g.proc.poll() is None and pid_alive(pids["session_log"])
+    status = [r for r in read_jsonl(tmp_path / "s.jsonl") if r["topic"] == "reader_status"]
+    assert status and status[-1]["msg"]["state"] == "error"
+    assert "Traceback" not in g.output and g.output.count("broken.mp4") <= 3
+    assert g.stop() == 0
