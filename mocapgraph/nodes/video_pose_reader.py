@@ -1,11 +1,15 @@
 """Video skeleton sources: one camera's markerless pose, or several calibrated cameras triangulated.
 
 Both run the CPU pose estimator (mediapipe, the ``video`` extra; :mod:`mocapgraph.video`) over
-the whole clip at load, then replay the skeleton like any other skeleton source (``skeleton_pose``
-+ latched ``skeleton_info``, Kinect v2 joint names, so the Kinect v2 mappings serve).
+the whole clip, then replay the skeleton like any other skeleton source (``skeleton_pose`` +
+latched ``skeleton_info``, Kinect v2 joint names, so the Kinect v2 mappings serve). Building the
+node only checks the inputs (the video opens, the calibration has its cameras), so the graph
+starts at once whatever the clip's length; the estimation runs after start in a worker thread
+(state ``estimating``, its progress in the status), then playback begins.
 """
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +18,7 @@ import numpy as np
 from ..bus import Param
 from ..formats import SkeletonTrial
 from .skeleton_source import SkeletonFilePlayer
-from .source_base import SourceError, resolve_data_path
+from .source_base import INPUT_ERRORS, FilePlayback, SourceError, resolve_data_path
 
 
 def _video():
@@ -28,7 +32,55 @@ def _video():
     return capture
 
 
-class VideoPoseReader(SkeletonFilePlayer):
+def _opens(path: Path) -> None:
+    """VideoError (one line) unless the video opens."""
+    from ..video.frames import VideoFrames
+    VideoFrames(path).close()
+
+
+class _EstimatedPlayer(SkeletonFilePlayer):
+    """A skeleton file player whose trial comes from the estimator, computed after the graph starts."""
+
+    def load(self, path: Path) -> None:
+        self._capture = _video()
+        self._load_path = path
+        self.check_inputs(path)
+
+    def check_inputs(self, path: Path) -> None:
+        raise NotImplementedError
+
+    def on_start(self) -> None:
+        if self.load_error:
+            self.fail(self.load_error)
+            return
+        self._load_fault = ""
+        self._loader = threading.Thread(target=self._estimate, name=f"{self.name}-estimator", daemon=True)
+        self.set_state("estimating", f"{self._load_path.name}", 0.0)
+        self._loader.start()
+        self._wait_timer = self.add_timer(0.1, self._wait_for_estimate)
+
+    def _estimate(self) -> None:
+        try:
+            SkeletonFilePlayer.load(self, self._load_path)
+        except INPUT_ERRORS as exc:
+            self._load_fault = str(exc)
+        except Exception as exc:  # noqa: BLE001 - whatever the estimator says, in one line
+            self._load_fault = f"{self._load_path.name}: {type(exc).__name__}: {exc}"
+
+    def _progress(self, done: int, total: int) -> None:
+        self.progress = done / total if total > 0 else float("nan")
+
+    def _wait_for_estimate(self) -> None:
+        if self._loader.is_alive():
+            return
+        self._wait_timer.cancel()
+        if self._load_fault:
+            self.fail(self._load_fault)
+            return
+        FilePlayback.on_start(self)
+
+
+class VideoPoseReader(_EstimatedPlayer):
     """Plays a video's markerless pose as ``skeleton_pose`` + latched ``skeleton_info``.
 
     One camera: mediapipe's metric 3D estimate (centred between the hips, so no travel through
@@ -44,8 +96,12 @@ class VideoPoseReader(SkeletonFilePlayer):
     ground = Param("feet", "'feet': each frame's lowest foot at Z = 0; 'hips': the hips at the origin",
                    choices=("feet", "hips"))
 
+    def check_inputs(self, path: Path) -> None:
+        _opens(path)
+
     def read_trial(self, path: Path) -> SkeletonTrial:
-        trial, det = _video().video_trial(path, good=self.good, missing=self.missing, ground=self.ground)
+        trial, det = self._capture.video_trial(path, good=self.good, missing=self.missing, ground=self.ground,
+                                               progress=self._progress)
         self.found = int(det.found.sum())
         self.ms_per_frame = det.ms_per_frame
         return trial
@@ -60,7 +116,7 @@ class VideoPoseReader(SkeletonFilePlayer):
         return d
 
 
-class MultiviewPose(SkeletonFilePlayer):
+class MultiviewPose(_EstimatedPlayer):
     """Triangulates several synchronised, calibrated videos into one skeleton (``skeleton_pose``).
 
     ``file`` is the calibration (QTM ``.qca.txt`` or OpenCV-style TOML/YAML); ``videos`` the clips,
@@ -81,16 +137,26 @@ class MultiviewPose(SkeletonFilePlayer):
     hold_bones_s = Param(1.0, "hold every bone at its median length over the first seconds (0: raw triangulation)",
                          minimum=0.0)
 
+    def check_inputs(self, path: Path) -> None:
+        self._videos = [resolve_data_path(str(v)) for v in (self.videos or [])] or self._capture.videos_beside(path)
+        self._capture.cameras_for(path, self._videos)
+        for v in self._videos:
+            _opens(v)
+
     def read_trial(self, path: Path) -> SkeletonTrial:
-        capture = _video()
-        videos = [resolve_data_path(str(v)) for v in (self.videos or [])]
-        trial, tri, dets, cams = capture.multiview_from_files(path, videos or None, reject_px=self.reject_px,
-                                                        good_px=self.good_px)
-        names = [d.info.name for d in dets]
-        self.camera_errors = {n: round(float(np.nanmedian(tri.error_px[k])), 1) for k, n in enumerate(names)}
         from ..video.multiview import camera_report
+        n = len(self._videos)
+        video = [-1]
+
+        def progress(k: int, total: int) -> None:     # the videos are estimated one after the other
+            video[0] += k == 1
+            self._progress(video[0] * total + k, total * n)
+
+        trial, tri, dets, cams = self._capture.multiview_from_files(path, self._videos, progress=progress,
+                                                                    reject_px=self.reject_px, good_px=self.good_px)
         if self.hold_bones_s > 0:
-            trial, _ = capture.hold_bone_lengths(trial, self.hold_bones_s)
+            trial, _ = self._capture.hold_bone_lengths(trial, self.hold_bones_s)
+        self.camera_errors = {d.info.name: round(float(np.nanmedian(tri.error_px[k])), 1) for k, d in enumerate(dets)}
         for line in camera_report(cams, tri):
             self.log.warning("%s", line)
         return trial
