@@ -24,8 +24,10 @@ def test_video_pose_reader_publishes_a_skeleton_for_every_frame(run_node, shared
     q = np.array([p.tracking_state for p in poses])
     assert np.isfinite(P[:, 0]).mean() >= 0.95
     assert np.isnan(P[q == 0]).all() and np.isfinite(P[q > 0]).all()
-    status = n.messages("reader_status")[-1]
-    assert json.loads(status.data_json)["person_frames"] == 100
+    status = n.messages("reader_status")
+    assert json.loads(status[-1].data_json)["person_frames"] == 100
+    states = [m.state for m in status]
+    assert states.index("estimating") < states.index("playing")   # ready first, estimated after start
 
 
 def test_multiview_pose_triangulates_the_four_cameras(run_node, shared_data) -> None:
