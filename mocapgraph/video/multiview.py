@@ -12,8 +12,9 @@ come from
   distortion as OpenCV's k1 k2 k3 p1 p2);
 * an OpenCV-style TOML or YAML file (:func:`read_opencv_calibration`, the layout Pose2Sim and
   anipose write): one table per camera with ``name``, ``size`` [w, h] px, ``matrix`` (3x3 K, px),
-  ``distortions`` [k1, k2, p1, p2(, k3)], ``rotation`` (Rodrigues vector, world to camera) and
-  ``translation`` (world to camera, m). YAML: the same tables under a top-level mapping.
+  ``distortions`` [k1, k2, p1, p2(, k3)], ``rotation`` (Rodrigues vector or 3x3 matrix, world to
+  camera) and ``translation`` (world to camera, m). YAML: the same tables under a top-level
+  mapping (optionally under ``cameras:``).
 
 Triangulation (:func:`triangulate`) is a confidence-weighted DLT over all joints at once
 (batched SVD), in normalised (undistorted) camera coordinates, with a consensus over camera

@@ -22,7 +22,7 @@ from mocapgraph.video.capture import (aligned, cameras_for, hold_bone_lengths, m
 from mocapgraph.video.estimator import LANDMARK_NAMES, detect_video, single_view_trial  # noqa: E402
 from mocapgraph.video.frames import VideoError  # noqa: E402
 from mocapgraph.video.multiview import (CalibrationError, camera_report, project, read_calibration,  # noqa: E402
-                                        read_opencv_calibration, triangulate_frames, undistort)
+                                        undistort)
 
 # the shared_data fixture's folder (tests/conftest.py), here for the module-scoped detections
 DEMO = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "video" / "pose2sim_demo").resolve()
@@ -105,19 +105,28 @@ def test_qca_cameras_project_as_opencv_does(demo) -> None:
     assert cam.size == (1088, 1920) and 1600 < cam.K[0, 0] < 1750       # 64 sub-pixels to a pixel
 
 
-def test_opencv_toml_calibration_reads_back_the_same_cameras(demo, tmp_path) -> None:
-    lines = []
+def test_opencv_toml_and_yaml_calibrations_read_back_the_same_cameras(demo, tmp_path) -> None:
+    import yaml
+    lines, tables = [], {}
     for c in demo["cams"]:
         rvec = cv2.Rodrigues(c.R)[0].ravel()
         lines += [f"[{c.name}]", f'name = "{c.name}"', f"size = [{c.size[0]}, {c.size[1]}]",
                   f"matrix = {np.round(c.K, 9).tolist()}", f"distortions = {c.dist[:4].tolist()}",
                   f"rotation = {rvec.tolist()}", f"translation = {c.t.tolist()}", ""]
+        tables[c.name] = {"size": list(c.size), "matrix": c.K.tolist(), "distortions": c.dist.tolist(),
+                          "rotation": c.R.tolist(), "translation": c.t.tolist()}     # a 3x3 rotation here
     (tmp_path / "calib.toml").write_text("\n".join(lines + ["[metadata]", "adjusted = false"]))
-    back = read_opencv_calibration(tmp_path / "calib.toml")
+    (tmp_path / "calib.yaml").write_text(yaml.safe_dump({"cameras": tables}))
     X = np.array([[0.0, 0.0, 1.0], [-1.0, 0.2, 0.1]])
-    for a, b in zip(demo["cams"], back):
-        assert a.name == b.name
-        np.testing.assert_allclose(project(b, X), project(a, X), atol=1e-6)
+    for f in ("calib.toml", "calib.yaml"):
+        back = read_calibration(tmp_path / f)
+        for a, b in zip(demo["cams"], back):
+            assert a.name == b.name
+            np.testing.assert_allclose(project(b, X), project(a, X), atol=1e-6)
+    (tmp_path / "bad.toml").write_text("[cam01]\nmatrix = [1, 2\n")
+    with pytest.raises(CalibrationError) as e:
+        read_calibration(tmp_path / "bad.toml")
+    assert _one_line(e.value).startswith("bad.toml: cannot be parsed")
 
 
 def test_four_cameras_reprojection_and_bone_lengths(four) -> None:
