@@ -3,7 +3,7 @@
 The glue of the pure parts (:mod:`.frames`, :mod:`.estimator`, :mod:`.multiview`) that the
 nodes and the batch commands share. Every unusable input is a one-line FormatError
 (VideoError, CalibrationError): a video that does not decode, a calibration without a camera
-for a video, cameras whose frame rates differ, a clip with no person in it.
+for a video, a frame rate unusable for alignment, a clip with no person in it.
 """
 from __future__ import annotations
 
@@ -47,31 +47,46 @@ def cameras_for(calibration: str | Path, videos: list[Path]) -> list[Camera]:
     return match_cameras(read_calibration(calibration), [v.stem for v in videos], path=calibration)
 
 
-def aligned(dets: list[Detections], names: list[str]) -> tuple[list[Detections], list[str]]:
-    """Detections cut to their common length; VideoError naming the cameras whose rates differ."""
+def _pick(d: Detections, idx: np.ndarray, times_s: np.ndarray) -> Detections:
+    return Detections(d.info, d.image[idx], d.visibility[idx], d.world[idx], d.found[idx], times_s,
+                      d.ms_per_frame, d.notes)
+
+
+def aligned(dets: list[Detections], names: list[str], *, max_rate: float = 240.0) -> tuple[list[Detections], list[str]]:
+    """The cameras' detections on common frames (the videos are taken to start together).
+
+    Same rate: cut to the shortest clip. Rates that differ: aligned by time stamp on the slowest
+    camera's frames (each other camera's nearest frame, within half of its own frame period), over
+    the time every clip covers; a note says so. VideoError naming the cameras when a rate is not
+    usable (0 or over ``max_rate``, so no time stamps to align by)."""
     rates = np.array([d.info.fps for d in dets])
-    if np.ptp(rates) > 0.01 * rates.max():
-        listing = ", ".join(f"{n} {r:g} fps" for n, r in zip(names, rates))
-        raise VideoError("videos", f"the cameras' frame rates differ ({listing}): not synchronised videos")
+    listing = ", ".join(f"{n} {r:g} fps" for n, r in zip(names, rates))
+    if not ((rates > 0) & (rates <= max_rate)).all():
+        raise VideoError("videos", f"frame rates unusable for alignment ({listing})")
     n = min(d.n_frames for d in dets)
-    notes = []
-    if any(d.n_frames != n for d in dets):
-        notes.append("frame counts differ (" + ", ".join(f"{nm} {d.n_frames}" for nm, d in zip(names, dets))
-                     + f"): the first {n} of each used")
-    cut = [Detections(d.info, d.image[:n], d.visibility[:n], d.world[:n], d.found[:n], d.times_s[:n],
-                      d.ms_per_frame, d.notes) for d in dets]
-    return cut, notes
+    if np.ptp(rates) <= 0.01 * rates.max():
+        notes = []
+        if any(d.n_frames != n for d in dets):
+            notes.append("frame counts differ (" + ", ".join(f"{nm} {d.n_frames}" for nm, d in zip(names, dets))
+                         + f"): the first {n} of each used")
+        return [_pick(d, np.arange(n), d.times_s[:n]) for d in dets], notes
+    ref = int(np.argmin(rates))
+    span = min((d.n_frames - 1) / r for d, r in zip(dets, rates))   # seconds every clip covers
+    t = np.arange(int(np.floor(span * rates[ref] + 1e-9)) + 1) / rates[ref]
+    out = [_pick(d, np.minimum(np.rint(t * r).astype(np.int64), d.n_frames - 1), t) for d, r in zip(dets, rates)]
+    return out, [f"frame rates differ ({listing}): aligned by time stamp on {names[ref]}'s {len(t)} frames"]
 
 
 def multiview_trial(dets: list[Detections], cameras: list[Camera], **tri_kw) -> tuple[SkeletonTrial, Triangulation]:
-    """N cameras' detections (same rate, same length) triangulated into a Kinect v2 trial
+    """N cameras' detections on common frames (:func:`aligned`) triangulated into a Kinect v2 trial
     (world of the calibration, m) and the triangulation (errors, cameras used, quality)."""
     uv = np.stack([d.image for d in dets])
     conf = np.stack([d.visibility for d in dets])
     tri = triangulate_frames(cameras, uv, conf, **tri_kw)
     T = uv.shape[1]
     notes = [n for d in dets for n in d.notes]
-    trial = landmarks_trial(tri.points, np.ones(tri.quality.shape), dets[0].times_s[:T], dets[0].info.fps,
+    rate = 1.0 / np.median(np.diff(dets[0].times_s)) if T > 1 else dets[0].info.fps
+    trial = landmarks_trial(tri.points, np.ones(tri.quality.shape), dets[0].times_s[:T], rate,
                             good=0.5, missing=0.5, quality=tri.quality, source="video_multiview",
                             conversions=[f"{len(cameras)} cameras ({', '.join(c.name for c in cameras)}) "
                                          "triangulated; calibration world frame, mm to m"], notes=notes)
