@@ -83,13 +83,13 @@ class VideoCameraReader(SourceNode):
             return
         live_file = frames.camera is None
         self.source_fps = frames.info.fps
-        t0 = time.monotonic()
+        t0 = None                                   # a file's clock starts once the first frame is done
         try:
             for i, t, frame in frames:
                 if self._quit.is_set():
                     break
                 self.counts["read"] += 1
-                if live_file:                       # a file streamed as if live: wait for its time,
+                if live_file and t0 is not None:     # a file streamed as if live: wait for its time,
                     lag = time.monotonic() - t0 - t  # skip the frames the estimator was too slow for
                     if lag > 1.0 / frames.info.fps:
                         self.counts["skipped"] += 1
@@ -102,6 +102,8 @@ class VideoCameraReader(SourceNode):
                 ms = 1000 * (time.perf_counter() - c0)
                 self.estimator_ms = ms if self.estimator_ms != self.estimator_ms else 0.9 * self.estimator_ms + 0.1 * ms
                 self.counts["estimated"] += 1
+                if t0 is None:                       # the first estimate warms the models up (slow)
+                    t0 = time.monotonic() - t
                 if r is None:
                     self.counts["no_person"] += 1
                     continue
@@ -134,6 +136,8 @@ class VideoCameraReader(SourceNode):
             except queue.Empty:
                 return
             if item is None:
+                if self.info is None and self._calib:      # a stream shorter than calibrate_s
+                    self._latch_info()
                 self.set_state("finished", f"{self.counts['estimated']} frames estimated", 1.0)
                 self.request_stop()
                 return
@@ -158,6 +162,11 @@ class VideoCameraReader(SourceNode):
         if now - self._t_first < self.calibrate_s:
             self.set_state("calibrating", f"{len(self._calib)} frames of {self.calibrate_s:g} s")
             return False
+        self._latch_info()
+        self.set_state("streaming", f"{self.camera}")
+        return True
+
+    def _latch_info(self) -> None:
         rest = observed_rest_offsets(np.array(self._calib), np.array(KINECT_V2_PARENTS))
         self.info = SkeletonInfo(source="video_mediapipe", joint_names=list(KINECT_V2_JOINTS),
                                  joint_parent=np.array(KINECT_V2_PARENTS, dtype=np.int32), rest_offsets=rest,
@@ -165,8 +174,6 @@ class VideoCameraReader(SourceNode):
                                             f"X toward the camera, Z up; ground={self.ground}; rest offsets "
                                             f"observed over {len(self._calib)} frames")
         self.skeleton_info.publish(self.info)
-        self.set_state("streaming", f"{self.camera}")
-        return True
 
     def status_data(self) -> dict[str, Any]:
         d: dict[str, Any] = dict(self.counts)

@@ -75,18 +75,19 @@ def test_missing_camera_and_no_person_fail_in_one_line(run_node, shared_data, tm
 
 def test_video_camera_reader_streams_a_video_as_if_live(run_node, shared_data) -> None:
     path = shared_data / "video" / "pose2sim_demo" / "cam01.mp4"
-    n = run_node("video_camera_reader", {"camera": str(path), "calibrate_s": 0.2})
+    n = run_node("video_camera_reader", {"camera": str(path), "calibrate_s": 0.05})
     assert n.wait_exit(60) == 0
     info = n.messages("skeleton_info")
     assert len(info) == 1 and info[0].joint_names == list(KINECT_V2_JOINTS)
-    thigh = np.linalg.norm(info[0].rest_offsets[KINECT_V2_JOINTS.index("KneeLeft")])
-    assert 0.3 < thigh < 0.5                                   # observed over the first 0.2 s
     st = json.loads(n.messages("reader_status")[-1].data_json)
     print(st)
-    # 100 frames at 60 fps: each read, then estimated or skipped (the estimator slower than 60 fps)
-    assert st["read"] == 100 and st["estimated"] + st["skipped"] >= 100 and st["no_person"] == 0
+    thigh = np.linalg.norm(info[0].rest_offsets[KINECT_V2_JOINTS.index("KneeLeft")])
+    assert 0.3 < thigh < 0.5, (thigh, st)                      # observed over the first frames
+    # 100 frames at 60 fps: each read, then estimated or skipped (the estimator slower than 60 fps;
+    # on a loaded machine the more so: 20-250 ms a frame seen, 1-54 frames published)
+    assert st["read"] == 100 and st["estimated"] + st["skipped"] >= 100 and st["no_person"] == 0, st
     poses = n.messages("skeleton_pose")
-    assert len(poses) == st["published"] >= 10
+    assert 1 <= len(poses) == st["published"] <= st["estimated"], (len(poses), st)
     stamps = np.array([r.env.capture_ns for r in n.records("skeleton_pose")])
     assert (np.diff(stamps) > 0).all()
     P = np.array([p.joint_positions for p in poses])
