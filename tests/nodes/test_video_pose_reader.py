@@ -15,7 +15,7 @@ from mocapgraph.formats import KINECT_V2_JOINTS  # noqa: E402
 def test_video_pose_reader_publishes_a_skeleton_for_every_frame(run_node, shared_data) -> None:
     path = shared_data / "video" / "pose2sim_demo" / "cam02.mp4"
     n = run_node("video_pose_reader", {"file": str(path), "rate_scale": 0.0})
-    assert n.wait_exit(60) == 0
+    assert n.wait_exit(180)   # 100 frames; minutes only on a machine loaded to 250 ms a frame == 0
     info = n.messages("skeleton_info")[0]
     assert info.source == "video_mediapipe" and info.joint_names == list(KINECT_V2_JOINTS)
     poses = n.messages("skeleton_pose")
@@ -33,7 +33,7 @@ def test_video_pose_reader_publishes_a_skeleton_for_every_frame(run_node, shared
 def test_multiview_pose_triangulates_the_four_cameras(run_node, shared_data) -> None:
     calib = shared_data / "video" / "pose2sim_demo" / "Calib.qca.txt"
     n = run_node("multiview_pose", {"file": str(calib), "rate_scale": 0.0})
-    assert n.wait_exit(90) == 0
+    assert n.wait_exit(300)   # 4 x 100 frames estimated after start == 0
     info = n.messages("skeleton_info")[0]
     assert info.source == "video_multiview"
     P = np.array([p.joint_positions for p in n.messages("skeleton_pose")])
@@ -68,7 +68,7 @@ def test_missing_camera_and_no_person_fail_in_one_line(run_node, shared_data, tm
         out.write(np.full((240, 320, 3), 120, np.uint8))
     out.release()
     n = run_node("video_pose_reader", {"file": str(path)})
-    assert n.wait_exit(30) == 1
+    assert n.wait_exit(60) == 1
     assert n.messages("reader_status")[-1].detail == "nobody.mp4: no person found in any of its 10 frames"
     assert n.log().strip().splitlines() == ["ERROR nobody.mp4: no person found in any of its 10 frames"]
 
