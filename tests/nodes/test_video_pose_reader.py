@@ -15,7 +15,7 @@ from mocapgraph.formats import KINECT_V2_JOINTS  # noqa: E402
 def test_video_pose_reader_publishes_a_skeleton_for_every_frame(run_node, shared_data) -> None:
     path = shared_data / "video" / "pose2sim_demo" / "cam02.mp4"
     n = run_node("video_pose_reader", {"file": str(path), "rate_scale": 0.0})
-    assert n.wait_exit(180)   # 100 frames; minutes only on a machine loaded to 250 ms a frame == 0
+    assert n.wait_exit(180) == 0        # 100 frames; minutes only on a machine loaded to 250 ms a frame
     info = n.messages("skeleton_info")[0]
     assert info.source == "video_mediapipe" and info.joint_names == list(KINECT_V2_JOINTS)
     poses = n.messages("skeleton_pose")
@@ -33,7 +33,7 @@ def test_video_pose_reader_publishes_a_skeleton_for_every_frame(run_node, shared
 def test_multiview_pose_triangulates_the_four_cameras(run_node, shared_data) -> None:
     calib = shared_data / "video" / "pose2sim_demo" / "Calib.qca.txt"
     n = run_node("multiview_pose", {"file": str(calib), "rate_scale": 0.0})
-    assert n.wait_exit(300)   # 4 x 100 frames estimated after start == 0
+    assert n.wait_exit(300) == 0        # 4 x 100 frames estimated after start
     info = n.messages("skeleton_info")[0]
     assert info.source == "video_multiview"
     P = np.array([p.joint_positions for p in n.messages("skeleton_pose")])
