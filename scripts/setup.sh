@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Set up a machine for mocapgraph: a virtual environment in .venv with the package and its test
-# tools, and Debian's Chromium for the viewer's browser tests (skipped with a note when it cannot
+# Set up a machine for mocapgraph: a virtual environment in .venv with the package, its test
+# tools and the video extra (the pose estimator), and Debian's Chromium for the viewer's browser tests (skipped with a note when it cannot
 # be installed). Safe to run again: it only does what is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -12,7 +12,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 stamp=.venv/.mocapgraph-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-  .venv/bin/python -m pip install --quiet -e '.[test]'
+  .venv/bin/python -m pip install --quiet -e '.[test,video]'
   touch "$stamp"
 fi
 # Compile the per-frame kernels once (cached on disk), so no node or test pays for it.

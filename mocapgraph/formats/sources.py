@@ -1,6 +1,6 @@
 """An input capture file as frames, by its extension: one reader for every command and converter.
 
-BVH and Kinect CSV -> :class:`SkeletonTrial` (time stamps from 0 at the first frame, its rest
+BVH, Kinect CSV and a video (one camera's markerless pose) -> :class:`SkeletonTrial` (time stamps from 0 at the first frame, its rest
 offsets from :func:`skeleton_rest_offsets`); C3D and TRC -> :class:`MarkerTrial`. Metres, world
 frame (Z up), as each format's reader gives. Bags (.mcap) are read by ``bag.sources``, a layer up.
 """
@@ -15,7 +15,9 @@ from .marker_trial import MarkerTrial
 from .skeleton_trial import SkeletonTrial, observed_rest_offsets, offsets_from_rest
 
 #: extension -> kind of the files a skeleton or marker reader takes
-SKELETON_KINDS = {".bvh": "bvh", ".csv": "kinect_csv", ".txt": "kinect_csv"}
+SKELETON_KINDS = {".bvh": "bvh", ".csv": "kinect_csv", ".txt": "kinect_csv",
+                  # one camera's markerless pose (mocapgraph.video, the 'video' extra)
+                  ".mp4": "video", ".avi": "video", ".mov": "video", ".mkv": "video", ".webm": "video"}
 MARKER_KINDS = {".c3d": "c3d", ".trc": "trc"}
 FILE_KINDS = {**MARKER_KINDS, **SKELETON_KINDS}
 
@@ -42,6 +44,15 @@ def read_skeleton_file(path: str | Path, *, ground: str = "sensor") -> SkeletonT
         from .kinect_csv import read_kinect_csv
         trial = read_kinect_csv(path, ground=ground)
         # the sensor's own clock is kept apart from the stream's time: stamps from the first frame
+        trial.timestamps_ns = trial.timestamps_ns - (trial.timestamps_ns[0] if trial.n_frames else 0)
+        return trial
+    if kind == "video":
+        from ..video.capture import video_trial
+        from ..video.frames import VideoUnavailable
+        try:
+            trial, _ = video_trial(path, ground="feet")
+        except VideoUnavailable as exc:
+            raise FormatError(path, str(exc)) from None
         trial.timestamps_ns = trial.timestamps_ns - (trial.timestamps_ns[0] if trial.n_frames else 0)
         return trial
     raise FormatError(path, f"not a skeleton file ({Path(path).suffix or 'no extension'}; expected "

@@ -16,6 +16,9 @@ NODE_TYPES: dict[str, str] = {
     "udp_reader": "mocapgraph.nodes.udp_reader:UDPReader",
     "lsl_reader": "mocapgraph.nodes.lsl_reader:LSLReader",
     "kinect_reader": "mocapgraph.nodes.kinect_reader:KinectReader",
+    "video_pose_reader": "mocapgraph.nodes.video_pose_reader:VideoPoseReader",
+    "multiview_pose": "mocapgraph.nodes.video_pose_reader:MultiviewPose",
+    "video_camera_reader": "mocapgraph.nodes.video_camera_reader:VideoCameraReader",
     "bvh_player": "mocapgraph.nodes.bvh_player:BVHPlayer",
     "c3d_segment_reader": "mocapgraph.nodes.c3d_segment_reader:C3DSegmentReader",
     # actor: calibration (latched SkeletonModel) and the per-frame solver (ActorPose)
