@@ -13,6 +13,9 @@ fi
 stamp=.venv/.mocapgraph-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   .venv/bin/python -m pip install --quiet -e '.[test,video]'
+  # the pose estimator: the last mediapipe whose wheel ships its pose models (nothing fetched at run
+  # time); --no-deps leaves out the jax/jaxlib it declares for its model maker (~0.4 GB, never imported)
+  .venv/bin/python -m pip install --quiet --no-deps 'mediapipe==0.10.14'
   touch "$stamp"
 fi
 # Compile the per-frame kernels once (cached on disk), so no node or test pays for it.
