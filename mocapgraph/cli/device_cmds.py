@@ -1,4 +1,4 @@
-"""``mocapgraph device simulate serial|udp|lsl``: a synthetic performer as a marker device."""
+"""``mocapgraph device simulate serial|udp|lsl|qtm``: a synthetic performer as a marker device."""
 from __future__ import annotations
 
 import argparse
@@ -67,6 +67,31 @@ def cmd_lsl(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_qtm(args: argparse.Namespace) -> int:
+    from ..kinematics.layout import LayoutError
+    from ..testing.qtm_server import ActorQTMSource, QTMSimServer
+
+    try:
+        src = ActorQTMSource(args.layout, args.rate, args.seed, args.noise_mm, args.bodies, args.axis_up,
+                             occlude_every=args.occlude_every)
+        srv = QTMSimServer(src, args.host, args.port, loss=args.loss, seed=args.seed, frames=args.count,
+                           bad_every=args.bad_every, restart_every_s=args.restart_every,
+                           restart_down_s=args.restart_down, start_frame=args.start_frame)
+    except (LayoutError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    except OSError as exc:
+        raise UserError(f"cannot listen on tcp {args.host}:{args.port}: {exc.strerror or exc}") from None
+    print(f"simulated QTM RT server on tcp {args.host}:{srv.port}: {len(src.labels)} labelled markers, "
+          f"{len(src.body_names)} 6DOF bodies, 1 skeleton at {args.rate:g} Hz "
+          f"(launch with host:={args.host} port:={srv.port})", flush=True)
+    try:
+        srv.serve()
+    except KeyboardInterrupt:
+        pass
+    print(f"sent {srv.sent_frames} frames ({srv.lost_frames} dropped, {srv.restarts} restarts)", file=sys.stderr)
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser("device", help="simulated marker devices for trying lab graphs without hardware")
     ds = d.add_subparsers(dest="device_command", required=True)
@@ -98,3 +123,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     lsl.add_argument("--type", default="Mocap", help="stream type")
     common(lsl, "example_lsl_mocap")
     lsl.set_defaults(func=cmd_lsl)
+    qtm = ss.add_parser("qtm", help="a Qualisys QTM real-time server (TCP, protocol 1.19-1.26)")
+    qtm.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    qtm.add_argument("--port", type=int, default=22223, help="TCP port (QTM's little-endian port: 22223)")
+    qtm.add_argument("--bodies", type=int, default=5, help="6DOF bodies (the actor's first limbs)")
+    qtm.add_argument("--axis-up", default="+Z", help="QTM's up axis (The_3D/AxisUpwards)")
+    qtm.add_argument("--loss", type=float, default=0.0, help="fraction of frames QTM skips")
+    qtm.add_argument("--bad-every", type=int, default=0, help="a malformed data packet every Nth frame")
+    qtm.add_argument("--occlude-every", type=int, default=0, help="one marker and one body unseen every Nth frame")
+    qtm.add_argument("--restart-every", type=float, default=0.0, help="QTM restarts every S seconds (0 = never)")
+    qtm.add_argument("--restart-down", type=float, default=1.0, help="seconds the port stays closed on a restart")
+    qtm.add_argument("--start-frame", type=int, default=0, help="first frame of the actor's session")
+    qtm.add_argument("--layout", default="plug_in_gait", help="marker layout worn by the performer")
+    qtm.add_argument("--rate", type=float, default=120.0, help="frames per second")
+    qtm.add_argument("--seed", type=int, default=0)
+    qtm.add_argument("--noise-mm", type=float, default=0.0, help="marker noise, mm")
+    qtm.add_argument("--count", type=int, default=0, help="frames in the measurement, then 'no more data' (0 = endless)")
+    qtm.set_defaults(func=cmd_qtm)
