@@ -206,12 +206,15 @@ def _read_component(frame: QTMFrame, data: bytes, ctype: int, pos: int, end: int
         dt = _ITEM_DTYPES[ctype]
         items = _items(data, pos + COUNT_RATES.size, end, n, dt, what)
         res = items["r"] if "r" in dt.names else None
+        # (a frame may carry 6D and 6DEulerRes together: a residual once read is kept)
         if ctype in (COMP_3D, COMP_3D_RES):
-            frame.markers, frame.marker_residuals = items["p"], res
+            frame.markers = items["p"]
+            frame.marker_residuals = res if res is not None else frame.marker_residuals
         elif ctype in (COMP_3D_NO_LABELS, COMP_3D_NO_LABELS_RES):
             frame.unlabelled, frame.unlabelled_ids = items["p"], items["id"]
         else:
-            frame.body_positions, frame.body_residuals = items["p"], res
+            frame.body_positions = items["p"]
+            frame.body_residuals = res if res is not None else frame.body_residuals
             if "m" in dt.names:
                 frame.body_rotations = items["m"]
             else:

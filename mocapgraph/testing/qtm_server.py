@@ -386,7 +386,7 @@ class QTMSimServer:
                     self._send(c, q.encode_packet(q.PACKET_NO_MORE_DATA))
                     c.divisor = 0
             return
-        if self.measurement_over:
+        if self.frames and k - self.start_frame > self.frames:
             return
         streaming = [c for c in self.clients.values() if c.divisor and (k - self.start_frame) % c.divisor == 0]
         if not streaming:
