@@ -112,6 +112,29 @@ class SkeletonPose(Message):
     tracking_state = array("int8", ("J",), "0 not tracked, 1 inferred, 2 tracked")
 
 
+class RigidBodyInfo(Message):
+    """Latched: the rigid bodies (6DOF) a tracker streams (QTM 6D bodies, NatNet rigid bodies)."""
+
+    type_name = "RigidBodyInfo"
+    version = 1
+    latched_by_default = True
+    source: str = scalar("str", "device kind and address, e.g. qtm 127.0.0.1:22223")
+    body_names = strings("body names, RigidBodyPoses order")
+    units_note: str = scalar("str", "what the reader converted (units, axes) to reach the world frame")
+
+
+class RigidBodyPoses(Message):
+    """One frame of tracked rigid bodies, in the order of the latched RigidBodyInfo."""
+
+    type_name = "RigidBodyPoses"
+    version = 1
+    frame_number: int = scalar("int", "capture frame index as the device numbers it")
+    positions = array("float64", ("B", 3), "body origins, m, world; NaN where not tracked")
+    orientations = array("float64", ("B", 4), "body orientations, quaternion wxyz, world; NaN where not tracked")
+    residual = array("float32", ("B",), "the device's fit residual per body, m; NaN if unknown or not tracked")
+    quality = array("int8", ("B",), "0 missing, 1 estimated, 2 good")
+
+
 class CharacterInfo(Message):
     """Latched: a user character's skeleton (names, parents, rest offsets)."""
 

@@ -23,6 +23,7 @@ import selectors
 import socket
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -207,6 +208,8 @@ class QTMSimServer:
         self.sent_frames = 0
         self.lost_frames = 0
         self.bad_sent = 0
+        self.lost_log: deque[int] = deque(maxlen=100_000)    # frame numbers lost / sent malformed
+        self.bad_log: deque[int] = deque(maxlen=100_000)
         self.restarts = 0
         self.frame_k = self.start_frame
         self._listen()
@@ -393,6 +396,7 @@ class QTMSimServer:
             return
         if self.loss and self.rng.random() < self.loss:
             self.lost_frames += 1
+            self.lost_log.append(k)
             return
         f = self.source.frame(k)
         cache: dict[tuple[str, ...], bytes] = {}
@@ -403,6 +407,7 @@ class QTMSimServer:
             if self.bad_every and k % self.bad_every == self.bad_every - 1:
                 pkt = q.encode_packet(q.PACKET_DATA, q.DATA_HEADER.pack(0, k, 1000) + b"\x07" * 24)
                 self.bad_sent += 1
+                self.bad_log.append(k)
             if c.udp_to is not None:
                 try:
                     self.udp.sendto(pkt, c.udp_to)

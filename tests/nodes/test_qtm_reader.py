@@ -1,0 +1,157 @@
+"""The qtm_reader node as a real process against the QTM RT simulator over loopback TCP (and UDP):
+values equal the synthetic actor's ground truth, QTM's axes and millimetres undone, occlusions as
+NaN with quality 0, QTM going away and coming back, a server that never answers, malformed
+packets and lost frames counted. (That the simulator speaks QTM's protocol is checked with
+Qualisys's own client in tests/formats/test_qtm_rt.py.)"""
+from __future__ import annotations
+
+import json
+import socket
+import time
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mocapgraph.testing.qtm_server import ActorQTMSource, QTMSimServer
+
+pytestmark = pytest.mark.slow
+
+START = 2400
+
+
+def status(n) -> dict:
+    return json.loads(n.messages("reader_status")[-1].data_json)
+
+
+def free_port(kind=socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def frames_from(n, topic: str, count: int, timeout: float = 15.0):
+    return n.wait_for(lambda: n.records(topic) if len(n.records(topic)) >= count else None, timeout,
+                      f"{count} messages on {topic}")
+
+
+def quat_close(a: np.ndarray, b: np.ndarray, atol: float) -> None:
+    """Quaternions equal up to sign."""
+    d = np.minimum(np.abs(a - b).max(axis=-1), np.abs(a + b).max(axis=-1))
+    assert np.nanmax(d) < atol, np.nanmax(d)
+
+
+@pytest.mark.parametrize("axis_up,transport", [("+Y", "tcp"), ("+Z", "udp")])
+def test_values_equal_the_actor_in_world_metres(run_node, axis_up, transport) -> None:
+    src = ActorQTMSource("plug_in_gait", 120.0, n_bodies=5, axis_up=axis_up, occlude_every=4)
+    srv = QTMSimServer(src, port=0, start_frame=START).start()
+    try:
+        params = {"port": srv.port, "layout": "plug_in_gait"}
+        if transport == "udp":
+            params["udp_port"] = free_port(socket.SOCK_DGRAM)
+        n = run_node("qtm_reader", params)
+        recs = frames_from(n, "markers", 40)
+        bodies = frames_from(n, "rigid_bodies", 40)
+        skel = frames_from(n, "skeleton_pose", 40)
+        strays = frames_from(n, "unlabelled_markers", 40)
+        n.wait_for(lambda: status(n)["frames"] >= 40, what="status")
+        st = status(n)
+    finally:
+        srv.stop()
+    layout = n.messages("marker_layout")[-1]
+    assert layout.labels == src.labels and "up axis " + axis_up in layout.units_note
+    assert n.messages("rigid_body_info")[-1].body_names == src.body_names
+    info = n.messages("skeleton_info")[-1]
+    assert info.joint_names == src.limb_names and list(info.joint_parent) == list(src.limb_parent)
+    fns = [r.msg.frame_number for r in recs]
+    assert np.all(np.diff(fns) == 1) and fns[0] >= START
+    cap = src.actor.capture(fns[0], fns[-1] + 1)
+    pos = np.array([r.msg.positions for r in recs])
+    valid = np.array([r.msg.valid for r in recs])
+    occluded = np.array([k % 4 == 0 for k in fns])
+    np.testing.assert_allclose(pos[valid], cap.markers[valid], atol=1e-6)        # float32 mm -> m
+    assert occluded.any() and (~valid).sum() == occluded.sum()
+    assert np.isnan(pos[~valid]).all()                                           # NaN, never 0,0,0
+    assert all(np.allclose(r.msg.residual[v], 0.8e-3) for r, v in zip(recs, valid))
+    # 6DOF bodies: the limbs' centroids and orientations, back in the world
+    b = [r.msg for r in bodies if r.msg.frame_number in set(fns)]
+    idx = [fns.index(m.frame_number) for m in b]
+    bp = np.array([m.positions for m in b])
+    bq = np.array([m.orientations for m in b])
+    ok = np.array([m.quality for m in b]) == 2
+    np.testing.assert_allclose(bp[ok], cap.limb_centroids[idx][:, :5][ok], atol=1e-6)
+    quat_close(bq[ok], cap.limb_quat[idx][:, :5][ok], 1e-5)
+    assert (~ok).sum() == sum(1 for m in b if m.frame_number % 4 == 0)
+    assert np.isnan(bp[~ok]).all() and np.isnan(bq[~ok]).all()
+    assert np.allclose(np.array([m.residual for m in b])[ok], 0.5e-3)
+    # skeleton: segment orientations are the limbs'; the root segment sits at the root's centroid
+    s = [r.msg for r in skel if r.msg.frame_number in set(fns)]
+    sidx = [fns.index(m.frame_number) for m in s]
+    quat_close(np.array([m.joint_orientations for m in s]), cap.limb_quat[sidx], 1e-5)
+    np.testing.assert_allclose(np.array([m.joint_positions[0] for m in s]), cap.limb_centroids[sidx][:, 0], atol=1e-6)
+    assert all((m.tracking_state == 2).all() for m in s)
+    assert strays[-1].msg.positions.shape == (2, 3)
+    assert st["device_gaps"] == 0 and st["bad_packets"] == 0 and st["disconnects"] == 0
+
+
+def test_qtm_gone_and_back_reconnects_within_2_s_counted_once(run_node) -> None:
+    src = ActorQTMSource("plug_in_gait", 120.0, n_bodies=2)
+    srv = QTMSimServer(src, port=0, start_frame=START).start()
+    port = srv.port
+    n = run_node("qtm_reader", {"port": port})
+    frames_from(n, "markers", 20)
+    srv.stop()                                   # QTM gone: connections closed, port closed
+    time.sleep(1.0)
+    before = len(n.records("markers"))
+    srv = QTMSimServer(src, port=port, start_frame=START).start()   # back: frame numbers start over
+    t_back = time.time_ns()
+    try:
+        recs = n.wait_for(lambda: [r for r in n.records("markers")[before:]] or None, 5.0, "frames again")
+        assert (recs[0].receive_ns - t_back) / 1e9 < 2.0
+        frames_from(n, "markers", before + 20)
+        n.wait_for(lambda: status(n)["frames"] >= before + 20, what="status")
+        st = status(n)
+    finally:
+        srv.stop()
+    assert n.alive()
+    assert st["disconnects"] == 1 and st["device_gaps"] == 0
+    assert n.logged("lost qtm", "disconnect 1") and not n.logged("Traceback")
+    assert st["clock_resyncs"] == 0                # the new connection anchors afresh: no false jump
+
+
+def test_a_server_that_never_answers_is_one_line_and_a_retry(run_node) -> None:
+    mute = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    mute.bind(("127.0.0.1", 0))
+    mute.listen(8)                                # accepts (kernel backlog), never says a word
+    n = run_node("qtm_reader", {"port": mute.getsockname()[1], "answer_timeout_s": 0.5})
+    n.wait_for(lambda: n.messages("reader_status") and status(n)["connect_attempts"] >= 3, 10.0, "retries")
+    assert n.alive() and n.messages("reader_status")[-1].state == "waiting"
+    assert "did not greet" in n.messages("reader_status")[-1].detail
+    lines = [ln for ln in n.log().splitlines() if "did not greet" in ln]
+    assert 1 <= len(lines) <= 3 and all("\n" not in ln for ln in lines)
+    mute.close()
+    closed = free_port()
+    m = run_node("qtm_reader", {"port": closed}, name="reader2")
+    m.wait_for(lambda: m.messages("reader_status") and status(m)["connect_attempts"] >= 2, 10.0, "retries")
+    assert m.alive() and m.messages("reader_status")[-1].state == "waiting"
+
+
+def test_malformed_packets_and_lost_frames_are_counted(run_node) -> None:
+    src = ActorQTMSource("plug_in_gait", 240.0, n_bodies=1)
+    srv = QTMSimServer(src, port=0, start_frame=START, loss=0.05, bad_every=25, seed=3).start()
+    try:
+        n = run_node("qtm_reader", {"port": srv.port})
+        frames_from(n, "markers", 300)
+        n.wait_for(lambda: status(n)["frames"] >= 300, what="status")
+        st = status(n)
+    finally:
+        srv.stop()
+    fns = np.array([r.msg.frame_number for r in n.records("markers")][:st["frames"]])
+    span = fns[-1] - fns[0] + 1
+    lost = [k for k in srv.lost_log if fns[0] < k < fns[-1]]
+    bad = [k for k in srv.bad_log if fns[0] < k < fns[-1]]
+    assert len(lost) > 3 and len(bad) > 5
+    # every frame number not published is a frame QTM skipped or a malformed packet: counted exactly
+    assert st["device_gaps"] == span - len(fns) == len(lost) + len(bad)
+    assert 0 <= st["bad_packets"] - len(bad) <= 2      # (one before the first, one after the last frame)
+    assert n.alive() and st["disconnects"] == 0
