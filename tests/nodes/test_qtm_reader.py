@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mocapgraph.testing.qtm_server import ActorQTMSource, QTMSimServer
+from mocapgraph.formats import qtm_rt as q
+from mocapgraph.testing.qtm_server import ActorQTMSource, QTMSimServer, encode_components
 
 pytestmark = pytest.mark.slow
 
@@ -155,3 +156,80 @@ def test_malformed_packets_and_lost_frames_are_counted(run_node) -> None:
     assert st["device_gaps"] == span - len(fns) == len(lost) + len(bad)
     assert 0 <= st["bad_packets"] - len(bad) <= 2      # (one before the first, one after the last frame)
     assert n.alive() and st["disconnects"] == 0
+
+
+def _handshake(conn: socket.socket, src: ActorQTMSource) -> None:
+    """Play QTM's side up to StreamFrames (what the simulator does), on a raw socket."""
+    conn.sendall(q.encode_string(q.PACKET_COMMAND, q.WELCOME))
+    split, seen = q.PacketSplitter(), []
+    while not any(t.lower().startswith("streamframes") for t in seen):
+        for _t, payload in split.feed(conn.recv(65536)):
+            text = q.packet_text(payload)
+            seen.append(text)
+            if text.lower().startswith("version"):
+                conn.sendall(q.encode_string(q.PACKET_COMMAND, "Version set to 1.25"))
+            elif text.lower().startswith("getparameters"):
+                conn.sendall(q.encode_string(q.PACKET_XML, src.parameters("1.25", ("all",))))
+
+
+def rss_kb(pid: int) -> int:
+    with open(f"/proc/{pid}/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
+
+
+def test_100000_malformed_packets_counted_memory_flat_and_a_broken_stream_reconnects(run_node) -> None:
+    src = ActorQTMSource("plug_in_gait", 120.0, n_bodies=2)
+    good = [q.encode_data(START + i, i * 8333, encode_components(src.frame(START + i), ("3dres",), 120.0))
+            for i in range(3)]
+    rng = np.random.default_rng(1)
+    bad_kinds = [
+        q.encode_packet(q.PACKET_DATA, q.DATA_HEADER.pack(0, 1, 1) + q.HEADER.pack(16, q.COMP_3D)
+                        + q.COUNT_RATES.pack(0xFFFFFFFF, 0, 0)),                      # lying marker count
+        q.encode_packet(q.PACKET_DATA, q.DATA_HEADER.pack(0, 1, 3)),                   # components missing
+        q.encode_packet(q.PACKET_DATA, good[0][8:40]),                                 # truncated frame
+        q.encode_packet(77, b"\x01\x02"),                                              # unknown packet type
+        q.encode_packet(q.PACKET_DATA, rng.integers(0, 256, 60, dtype=np.uint8).tobytes()),
+    ]
+    blast = b"".join(bad_kinds * 4000)                                                 # 20 000 per round
+    lsock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    lsock.bind(("127.0.0.1", 0))
+    lsock.listen(4)
+    lsock.settimeout(10)
+    n = run_node("qtm_reader", {"port": lsock.getsockname()[1], "layout": "plug_in_gait"})
+    conn, _ = lsock.accept()
+    _handshake(conn, src)
+    conn.sendall(good[0])
+    frames_from(n, "markers", 1)
+    rss0 = rss_kb(n.proc.pid)
+    for r in range(5):
+        conn.sendall(blast)
+    conn.sendall(good[1])
+    frames_from(n, "markers", 2, timeout=60)
+    n.wait_for(lambda: status(n)["bad_packets"] >= 100_000, 10, "bad packets counted")
+    st = status(n)
+    assert st["bad_packets"] == 100_000 and st["frames"] == 2 and st["disconnects"] == 0
+    assert rss_kb(n.proc.pid) - rss0 < 20_000, "memory grew by more than 20 MB"
+    assert sum("packet skipped" in ln for ln in n.log().splitlines()) < 20          # rate-limited lines
+    # a header no QTM sends (2 GB): the stream cannot be followed -> dropped, reconnected, counted once
+    conn.sendall(q.HEADER.pack(0x7FFFFFF0, q.PACKET_DATA))
+    conn2, _ = lsock.accept()
+    _handshake(conn2, src)
+    conn2.sendall(good[2])
+    frames_from(n, "markers", 3)
+    n.wait_for(lambda: status(n)["disconnects"] == 1, 5, "one disconnect")
+    assert n.logged("lost qtm", "packet header says") and n.alive()
+    for c in (conn, conn2, lsock):
+        c.close()
+
+
+def test_no_more_data_is_a_waiting_state_not_a_disconnect(run_node) -> None:
+    src = ActorQTMSource("plug_in_gait", 120.0, n_bodies=1)
+    srv = QTMSimServer(src, port=0, frames=240).start()      # a 2 s measurement
+    try:
+        n = run_node("qtm_reader", {"port": srv.port})
+        n.wait_for(lambda: n.messages("reader_status") and status(n)["no_more_data"] == 1
+                   and n.messages("reader_status")[-1].state == "waiting", 10, "no more data")
+        st = status(n)
+    finally:
+        srv.stop()
+    assert st["disconnects"] == 0 and st["frames"] > 0 and n.logged("no measurement running")
