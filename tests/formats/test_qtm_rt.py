@@ -314,3 +314,34 @@ def test_parameter_xml_faults_are_one_line():
             "<Segment Name='b' ID='6' Parent_ID='5'/></Skeleton></Skeletons></QTM_Parameters_Ver_1.20>")
     sk = q.parse_parameters(flat).skeletons[0]
     assert (sk.segment_names, sk.parents) == (["a", "b"], [-1, 0])
+
+
+# ----- the client conversation (sans-IO) --------------------------------------------------------------
+def _commands(data: bytes) -> list[str]:
+    return [q.packet_text(p) for _t, p in q.PacketSplitter().feed(data)]
+
+
+def test_session_order_of_business_and_parameters_read_again_on_qtm_events(source):
+    from mocapgraph.formats.qtm_session import QTMSession
+
+    s = QTMSession("1.25", "Frequency:60", udp_port=0)
+    assert s.receive(q.encode_string(q.PACKET_COMMAND, q.WELCOME)) == []
+    assert _commands(s.take_outgoing()) == ["Version 1.25"]
+    s.receive(q.encode_string(q.PACKET_COMMAND, "Version set to 1.25"))
+    assert _commands(s.take_outgoing()) == ["GetParameters General 3D 6D Skeleton"]
+    ev = s.receive(q.encode_string(q.PACKET_XML, source.parameters("1.25", ("all",))))
+    assert [e.kind for e in ev] == ["parameters"] and ev[0].value.labels == source.labels
+    assert _commands(s.take_outgoing()) == ["StreamFrames Frequency:60 3DRes 3DNoLabels 6DRes Skeleton:Global Timecode"]
+    f = source.frame(START)
+    ev = s.receive(q.encode_data(START, 0, encode_components(f, ("3dres",), 120.0))
+                   + q.encode_packet(q.PACKET_DATA, b"\x01")
+                   + q.encode_packet(q.PACKET_EVENT, bytes([q.EVENT_CAPTURE_STARTED]))
+                   + q.encode_packet(q.PACKET_NO_MORE_DATA))
+    assert [e.kind for e in ev] == ["frame", "bad_packet", "event", "no_more_data"]
+    assert _commands(s.take_outgoing()) == ["GetParameters General 3D 6D Skeleton"]   # labels may have changed
+    refused = QTMSession("1.99")
+    refused.receive(q.encode_string(q.PACKET_COMMAND, q.WELCOME))
+    ev = refused.receive(q.encode_string(q.PACKET_ERROR, "Version NOT supported"))
+    assert [(e.kind, e.value) for e in ev] == [("refused", "Version NOT supported")]
+    assert [e.kind for e in s.datagram(b"\x00" * 5)] == ["bad_packet"]
+    assert [e.kind for e in s.datagram(q.encode_data(START, 0, encode_components(f, ("3d",), 120.0)))] == ["frame"]
