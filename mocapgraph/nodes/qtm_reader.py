@@ -21,7 +21,7 @@ import numpy as np
 from ..bus import Output, Param
 from ..formats import qtm_rt as q
 from ..formats.device_file import DeviceConfig, DeviceConfigError, device_or_default
-from ..formats.qtm_session import QTMSession, SessionEvent, colmajor_to_quat_wxyz, mm_to_world, xyzw_to_wxyz
+from ..formats.qtm_session import QTMSession, QTMToWorld, SessionEvent
 from ..messages import MarkerFrame, RigidBodyInfo, RigidBodyPoses, SkeletonInfo, SkeletonPose
 from .marker_source import UP_AXIS_CHOICES, MarkerSourceNode
 from .source_base import INPUT_ERRORS
@@ -222,6 +222,7 @@ class QTMReader(QTMLink):
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
         self.dev = DeviceConfig()
+        self.world = QTMToWorld(self.dev)
         self.qtm: q.QTMParameters | None = None
         self._layout_key: tuple | None = None
         self._skeleton_index = -1
@@ -269,7 +270,7 @@ class QTMReader(QTMLink):
             return
         key = (tuple(p.labels), tuple(p.bodies), tuple((s.name, tuple(s.segment_names)) for s in p.skeletons),
                p.axis_upwards)
-        self.qtm, self.dev = p, dev
+        self.qtm, self.dev, self.world = p, dev, QTMToWorld(dev)
         if key != self._layout_key:
             self._layout_key = key
             note = f"QTM millimetres -> m; QTM up axis {p.axis_upwards}; {dev.describe()}"
@@ -338,11 +339,11 @@ class QTMReader(QTMLink):
                                   self.endpoint, f.frame_number, len(f.markers), self.lmap.n_source)
             else:
                 res = f.marker_residuals if f.marker_residuals is not None else np.full(len(f.markers), np.nan)
-                pos = self.lmap.positions(mm_to_world(f.markers, self.dev))
+                pos = self.lmap.positions(self.world.points(f.markers))
                 self.publish_frame(f.frame_number, rate, pos, capture,
                                    residual=self.lmap.values(res.astype(np.float32) * 0.001, np.nan).astype(np.float32))
         if f.unlabelled is not None:
-            u = mm_to_world(f.unlabelled, self.dev)
+            u = self.world.points(f.unlabelled)
             self.unlabelled_markers.publish(MarkerFrame(
                 frame_number=f.frame_number, rate_hz=rate, positions=u, valid=~np.isnan(u).any(axis=1),
                 residual=np.full(len(u), np.nan, np.float32)), capture_ns=capture)
@@ -350,8 +351,8 @@ class QTMReader(QTMLink):
             self._bodies(f, capture)
         if f.skeletons is not None and 0 <= self._skeleton_index < len(f.skeletons):
             sk = f.skeletons[self._skeleton_index]
-            pos = mm_to_world(sk.positions, self.dev)
-            quat = self.dev.quats_to_world(xyzw_to_wxyz(sk.quats_xyzw))
+            pos = self.world.points(sk.positions)
+            quat = self.world.segment_quats(sk.quats_xyzw)
             ok = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
             self.skeleton_pose.publish(SkeletonPose(source_id=self.qtm.skeletons[self._skeleton_index].name,
                                                     frame_number=f.frame_number, joint_positions=pos,
@@ -366,8 +367,8 @@ class QTMReader(QTMLink):
         self.last_arrival = time.monotonic()
 
     def _bodies(self, f: q.QTMFrame, capture: int) -> None:
-        pos = mm_to_world(f.body_positions, self.dev)
-        quat = self.dev.quats_to_world(colmajor_to_quat_wxyz(f.body_rotations))
+        pos = self.world.points(f.body_positions)
+        quat = self.world.body_quats(f.body_rotations)
         ok = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
         pos[~ok] = np.nan
         quat[~ok] = np.nan
