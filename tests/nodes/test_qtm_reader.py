@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import socket
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -95,29 +97,58 @@ def test_values_equal_the_actor_in_world_metres(run_node, axis_up, transport) ->
     assert st["device_gaps"] == 0 and st["bad_packets"] == 0 and st["disconnects"] == 0
 
 
-def test_qtm_gone_and_back_reconnects_within_2_s_counted_once(run_node) -> None:
-    src = ActorQTMSource("plug_in_gait", 120.0, n_bodies=2)
-    srv = QTMSimServer(src, port=0, start_frame=START).start()
-    port = srv.port
-    n = run_node("qtm_reader", {"port": port})
-    frames_from(n, "markers", 20)
-    srv.stop()                                   # QTM gone: connections closed, port closed
-    time.sleep(1.0)
-    before = len(n.records("markers"))
-    srv = QTMSimServer(src, port=port, start_frame=START).start()   # back: frame numbers start over
-    t_back = time.time_ns()
+def start_simulator(port: int, *extra: str) -> subprocess.Popen:
+    """``mocapgraph device simulate qtm`` as its own process; returns once it listens."""
+    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "device", "simulate", "qtm", "--port", str(port),
+                             "--bodies", "2", "--start-frame", str(START), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    line = proc.stdout.readline()
+    assert "simulated QTM RT server on tcp 127.0.0.1:" in line, line + proc.stdout.read()
+    return proc
+
+
+@pytest.mark.timing
+def test_simulator_killed_and_restarted_reconnects_within_2_s_counted_once(run_node) -> None:
+    port = free_port()
+    sim = start_simulator(port)
     try:
-        recs = n.wait_for(lambda: [r for r in n.records("markers")[before:]] or None, 5.0, "frames again")
+        n = run_node("qtm_reader", {"port": port})
+        frames_from(n, "markers", 20, timeout=30)
+        sim.kill()                                   # QTM gone without a word: connection reset, port closed
+        sim.wait()
+        time.sleep(0.5)
+        before = len(n.records("markers"))
+        sim = start_simulator(port)                  # back: frame numbers start over
+        t_back = time.time_ns()
+        recs = n.wait_for(lambda: n.records("markers")[before:] or None, 5.0, "frames again")
         assert (recs[0].receive_ns - t_back) / 1e9 < 2.0
         frames_from(n, "markers", before + 20)
         n.wait_for(lambda: status(n)["frames"] >= before + 20, what="status")
         st = status(n)
     finally:
-        srv.stop()
+        sim.kill()
+        sim.wait()
     assert n.alive()
-    assert st["disconnects"] == 1 and st["device_gaps"] == 0
+    assert st["disconnects"] == 1 and st["device_gaps"] == 0     # the outage is one disconnect, not lost frames
     assert n.logged("lost qtm", "disconnect 1") and not n.logged("Traceback")
     assert st["clock_resyncs"] == 0                # the new connection anchors afresh: no false jump
+
+
+def test_qtm_restarting_by_itself_and_a_refused_version(run_node) -> None:
+    src = ActorQTMSource("plug_in_gait", 120.0, n_bodies=1)
+    srv = QTMSimServer(src, port=0, restart_every_s=1.0, restart_down_s=0.3).start()
+    try:
+        n = run_node("qtm_reader", {"port": srv.port})
+        n.wait_for(lambda: n.messages("reader_status") and status(n)["disconnects"] >= 2
+                   and n.messages("reader_status")[-1].state == "streaming", 15, "two restarts lived through")
+        refused = run_node("qtm_reader", {"port": srv.port, "version": "1.7"}, name="old")
+        refused.wait_for(lambda: refused.messages("reader_status") and status(refused)["refusals"] >= 2, 10,
+                         "the version refused, and asked again")
+    finally:
+        srv.stop()
+    assert n.logged("QTM is shutting down") and n.alive()
+    assert any("Version NOT supported" in m.detail for m in refused.messages("reader_status")) and refused.alive()
+    assert not refused.records("markers")
 
 
 def test_a_server_that_never_answers_is_one_line_and_a_retry(run_node) -> None:
