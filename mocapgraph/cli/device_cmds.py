@@ -68,21 +68,25 @@ def cmd_lsl(args: argparse.Namespace) -> int:
 
 
 def cmd_qtm(args: argparse.Namespace) -> int:
+    from ..formats import FormatError
     from ..kinematics.layout import LayoutError
-    from ..testing.qtm_server import ActorQTMSource, QTMSimServer
+    from ..testing.qtm_server import ActorQTMSource, QTMSimServer, TrialQTMSource
 
     try:
-        src = ActorQTMSource(args.layout, args.rate, args.seed, args.noise_mm, args.bodies, args.axis_up,
-                             occlude_every=args.occlude_every)
+        if args.file:
+            src = TrialQTMSource(args.file, args.axis_up)
+        else:
+            src = ActorQTMSource(args.layout, args.rate, args.seed, args.noise_mm, args.bodies, args.axis_up,
+                                 occlude_every=args.occlude_every)
         srv = QTMSimServer(src, args.host, args.port, loss=args.loss, seed=args.seed, frames=args.count,
                            bad_every=args.bad_every, restart_every_s=args.restart_every,
                            restart_down_s=args.restart_down, start_frame=args.start_frame)
-    except (LayoutError, ValueError) as exc:
+    except (LayoutError, FormatError, ValueError) as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:
         raise UserError(f"cannot listen on tcp {args.host}:{args.port}: {exc.strerror or exc}") from None
     print(f"simulated QTM RT server on tcp {args.host}:{srv.port}: {len(src.labels)} labelled markers, "
-          f"{len(src.body_names)} 6DOF bodies, 1 skeleton at {args.rate:g} Hz "
+          f"{len(src.body_names)} 6DOF bodies at {src.rate_hz:g} Hz "
           f"(launch with host:={args.host} port:={srv.port})", flush=True)
     try:
         srv.serve()
@@ -134,6 +138,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     qtm.add_argument("--restart-every", type=float, default=0.0, help="QTM restarts every S seconds (0 = never)")
     qtm.add_argument("--restart-down", type=float, default=1.0, help="seconds the port stays closed on a restart")
     qtm.add_argument("--start-frame", type=int, default=0, help="first frame of the actor's session")
+    qtm.add_argument("--file", default="", help="stream this C3D or TRC's markers instead of the synthetic actor")
     qtm.add_argument("--layout", default="plug_in_gait", help="marker layout worn by the performer")
     qtm.add_argument("--rate", type=float, default=120.0, help="frames per second")
     qtm.add_argument("--seed", type=int, default=0)

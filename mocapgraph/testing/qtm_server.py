@@ -11,7 +11,8 @@ Skeleton, Skeleton:Global and Timecode (SMPTE and camera time).
 
 What it sends is exactly what a reader should reconstruct (:class:`ActorQTMSource`): the actor's
 markers in millimetres in QTM's axes (``axis_up``: ``+Z`` as QTM's default, or another axis), its
-first ``n_bodies`` limbs as 6DOF bodies, its limbs as one skeleton, a few unlabelled strays.
+first ``n_bodies`` limbs as 6DOF bodies, its limbs as one skeleton, a few unlabelled strays; or
+the labelled markers of a C3D or TRC file (:class:`TrialQTMSource`).
 Faults on demand: frames lost (``loss``, frame numbers jump as when QTM skips), a malformed data
 packet every ``bad_every`` frames, a measurement of ``frames`` frames followed by "no more
 data", and QTM restarting every ``restart_every_s`` (a shutting-down event, connections closed,
@@ -144,6 +145,41 @@ class ActorQTMSource:
                                 list(zip(self.body_names, self.body_points)), [self.skeleton_def], parts)
 
 
+class TrialQTMSource:
+    """A marker file (C3D, TRC) as QTM would stream it: its labels and trajectories in millimetres,
+    QTM axes ``axis_up`` (the file's own up axis made world Z first, as the readers do); no 6DOF
+    bodies, no skeleton, no unlabelled markers. Frame ``k`` is the file's frame ``k`` (looping)."""
+
+    def __init__(self, path: str, axis_up: str = "+Z") -> None:
+        from ..formats.sources import read_marker_file
+
+        trial = read_marker_file(path)
+        self.trial = trial
+        self.rate_hz = float(trial.rate_hz)
+        self.labels = list(trial.labels)
+        self.body_names: list[str] = []
+        self.axis_up = axis_up
+        self.dev = DeviceConfig().with_up_axis(axis_up)
+        self.mm = (self.dev.points_from_world(trial.positions) * 1000.0).astype(np.float32)
+        self.res = (trial.residuals * 1000.0).astype(np.float32)
+        none = q.Skeleton(np.zeros(0, np.int32), np.zeros((0, 3), np.float32), np.zeros((0, 4), np.float32))
+        self._empty = dict(unlabelled=np.zeros((0, 3), np.float32), unlabelled_ids=np.zeros(0, np.int32),
+                           body_pos=np.zeros((0, 3), np.float32), body_rot=np.zeros((0, 9), np.float32),
+                           body_euler=np.zeros((0, 3), np.float32), body_res=np.zeros(0, np.float32),
+                           seg_global=none, seg_local=none)
+
+    @property
+    def n_frames(self) -> int:
+        return self.mm.shape[0]
+
+    def frame(self, k: int) -> SourceFrame:
+        i = k % self.n_frames
+        return SourceFrame(frame=k, markers=self.mm[i], residuals=self.res[i], **self._empty)
+
+    def parameters(self, version: str, parts: tuple[str, ...]) -> str:
+        return q.parameters_xml(version, self.rate_hz, self.axis_up, self.labels, [], [], parts)
+
+
 def encode_components(f: SourceFrame, comps: tuple[str, ...], rate_hz: float) -> list[bytes]:
     """The components a client asked for (lower-case StreamFrames names), in its order."""
     out = []
@@ -186,7 +222,7 @@ class QTMSimServer:
     """The server (see module doc). ``serve()`` blocks; ``start()`` runs it in a thread, ``stop()``
     ends it. ``frames`` > 0: the measurement ends after that many frames ("no more data")."""
 
-    def __init__(self, source: ActorQTMSource, host: str = "127.0.0.1", port: int = 22223, loss: float = 0.0,
+    def __init__(self, source: ActorQTMSource | TrialQTMSource, host: str = "127.0.0.1", port: int = 22223, loss: float = 0.0,
                  seed: int = 0, frames: int = 0, bad_every: int = 0, restart_every_s: float = 0.0,
                  restart_down_s: float = 1.0, start_frame: int = 0) -> None:
         self.source = source

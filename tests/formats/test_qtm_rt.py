@@ -345,3 +345,34 @@ def test_session_order_of_business_and_parameters_read_again_on_qtm_events(sourc
     assert [(e.kind, e.value) for e in ev] == [("refused", "Version NOT supported")]
     assert [e.kind for e in s.datagram(b"\x00" * 5)] == ["bad_packet"]
     assert [e.kind for e in s.datagram(q.encode_data(START, 0, encode_components(f, ("3d",), 120.0)))] == ["frame"]
+
+
+def test_a_c3d_streamed_by_the_simulator_reads_back_in_qtm_rt(shared_data):
+    from mocapgraph.formats.sources import read_marker_file
+    from mocapgraph.testing.qtm_server import TrialQTMSource
+
+    path = shared_data / "c3d" / "pycgm" / "Movement_trial.c3d"
+    trial = read_marker_file(path)
+    srv = QTMSimServer(TrialQTMSource(str(path), axis_up="+Y"), port=0).start()
+
+    async def go():
+        conn = await connect(srv.port)
+        xml = await conn.get_parameters(["3d", "6d"])
+        pk = await conn.get_current_frame(["3dres"])
+        conn.disconnect()
+        return xml, pk
+
+    try:
+        xml, pk = run(go())
+    finally:
+        srv.stop()
+    root = ET.fromstring(xml.decode())
+    assert [lab.findtext("Name") for lab in root.findall("The_3D/Label")] == trial.labels
+    assert root.findtext("The_3D/AxisUpwards") == "+Y" and root.findall("The_6D/Body") == []
+    k = pk.framenumber % trial.positions.shape[0]
+    got = np.array([[m.x, m.y, m.z] for m in pk.get_3d_markers_residual()[1]])
+    w = trial.positions[k] * 1000.0          # world (X forward, Y left, Z up) -> QTM Y up, X forward: (x, z, -y)
+    want = np.c_[w[:, 0], w[:, 2], -w[:, 1]]
+    seen = ~np.isnan(want).any(axis=1)
+    np.testing.assert_allclose(got[seen], want[seen], atol=1e-3)
+    assert np.isnan(got[~seen]).all()
