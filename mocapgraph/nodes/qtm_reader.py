@@ -22,7 +22,7 @@ from ..bus import Output, Param
 from ..formats import qtm_rt as q
 from ..formats.device_file import DeviceConfig, DeviceConfigError, device_or_default
 from ..formats.qtm_session import QTMSession, QTMToWorld, SessionEvent
-from ..messages import MarkerFrame, RigidBodyInfo, RigidBodyPoses, SkeletonInfo, SkeletonPose
+from ..messages import MarkerFrame, RigidBodyFrame, RigidBodyLayout, SkeletonInfo, SkeletonPose
 from .marker_source import UP_AXIS_CHOICES, MarkerSourceNode
 from .source_base import INPUT_ERRORS
 
@@ -197,7 +197,7 @@ class QTMLink(MarkerSourceNode):
 class QTMReader(QTMLink):
     """Streams from a Qualisys QTM RT server (``host``:``port``, the little-endian port, 22223 by
     default) and publishes ``markers`` + latched ``marker_layout`` (labels from QTM's parameter XML),
-    ``unlabelled_markers``, ``rigid_bodies`` + latched ``rigid_body_info`` (QTM's 6DOF bodies) and
+    ``unlabelled_markers``, ``rigid_bodies`` + latched ``rigid_body_layout`` (QTM's 6DOF bodies) and
     ``skeleton_pose`` + latched ``skeleton_info`` (one QTM skeleton). QTM's millimetres become
     metres; QTM's up axis (``AxisUpwards``) becomes world Z unless ``up_axis`` or a device file
     says otherwise. Unseen markers and untracked bodies are NaN with quality 0.
@@ -212,9 +212,11 @@ class QTMReader(QTMLink):
                     choices=UP_AXIS_CHOICES)
     unlabelled_markers = Output("unlabelled_markers", MarkerFrame, "QTM's unidentified markers this frame "
                                 "(m, world; their count varies; residual NaN)")
-    rigid_bodies = Output("rigid_bodies", RigidBodyPoses, "QTM 6DOF bodies: origin (m, world), orientation "
-                          "(wxyz, world), QTM residual (m); NaN and quality 0 when not tracked")
-    rigid_body_info = Output("rigid_body_info", RigidBodyInfo, "latched: the 6DOF body names, rigid_bodies order")
+    rigid_bodies = Output("rigid_bodies", RigidBodyFrame, "QTM 6DOF bodies in rigid_body_layout order: origin "
+                          "(m, world), orientation (wxyz, world), QTM residual as error (m); NaN and quality 0 "
+                          "when not tracked")
+    rigid_body_layout = Output("rigid_body_layout", RigidBodyLayout, "latched: the 6DOF body names (ids: QTM's "
+                               "body numbers from 1, no parents)")
     skeleton_pose = Output("skeleton_pose", SkeletonPose, "segment origins (m, world) and orientations (wxyz, "
                            "world) of one QTM skeleton, skeleton_info order")
     skeleton_info = Output("skeleton_info", SkeletonInfo, "latched: segment names, parents and offsets")
@@ -279,8 +281,10 @@ class QTMReader(QTMLink):
             except INPUT_ERRORS as exc:
                 self.fail(f"qtm {self.endpoint}: {exc}")
                 return
-            self.rigid_body_info.publish(RigidBodyInfo(source=f"qtm {self.endpoint}", body_names=p.bodies,
-                                                       units_note=note))
+            nb = len(p.bodies)
+            self.rigid_body_layout.publish(RigidBodyLayout(names=p.bodies, ids=np.arange(1, nb + 1, dtype=np.int32),
+                                                           parent=np.full(nb, -1, np.int32), units_note=note,
+                                                           source=f"qtm {self.endpoint}"))
             self._bind_skeleton(p, note)
             self.log.info("qtm %s: protocol %s, %d labelled markers, %d bodies, %d skeletons at %g Hz",
                           self.endpoint, p.version or self.version, len(p.labels), len(p.bodies),
@@ -374,8 +378,8 @@ class QTMReader(QTMLink):
         quat[~ok] = np.nan
         res = (f.body_residuals * 0.001 if f.body_residuals is not None
                else np.full(len(pos), np.nan)).astype(np.float32)
-        self.rigid_bodies.publish(RigidBodyPoses(frame_number=f.frame_number, positions=pos, orientations=quat,
-                                                 residual=np.where(ok, res, np.nan).astype(np.float32),
+        self.rigid_bodies.publish(RigidBodyFrame(frame_number=f.frame_number, positions=pos, orientations=quat,
+                                                 error=np.where(ok, res, np.nan).astype(np.float32),
                                                  quality=np.where(ok, 2, 0).astype(np.int8)), capture_ns=capture)
 
     # ----- reporting ------------------------------------------------------------------------------

@@ -63,7 +63,7 @@ def test_values_equal_the_actor_in_world_metres(run_node, axis_up, transport) ->
         srv.stop()
     layout = n.messages("marker_layout")[-1]
     assert layout.labels == src.labels and "up axis " + axis_up in layout.units_note
-    assert n.messages("rigid_body_info")[-1].body_names == src.body_names
+    assert n.messages("rigid_body_layout")[-1].names == src.body_names
     info = n.messages("skeleton_info")[-1]
     assert info.joint_names == src.limb_names and list(info.joint_parent) == list(src.limb_parent)
     fns = [r.msg.frame_number for r in recs]
@@ -86,7 +86,7 @@ def test_values_equal_the_actor_in_world_metres(run_node, axis_up, transport) ->
     quat_close(bq[ok], cap.limb_quat[idx][:, :5][ok], 1e-5)
     assert (~ok).sum() == sum(1 for m in b if m.frame_number % 4 == 0)
     assert np.isnan(bp[~ok]).all() and np.isnan(bq[~ok]).all()
-    assert np.allclose(np.array([m.residual for m in b])[ok], 0.5e-3)
+    assert np.allclose(np.array([m.error for m in b])[ok], 0.5e-3)
     # skeleton: segment orientations are the limbs'; the root segment sits at the root's centroid
     s = [r.msg for r in skel if r.msg.frame_number in set(fns)]
     sidx = [fns.index(m.frame_number) for m in s]
