@@ -12,6 +12,7 @@ is one log line, a state in ``reader_status`` and a retry with doubling back-off
 from __future__ import annotations
 
 import errno
+import re
 import socket
 import time
 from typing import Any
@@ -43,6 +44,15 @@ class QTMLink(MarkerSourceNode):
     answer_timeout_s = Param(2.0, "longest wait for QTM to connect, greet or answer, s", minimum=0.1)
     reconnect_s = Param(0.2, "first wait before reconnecting, s (doubles up to reconnect_max_s)", minimum=0.01)
     reconnect_max_s = Param(1.0, "longest wait between reconnection attempts, s", minimum=0.01)
+
+    @classmethod
+    def graph_check(cls, params: dict[str, Any]) -> None:
+        """The graph check refuses a protocol version QTM could not be asked for."""
+        from ..bus.node import NodeConfigError
+
+        v = str(params.get("version", "1.25"))
+        if not re.fullmatch(r"1\.\d{1,2}", v):
+            raise NodeConfigError(f"parameter 'version': {v!r} is not a QTM RT protocol version (e.g. '1.25')")
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)

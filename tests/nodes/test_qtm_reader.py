@@ -264,3 +264,18 @@ def test_no_more_data_is_a_waiting_state_not_a_disconnect(run_node) -> None:
     finally:
         srv.stop()
     assert st["disconnects"] == 0 and st["frames"] > 0 and n.logged("no measurement running")
+
+
+def test_the_graph_check_refuses_a_version_qtm_cannot_be_asked_for(tmp_path) -> None:
+    from mocapgraph.launch.check import check_graph
+    from mocapgraph.launch.graph import load_graph
+
+    for version, ok in (("1.25", True), ("1.7", True), ("two", False), ("1.25; Quit", False)):
+        g = tmp_path / "g.yaml"
+        g.write_text(f"nodes:\n  - name: reader\n    type: qtm_reader\n    params: {{version: {version!r}}}\n")
+        try:
+            check_graph(load_graph(g), check_files=False)
+            refused = ""
+        except Exception as exc:          # the check's one-line error, whatever its class
+            refused = str(exc)
+        assert (refused == "") == ok and (ok or "not a QTM RT protocol version" in refused), refused
