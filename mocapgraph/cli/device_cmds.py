@@ -67,6 +67,17 @@ def cmd_lsl(args: argparse.Namespace) -> int:
     return 0
 
 
+def _delay_range(text: str) -> tuple[float, float]:
+    try:
+        lo, _, hi = text.partition(",")
+        out = (float(lo), float(hi or lo))
+    except ValueError:
+        raise UserError(f"--delay-ms {text!r}: want LO,HI in milliseconds, e.g. 0,20") from None
+    if not 0 <= out[0] <= out[1]:
+        raise UserError(f"--delay-ms {text!r}: want 0 <= LO <= HI")
+    return out
+
+
 def cmd_qtm(args: argparse.Namespace) -> int:
     from ..formats import FormatError
     from ..kinematics.layout import LayoutError
@@ -80,7 +91,8 @@ def cmd_qtm(args: argparse.Namespace) -> int:
                                  occlude_every=args.occlude_every)
         srv = QTMSimServer(src, args.host, args.port, loss=args.loss, seed=args.seed, frames=args.count,
                            bad_every=args.bad_every, restart_every_s=args.restart_every,
-                           restart_down_s=args.restart_down, start_frame=args.start_frame)
+                           restart_down_s=args.restart_down, start_frame=args.start_frame,
+                           delay_ms=_delay_range(args.delay_ms), drift_ppm=args.drift_ppm)
     except (LayoutError, FormatError, ValueError) as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:
@@ -138,6 +150,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     qtm.add_argument("--restart-every", type=float, default=0.0, help="QTM restarts every S seconds (0 = never)")
     qtm.add_argument("--restart-down", type=float, default=1.0, help="seconds the port stays closed on a restart")
     qtm.add_argument("--start-frame", type=int, default=0, help="first frame of the actor's session")
+    qtm.add_argument("--delay-ms", default="0,0", help="each frame held back a random LO,HI milliseconds")
+    qtm.add_argument("--drift-ppm", type=float, default=0.0, help="QTM's clock runs this many ppm fast")
     qtm.add_argument("--file", default="", help="stream this C3D or TRC's markers instead of the synthetic actor")
     qtm.add_argument("--layout", default="plug_in_gait", help="marker layout worn by the performer")
     qtm.add_argument("--rate", type=float, default=120.0, help="frames per second")

@@ -13,13 +13,15 @@ What it sends is exactly what a reader should reconstruct (:class:`ActorQTMSourc
 markers in millimetres in QTM's axes (``axis_up``: ``+Z`` as QTM's default, or another axis), its
 first ``n_bodies`` limbs as 6DOF bodies, its limbs as one skeleton, a few unlabelled strays; or
 the labelled markers of a C3D or TRC file (:class:`TrialQTMSource`).
-Faults on demand: frames lost (``loss``, frame numbers jump as when QTM skips), a malformed data
-packet every ``bad_every`` frames, a measurement of ``frames`` frames followed by "no more
+Faults on demand: frames lost (``loss``, frame numbers jump as when QTM skips), each frame held
+back by a random ``delay_ms`` (lo, hi) (TCP keeps the order), QTM's clock running ``drift_ppm``
+fast, a malformed data packet every ``bad_every`` frames, a measurement of ``frames`` frames followed by "no more
 data", and QTM restarting every ``restart_every_s`` (a shutting-down event, connections closed,
 the port closed for ``restart_down_s``, frame numbers starting over).
 """
 from __future__ import annotations
 
+import heapq
 import selectors
 import socket
 import threading
@@ -216,113 +218,13 @@ class _Client:
     divisor: int = 0                  # 0 = not streaming
     udp_to: tuple | None = None
     outbuf: bytearray = field(default_factory=bytearray)
+    later: deque = field(default_factory=deque)    # (due, packet): delayed frames, in order (TCP keeps order)
 
 
-class QTMSimServer:
-    """The server (see module doc). ``serve()`` blocks; ``start()`` runs it in a thread, ``stop()``
-    ends it. ``frames`` > 0: the measurement ends after that many frames ("no more data")."""
+class _Commands:
+    """QTM's answers to a client's commands (the server's half of the conversation); the server
+    class supplies the sockets (``_send``), the source and the measurement's state."""
 
-    def __init__(self, source: ActorQTMSource | TrialQTMSource, host: str = "127.0.0.1", port: int = 22223, loss: float = 0.0,
-                 seed: int = 0, frames: int = 0, bad_every: int = 0, restart_every_s: float = 0.0,
-                 restart_down_s: float = 1.0, start_frame: int = 0) -> None:
-        self.source = source
-        self.host, self.port = host, int(port)
-        self.rate_hz = source.rate_hz
-        self.loss = float(loss)
-        self.rng = np.random.default_rng(seed)
-        self.frames = int(frames)
-        self.bad_every = int(bad_every)
-        self.restart_every_s = float(restart_every_s)
-        self.restart_down_s = float(restart_down_s)
-        self.start_frame = int(start_frame)
-        self.sel = selectors.DefaultSelector()
-        self.clients: dict[socket.socket, _Client] = {}
-        self.listener: socket.socket | None = None
-        self.udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self.sent_frames = 0
-        self.lost_frames = 0
-        self.bad_sent = 0
-        self.lost_log: deque[int] = deque(maxlen=100_000)    # frame numbers lost / sent malformed
-        self.bad_log: deque[int] = deque(maxlen=100_000)
-        self.restarts = 0
-        self.frame_k = self.start_frame
-        self._listen()
-
-    # ----- sockets ------------------------------------------------------------------------------
-    def _listen(self) -> None:
-        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        s.bind((self.host, self.port))
-        s.listen(16)
-        s.setblocking(False)
-        self.port = s.getsockname()[1]
-        self.listener = s
-        self.sel.register(s, selectors.EVENT_READ, None)
-
-    def _close_all(self) -> None:
-        for c in list(self.clients.values()):
-            self._drop(c)
-        if self.listener is not None:
-            self.sel.unregister(self.listener)
-            self.listener.close()
-            self.listener = None
-
-    def _accept(self) -> None:
-        try:
-            sock, addr = self.listener.accept()
-        except OSError:
-            return
-        sock.setblocking(False)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        c = _Client(sock, addr)
-        self.clients[sock] = c
-        self.sel.register(sock, selectors.EVENT_READ, c)
-        self._send(c, q.encode_string(q.PACKET_COMMAND, q.WELCOME))
-
-    def _drop(self, c: _Client) -> None:
-        if self.clients.pop(c.sock, None) is not None:
-            self.sel.unregister(c.sock)
-            c.sock.close()
-
-    def _send(self, c: _Client, data: bytes) -> None:
-        c.outbuf += data
-        self._flush(c)
-
-    def _flush(self, c: _Client) -> None:
-        try:
-            while c.outbuf:
-                n = c.sock.send(c.outbuf)
-                del c.outbuf[:n]
-        except (BlockingIOError, InterruptedError):
-            if len(c.outbuf) > OUTBUF_LIMIT:   # a client that stopped reading: QTM drops it too
-                self._drop(c)
-        except OSError:
-            self._drop(c)
-
-    def _read(self, c: _Client) -> None:
-        try:
-            data = c.sock.recv(65536)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            data = b""
-        if not data:
-            self._drop(c)
-            return
-        try:
-            packets = c.splitter.feed(data)
-        except q.QTMError:
-            self._drop(c)
-            return
-        for ptype, payload in packets:
-            if ptype == q.PACKET_COMMAND:
-                self._command(c, q.packet_text(payload).strip())
-            elif ptype == q.PACKET_XML:
-                self._send(c, q.encode_string(q.PACKET_COMMAND, "Setting parameters failed"))
-
-    # ----- commands --------------------------------------------------------------------------------
     def _command(self, c: _Client, text: str) -> None:
         words = text.split()
         cmd = words[0].lower() if words else ""
@@ -407,13 +309,173 @@ class QTMSimServer:
             self._send(c, q.encode_packet(q.PACKET_NO_MORE_DATA))
             c.divisor = 0
 
+
+class QTMSimServer(_Commands):
+    """The server (see module doc). ``serve()`` blocks; ``start()`` runs it in a thread, ``stop()``
+    ends it. ``frames`` > 0: the measurement ends after that many frames ("no more data")."""
+
+    def __init__(self, source: ActorQTMSource | TrialQTMSource, host: str = "127.0.0.1", port: int = 22223, loss: float = 0.0,
+                 seed: int = 0, frames: int = 0, bad_every: int = 0, restart_every_s: float = 0.0,
+                 restart_down_s: float = 1.0, start_frame: int = 0, delay_ms: tuple[float, float] = (0.0, 0.0),
+                 drift_ppm: float = 0.0) -> None:
+        self.source = source
+        self.host, self.port = host, int(port)
+        self.rate_hz = source.rate_hz
+        self.loss = float(loss)
+        self.rng = np.random.default_rng(seed)
+        self.frames = int(frames)
+        self.bad_every = int(bad_every)
+        self.restart_every_s = float(restart_every_s)
+        self.restart_down_s = float(restart_down_s)
+        self.start_frame = int(start_frame)
+        self.sel = selectors.DefaultSelector()
+        self.clients: dict[socket.socket, _Client] = {}
+        self.listener: socket.socket | None = None
+        self.udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.sent_frames = 0
+        self.lost_frames = 0
+        self.bad_sent = 0
+        self.lost_log: deque[int] = deque(maxlen=100_000)    # frame numbers lost / sent malformed
+        self.bad_log: deque[int] = deque(maxlen=100_000)
+        self.delay_ms = (float(delay_ms[0]), float(delay_ms[1]))
+        self.drift_ppm = float(drift_ppm)
+        #: (frame number, true capture time on this machine's wall clock, ns): the frame's place in
+        #: the measurement's schedule, before any send delay (what a reader's stamps should equal)
+        self.capture_log: deque[tuple[int, int]] = deque(maxlen=100_000)
+        self._udp_later: list[tuple[float, int, bytes, tuple]] = []     # heap: (due, seq, packet, address)
+        self._seq = 0
+        self._mono0, self._wall0 = time.monotonic(), time.time_ns()
+        self._epoch = self._mono0          # monotonic time of the measurement's first frame
+        self.restarts = 0
+        self.frame_k = self.start_frame
+        self._epoch = time.monotonic()
+        self._listen()
+
+    # ----- sockets ------------------------------------------------------------------------------
+    def _listen(self) -> None:
+        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind((self.host, self.port))
+        s.listen(16)
+        s.setblocking(False)
+        self.port = s.getsockname()[1]
+        self.listener = s
+        self.sel.register(s, selectors.EVENT_READ, None)
+
+    def _close_all(self) -> None:
+        for c in list(self.clients.values()):
+            self._drop(c)
+        if self.listener is not None:
+            self.sel.unregister(self.listener)
+            self.listener.close()
+            self.listener = None
+
+    def _accept(self) -> None:
+        try:
+            sock, addr = self.listener.accept()
+        except OSError:
+            return
+        sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        c = _Client(sock, addr)
+        self.clients[sock] = c
+        self.sel.register(sock, selectors.EVENT_READ, c)
+        self._send(c, q.encode_string(q.PACKET_COMMAND, q.WELCOME))
+
+    def _drop(self, c: _Client) -> None:
+        if self.clients.pop(c.sock, None) is not None:
+            self.sel.unregister(c.sock)
+            c.sock.close()
+
+    def _send(self, c: _Client, data: bytes) -> None:
+        c.outbuf += data
+        self._flush(c)
+
+    def _flush(self, c: _Client) -> None:
+        try:
+            while c.outbuf:
+                n = c.sock.send(c.outbuf)
+                del c.outbuf[:n]
+        except (BlockingIOError, InterruptedError):
+            if len(c.outbuf) > OUTBUF_LIMIT:   # a client that stopped reading: QTM drops it too
+                self._drop(c)
+        except OSError:
+            self._drop(c)
+
+    def _read(self, c: _Client) -> None:
+        try:
+            data = c.sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._drop(c)
+            return
+        try:
+            packets = c.splitter.feed(data)
+        except q.QTMError:
+            self._drop(c)
+            return
+        for ptype, payload in packets:
+            if ptype == q.PACKET_COMMAND:
+                self._command(c, q.packet_text(payload).strip())
+            elif ptype == q.PACKET_XML:
+                self._send(c, q.encode_string(q.PACKET_COMMAND, "Setting parameters failed"))
+
     # ----- the measurement ------------------------------------------------------------------------
     @property
     def measurement_over(self) -> bool:
         return bool(self.frames) and self.frame_k - self.start_frame >= self.frames
 
     def _stamp_us(self, k: int) -> int:
-        return round((k - self.start_frame) * 1e6 / self.rate_hz)
+        """QTM's time stamp of frame ``k``: µs since the measurement began, by QTM's clock (which
+        runs ``drift_ppm`` fast against ours)."""
+        return round((k - self.start_frame) * 1e6 / self.rate_hz * (1.0 + self.drift_ppm * 1e-6))
+
+    def _due(self, k: int) -> float:
+        """Monotonic time frame ``k`` is captured (the measurement's schedule)."""
+        return self._epoch + (k - self.start_frame) / self.rate_hz
+
+    def _deliver(self, c: _Client, pkt: bytes) -> None:
+        """Send a frame now, or after the injected delay (TCP: never before an earlier frame)."""
+        lo, hi = self.delay_ms
+        if hi <= 0:
+            if c.udp_to is not None:
+                try:
+                    self.udp.sendto(pkt, c.udp_to)
+                except OSError:
+                    pass
+            else:
+                self._send(c, pkt)
+            return
+        due = time.monotonic() + float(self.rng.uniform(lo, hi)) / 1000.0
+        if c.udp_to is not None:
+            self._seq += 1
+            heapq.heappush(self._udp_later, (due, self._seq, pkt, c.udp_to))
+        else:
+            c.later.append((max(due, c.later[-1][0]) if c.later else due, pkt))
+
+    def _release(self) -> float:
+        """Send the delayed frames now due; returns when the next one is (inf: none)."""
+        now = time.monotonic()
+        nxt = float("inf")
+        for c in list(self.clients.values()):
+            while c.later and c.later[0][0] <= now:
+                self._send(c, c.later.popleft()[1])
+            if c.later:
+                nxt = min(nxt, c.later[0][0])
+        while self._udp_later and self._udp_later[0][0] <= now:
+            _due, _seq, pkt, to = heapq.heappop(self._udp_later)
+            try:
+                self.udp.sendto(pkt, to)
+            except OSError:
+                pass
+        if self._udp_later:
+            nxt = min(nxt, self._udp_later[0][0])
+        return nxt
 
     def _tick(self) -> None:
         """Frame ``frame_k`` is due: send it to every streaming client (unless lost)."""
@@ -434,6 +496,7 @@ class QTMSimServer:
             self.lost_frames += 1
             self.lost_log.append(k)
             return
+        self.capture_log.append((k, self._wall0 + round((self._due(k) - self._mono0) * 1e9)))
         f = self.source.frame(k)
         cache: dict[tuple[str, ...], bytes] = {}
         for c in streaming:
@@ -444,13 +507,7 @@ class QTMSimServer:
                 pkt = q.encode_packet(q.PACKET_DATA, q.DATA_HEADER.pack(0, k, 1000) + b"\x07" * 24)
                 self.bad_sent += 1
                 self.bad_log.append(k)
-            if c.udp_to is not None:
-                try:
-                    self.udp.sendto(pkt, c.udp_to)
-                except OSError:
-                    pass
-            else:
-                self._send(c, pkt)
+            self._deliver(c, pkt)
         self.sent_frames += 1
 
     def _restart(self) -> None:
@@ -461,13 +518,14 @@ class QTMSimServer:
         if self._stop.wait(self.restart_down_s):
             return
         self.frame_k = self.start_frame
+        self._epoch = time.monotonic()
         self._listen()
 
     def serve(self, duration_s: float = 0.0) -> None:
-        """Run until ``stop()`` (or ``duration_s`` seconds)."""
-        t0 = time.monotonic()
-        period = 1.0 / self.rate_hz
-        next_due = t0
+        """Run until ``stop()`` (or ``duration_s`` seconds). Frames follow the measurement's schedule;
+        if this process was held up for over 0.5 s, the frames it missed are skipped (as lost: QTM's
+        cameras do not wait either)."""
+        t0 = self._epoch = time.monotonic()
         restart_at = t0 + self.restart_every_s if self.restart_every_s else float("inf")
         try:
             while not self._stop.is_set():
@@ -476,10 +534,11 @@ class QTMSimServer:
                     break
                 if now >= restart_at:
                     self._restart()
-                    next_due = restart_at = time.monotonic()
-                    restart_at += self.restart_every_s
+                    restart_at = time.monotonic() + self.restart_every_s
                     continue
-                for key, _ev in self.sel.select(timeout=max(0.0, min(next_due - now, 0.05))):
+                next_due = self._due(self.frame_k)
+                wake = min(next_due, self._release())
+                for key, _ev in self.sel.select(timeout=max(0.0, min(wake - now, 0.05))):
                     if key.data is None:
                         self._accept()
                     elif key.fileobj in self.clients:
@@ -488,11 +547,13 @@ class QTMSimServer:
                     if c.outbuf:
                         self._flush(c)
                 now = time.monotonic()
-                if now >= next_due:
+                if now - next_due > 0.5:
+                    behind = int((now - next_due) * self.rate_hz)
+                    self.lost_log.extend(range(self.frame_k, self.frame_k + behind))
+                    self.lost_frames += behind
+                    self.frame_k += behind
+                elif now >= next_due:
                     self._tick()
-                    next_due += period
-                    if now - next_due > 0.5:      # fell far behind (suspended): do not burst
-                        next_due = now + period
         finally:
             self._close_all()
 
