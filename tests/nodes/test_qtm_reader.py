@@ -291,14 +291,14 @@ def test_capture_stamps_follow_qtm_time_despite_random_send_delays(run_node) -> 
         truth = dict(srv.capture_log)
     finally:
         srv.stop()
-    recs = sorted(recs, key=lambda r: r.msg.frame_number)     # (datagrams may overtake each other)
-    first = recs[0].msg.frame_number
-    late = [r for r in recs if r.msg.frame_number - first >= 2 * 240]          # after 2 s
-    err_ms = np.array([(r.env.capture_ns - truth[r.msg.frame_number]) / 1e6 for r in late])
-    # Each frame arrives 0-20 ms late, more on a loaded machine; the stamps keep QTM's own spacing
-    # and sit at the least delay seen (a one-way delay no stamp can see below: ~2 ms at load 9 on
-    # 2 cores, under 1 ms on a quiet one). Stamping a frame when it arrived, or anchoring on the
-    # first frame's delay, fails this (a first frame is over 3 ms late 85 % of the time).
-    assert np.ptp(err_ms) < 1.0 and -0.05 < err_ms.min() and err_ms.max() < 3.0, np.percentile(err_ms, [0, 50, 100])
-    arrival_ms = np.array([(r.receive_ns - truth[r.msg.frame_number]) / 1e6 for r in late])
+    # in the order the reader published them (datagrams may overtake each other)
+    err_ms = np.array([(r.env.capture_ns - truth[r.msg.frame_number]) / 1e6 for r in recs])
+    arrival_ms = np.array([(r.receive_ns - truth[r.msg.frame_number]) / 1e6 for r in recs])
+    # Each frame arrives 0-20 ms late, more on a loaded machine. A stamp is the capture time plus
+    # the least delay seen so far (one-way delay below that is invisible to any stamp): never
+    # before the capture, never growing, and by the end no later than the least delay this test's
+    # own subscriber saw (it receives after the reader). Stamping on arrival, or anchoring on the
+    # first frame's delay, fails this.
+    assert err_ms.min() > -0.01 and np.diff(err_ms).max() < 0.002, np.percentile(err_ms, [0, 50, 100])
+    assert err_ms[-1] <= arrival_ms.min() + 0.01, (err_ms[-1], arrival_ms.min())
     assert np.percentile(arrival_ms, 90) > 10.0          # the delays were there to be undone
