@@ -321,14 +321,15 @@ class QTMReader(QTMLink):
     # ----- frames ---------------------------------------------------------------------------------
     def stamp_capture(self, device_us: int, arrival_ns: int) -> int:
         """QTM's frame time stamp (µs) -> our clock: the smallest arrival-minus-device offset seen
-        (the least delayed frame), re-anchored when QTM's clock jumps (a restart). The one place
-        frames are stamped, so a shared clock estimator can replace it."""
+        (the least delayed frame; a first frame held up at start-up is soon bettered), re-anchored
+        and counted when a frame arrives over RESYNC_S later than that offset says (QTM's clock
+        went back: a restart). The one place frames are stamped, so a shared clock
+        estimator can replace it."""
         cand = arrival_ns - device_us * 1000
-        if self._offset_ns is None or abs(cand - self._offset_ns) > RESYNC_S * 1e9:
-            if self._offset_ns is not None:
-                self.counts["clock_resyncs"] += 1
+        if self._offset_ns is None or cand < self._offset_ns:
             self._offset_ns = cand
-        elif cand < self._offset_ns:
+        elif cand - self._offset_ns > RESYNC_S * 1e9:
+            self.counts["clock_resyncs"] += 1
             self._offset_ns = cand
         return device_us * 1000 + self._offset_ns
 
