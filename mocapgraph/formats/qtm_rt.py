@@ -347,9 +347,17 @@ def _float(text: str | None, default: float = float("nan")) -> float:
         return default
 
 
-def _segments(parent_el: ET.Element, parent: int, sk: dict) -> None:
-    """Walk nested Segment elements (QTM 1.21+); a flat list with Parent_ID attributes works too."""
-    for seg in parent_el.findall("Segment"):
+MAX_SEGMENT_DEPTH = 64
+
+
+def _segments(top: ET.Element, sk: dict) -> None:
+    """Walk nested Segment elements (QTM 1.21+), depth first in document order, without recursion
+    (a hostile document may nest deeper than Python's stack); a flat list with Parent_ID works too."""
+    stack = [(seg, -1, 1) for seg in reversed(top.findall("Segment"))]
+    while stack:
+        seg, parent, depth = stack.pop()
+        if depth > MAX_SEGMENT_DEPTH:
+            raise QTMError(f"skeleton {sk['name']!r}: segments nested over {MAX_SEGMENT_DEPTH} deep")
         idx = len(sk["names"])
         sk["names"].append(seg.get("Name", f"segment{idx}"))
         try:
@@ -362,12 +370,12 @@ def _segments(parent_el: ET.Element, parent: int, sk: dict) -> None:
         if pos is None:
             pos = seg.find("Position")
         sk["offsets"].append([_float(pos.get(a)) if pos is not None else np.nan for a in "XYZ"])
-        _segments(seg, idx, sk)
+        stack.extend((child, idx, depth + 1) for child in reversed(seg.findall("Segment")))
 
 
 def _skeleton(el: ET.Element) -> SkeletonDef:
     sk = {"name": el.get("Name", ""), "names": [], "ids": [], "parents": [], "parent_ids": [], "offsets": []}
-    _segments(el.find("Segments") if el.find("Segments") is not None else el, -1, sk)
+    _segments(el.find("Segments") if el.find("Segments") is not None else el, sk)
     by_id = {i: k for k, i in enumerate(sk["ids"])}
     parents = [p if pid is None else by_id.get(int(pid) if pid.lstrip("-").isdigit() else -1, -1)
                for p, pid in zip(sk["parents"], sk["parent_ids"])]

@@ -376,3 +376,27 @@ def test_a_c3d_streamed_by_the_simulator_reads_back_in_qtm_rt(shared_data):
     seen = ~np.isnan(want).any(axis=1)
     np.testing.assert_allclose(got[seen], want[seen], atol=1e-3)
     assert np.isnan(got[~seen]).all()
+
+
+def test_hostile_parameter_documents_and_session_bytes_are_one_line_errors():
+    from mocapgraph.formats.qtm_session import QTMSession
+
+    deep = ("<QTM_Parameters_Ver_1.25><Skeletons><Skeleton Name='s'><Segments>" + "<Segment Name='x'>" * 5000
+            + "</Segment>" * 5000 + "</Segments></Skeleton></Skeletons></QTM_Parameters_Ver_1.25>")
+    with pytest.raises(q.QTMError, match="nested over"):
+        q.parse_parameters(deep)
+    with pytest.raises(q.QTMError, match="not a number"):
+        q.parse_parameters("<QTM_Parameters_Ver_1.25><Skeletons><Skeleton><Segment ID='x'/></Skeleton></Skeletons>"
+                           "</QTM_Parameters_Ver_1.25>")
+    rng = np.random.default_rng(9)
+    kinds = [q.PACKET_ERROR, q.PACKET_COMMAND, q.PACKET_XML, q.PACKET_DATA, q.PACKET_NO_MORE_DATA, q.PACKET_EVENT, 99]
+    for _ in range(2000):
+        s = QTMSession()
+        s.state = str(rng.choice(["welcome", "version", "parameters", "streaming"]))
+        body = rng.integers(0, 256, int(rng.integers(0, 80)), dtype=np.uint8).tobytes()
+        if rng.random() < 0.3:
+            body = b"<QTM_Parameters_Ver_1.25><The_3D><Label><Name>" + body + b"</Name></Label></The_3D>"
+        try:
+            s.receive(q.encode_packet(int(rng.choice(kinds)), body))
+        except q.QTMError:
+            pass        # (only a broken stream raises; everything else is an event)
