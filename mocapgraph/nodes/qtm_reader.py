@@ -348,11 +348,7 @@ class QTMReader(QTMLink):
         capture = self.stamp_capture(f.timestamp_us, arrival_ns)
         rate = self.qtm.frequency
         if f.markers is not None and self.lmap is not None:
-            if len(f.markers) != self.lmap.n_source:
-                self.counts["count_mismatches"] += 1
-                self.warn_limited("count", "qtm %s: frame %d has %d labelled markers, the parameters %d: skipped",
-                                  self.endpoint, f.frame_number, len(f.markers), self.lmap.n_source)
-            else:
+            if self._agrees(len(f.markers), self.lmap.n_source, "labelled markers", f.frame_number):
                 res = f.marker_residuals if f.marker_residuals is not None else np.full(len(f.markers), np.nan)
                 pos = self.lmap.positions(self.world.points(f.markers))
                 self.publish_frame(f.frame_number, rate, pos, capture,
@@ -363,23 +359,38 @@ class QTMReader(QTMLink):
                 frame_number=f.frame_number, rate_hz=rate, positions=u, valid=~np.isnan(u).any(axis=1),
                 residual=np.full(len(u), np.nan, np.float32)), capture_ns=capture)
         if f.body_positions is not None and f.body_rotations is not None:
-            self._bodies(f, capture)
+            if self._agrees(len(f.body_positions), len(self.qtm.bodies), "6DOF bodies", f.frame_number):
+                self._bodies(f, capture)
         if f.skeletons is not None and 0 <= self._skeleton_index < len(f.skeletons):
-            sk = f.skeletons[self._skeleton_index]
-            pos = self.world.points(sk.positions)
-            quat = self.world.segment_quats(sk.quats_xyzw)
-            ok = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
-            self.skeleton_pose.publish(SkeletonPose(source_id=self.qtm.skeletons[self._skeleton_index].name,
-                                                    frame_number=f.frame_number, joint_positions=pos,
-                                                    joint_orientations=quat,
-                                                    tracking_state=np.where(ok, 2, 0).astype(np.int8)),
-                                       capture_ns=capture)
+            self._skeleton(f, capture)
         if f.timecodes is not None:
             smpte = f.timecodes[f.timecodes["type"] == q.TIMECODE_SMPTE]
             if len(smpte):
                 self.last_timecode = q.smpte_text(int(smpte["hi"][0]))
         self.counts["frames"] += 1
         self.last_arrival = time.monotonic()
+
+    def _agrees(self, got: int, want: int, what: str, frame: int) -> bool:
+        """A frame's item count against the parameters' (else counted, logged, skipped)."""
+        if got == want:
+            return True
+        self.counts["count_mismatches"] += 1
+        self.warn_limited("count", "qtm %s: frame %d has %d %s, the parameters %d: skipped", self.endpoint,
+                          frame, got, what, want)
+        return False
+
+    def _skeleton(self, f: q.QTMFrame, capture: int) -> None:
+        sk = f.skeletons[self._skeleton_index]
+        sdef = self.qtm.skeletons[self._skeleton_index]
+        if not self._agrees(len(sk.ids), len(sdef.segment_names), "skeleton segments", f.frame_number):
+            return
+        pos = self.world.points(sk.positions)
+        quat = self.world.segment_quats(sk.quats_xyzw)
+        ok = np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
+        self.skeleton_pose.publish(SkeletonPose(source_id=sdef.name, frame_number=f.frame_number,
+                                                joint_positions=pos, joint_orientations=quat,
+                                                tracking_state=np.where(ok, 2, 0).astype(np.int8)),
+                                   capture_ns=capture)
 
     def _bodies(self, f: q.QTMFrame, capture: int) -> None:
         pos = self.world.points(f.body_positions)

@@ -241,12 +241,19 @@ def test_100000_malformed_packets_counted_memory_flat_and_a_broken_stream_reconn
     assert st["bad_packets"] == 100_000 and st["frames"] == 2 and st["disconnects"] == 0
     assert rss_kb(n.proc.pid) - rss0 < 20_000, "memory grew by more than 20 MB"
     assert sum("packet skipped" in ln for ln in n.log().splitlines()) < 20          # rate-limited lines
+    # a frame whose 6DOF body count is not the parameters': its markers pass, its bodies are skipped
+    f = src.frame(START + 9)
+    conn.sendall(q.encode_data(START + 9, 9 * 8333, [q.component_3d(f.markers),
+                                                     q.component_6d(np.zeros((7, 3), np.float32), np.zeros((7, 9), np.float32))]))
+    frames_from(n, "markers", 3)
+    n.wait_for(lambda: status(n)["count_mismatches"] == 1, 5, "the body count mismatch counted")
+    assert not [r for r in n.records("rigid_bodies") if r.msg.frame_number == START + 9]
     # a header no QTM sends (2 GB): the stream cannot be followed -> dropped, reconnected, counted once
     conn.sendall(q.HEADER.pack(0x7FFFFFF0, q.PACKET_DATA))
     conn2, _ = lsock.accept()
     _handshake(conn2, src)
     conn2.sendall(good[2])
-    frames_from(n, "markers", 3)
+    frames_from(n, "markers", 4)
     n.wait_for(lambda: status(n)["disconnects"] == 1, 5, "one disconnect")
     assert n.logged("lost qtm", "packet header says") and n.alive()
     for c in (conn, conn2, lsock):
