@@ -105,8 +105,16 @@ class ActorQTMSource:
     def to_qtm_points(self, world_m: np.ndarray) -> np.ndarray:
         return (self.dev.points_from_world(world_m) * 1000.0).astype(np.float32)
 
+    def preload(self, start: int, count: int) -> None:
+        """Compute frames [start, start + count) now, so serving them costs no CPU (benchmarks)."""
+        self._pre = {}
+        self._pre = {k: self.frame(k) for k in range(start, start + count)}
+
     def frame(self, k: int) -> SourceFrame:
         """Frame ``k`` (session frames loop)."""
+        pre = getattr(self, "_pre", None)
+        if pre and k in pre:
+            return pre[k]
         cap, i = self._capture(k % self.actor.n_frames)
         markers = self.to_qtm_points(cap.markers[i])
         R = Rotation.from_quat(cap.limb_quat[i], scalar_first=True).as_matrix()     # world, per limb
@@ -344,6 +352,7 @@ class QTMSimServer(_Commands):
         #: (frame number, true capture time on this machine's wall clock, ns): the frame's place in
         #: the measurement's schedule, before any send delay (what a reader's stamps should equal)
         self.capture_log: deque[tuple[int, int]] = deque(maxlen=100_000)
+        self.send_log: deque[tuple[int, int]] = deque(maxlen=100_000)   # (frame, wall ns) as it was sent
         self._udp_later: list[tuple[float, int, bytes, tuple]] = []     # heap: (due, seq, packet, address)
         self._seq = 0
         self._mono0, self._wall0 = time.monotonic(), time.time_ns()
@@ -508,6 +517,7 @@ class QTMSimServer(_Commands):
                 self.bad_sent += 1
                 self.bad_log.append(k)
             self._deliver(c, pkt)
+        self.send_log.append((k, time.time_ns()))
         self.sent_frames += 1
 
     def _restart(self) -> None:
