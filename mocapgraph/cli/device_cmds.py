@@ -1,4 +1,4 @@
-"""``mocapgraph device simulate serial|udp|lsl``: a synthetic performer as a marker device."""
+"""``mocapgraph device simulate serial|udp|lsl|qtm``: a synthetic performer as a marker device."""
 from __future__ import annotations
 
 import argparse
@@ -68,6 +68,47 @@ def cmd_lsl(args: argparse.Namespace) -> int:
     return 0
 
 
+def _delay_range(text: str) -> tuple[float, float]:
+    try:
+        lo, _, hi = text.partition(",")
+        out = (float(lo), float(hi or lo))
+    except ValueError:
+        raise UserError(f"--delay-ms {text!r}: want LO,HI in milliseconds, e.g. 0,20") from None
+    if not 0 <= out[0] <= out[1]:
+        raise UserError(f"--delay-ms {text!r}: want 0 <= LO <= HI")
+    return out
+
+
+def cmd_qtm(args: argparse.Namespace) -> int:
+    from ..formats import FormatError
+    from ..kinematics.layout import LayoutError
+    from ..testing.qtm_server import ActorQTMSource, QTMSimServer, TrialQTMSource
+
+    try:
+        if args.file:
+            src = TrialQTMSource(args.file, args.axis_up)
+        else:
+            src = ActorQTMSource(args.layout, args.rate, args.seed, args.noise_mm, args.bodies, args.axis_up,
+                                 occlude_every=args.occlude_every)
+        srv = QTMSimServer(src, args.host, args.port, loss=args.loss, seed=args.seed, frames=args.count,
+                           bad_every=args.bad_every, restart_every_s=args.restart_every,
+                           restart_down_s=args.restart_down, start_frame=args.start_frame,
+                           delay_ms=_delay_range(args.delay_ms), drift_ppm=args.drift_ppm)
+    except (LayoutError, FormatError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    except OSError as exc:
+        raise UserError(f"cannot listen on tcp {args.host}:{args.port}: {exc.strerror or exc}") from None
+    print(f"simulated QTM RT server on tcp {args.host}:{srv.port}: {len(src.labels)} labelled markers, "
+          f"{len(src.body_names)} 6DOF bodies at {src.rate_hz:g} Hz "
+          f"(launch with host:={args.host} port:={srv.port})", flush=True)
+    try:
+        srv.serve()
+    except KeyboardInterrupt:
+        pass
+    print(f"sent {srv.sent_frames} frames ({srv.lost_frames} dropped, {srv.restarts} restarts)", file=sys.stderr)
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser("device", help="simulated marker devices for trying lab graphs without hardware")
     ds = d.add_subparsers(dest="device_command", required=True)
@@ -102,3 +143,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     lsl.add_argument("--type", default="Mocap", help="stream type")
     common(lsl, "example_lsl_mocap")
     lsl.set_defaults(func=cmd_lsl)
+    qtm = ss.add_parser("qtm", help="a Qualisys QTM real-time server (TCP, protocol 1.19-1.26)")
+    qtm.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    qtm.add_argument("--port", type=int, default=22223, help="TCP port (QTM's little-endian port: 22223)")
+    qtm.add_argument("--bodies", type=int, default=5, help="6DOF bodies (the actor's first limbs)")
+    qtm.add_argument("--axis-up", default="+Z", help="QTM's up axis (The_3D/AxisUpwards)")
+    qtm.add_argument("--loss", type=float, default=0.0, help="fraction of frames QTM skips")
+    qtm.add_argument("--bad-every", type=int, default=0, help="a malformed data packet every Nth frame")
+    qtm.add_argument("--occlude-every", type=int, default=0, help="one marker and one body unseen every Nth frame")
+    qtm.add_argument("--restart-every", type=float, default=0.0, help="QTM restarts every S seconds (0 = never)")
+    qtm.add_argument("--restart-down", type=float, default=1.0, help="seconds the port stays closed on a restart")
+    qtm.add_argument("--start-frame", type=int, default=0, help="first frame of the actor's session")
+    qtm.add_argument("--delay-ms", default="0,0", help="each frame held back a random LO,HI milliseconds")
+    qtm.add_argument("--drift-ppm", type=float, default=0.0, help="QTM's clock runs this many ppm fast")
+    qtm.add_argument("--file", default="", help="stream this C3D or TRC's markers instead of the synthetic actor")
+    qtm.add_argument("--layout", default="plug_in_gait", help="marker layout worn by the performer")
+    qtm.add_argument("--rate", type=float, default=120.0, help="frames per second")
+    qtm.add_argument("--seed", type=int, default=0)
+    qtm.add_argument("--noise-mm", type=float, default=0.0, help="marker noise, mm")
+    qtm.add_argument("--count", type=int, default=0, help="frames in the measurement, then 'no more data' (0 = endless)")
+    qtm.set_defaults(func=cmd_qtm)

@@ -41,6 +41,8 @@ EXAMPLES: dict[str, list[tuple[str, str]]] = {
     "device simulate serial": [("--port pty", "a new pseudo-terminal speaking the wire protocol")],
     "device simulate udp": [("--to 127.0.0.1:9870", "datagrams to a udp_reader")],
     "device simulate lsl": [("--name mocap_sim --rate 240", "an LSL outlet for the lsl_reader")],
+    "device simulate qtm": [("--port 22223 --rate 240", "a QTM RT server for the qtm_reader (lab_qtm.yaml)"),
+                            ("--restart-every 30 --loss 0.05", "QTM restarting every 30 s, 5 % of frames skipped")],
     # parts in other branches (used once they are merged)
     "retarget": [("131_01.bvh --character standard_20 -o out.bvh", "a BVH onto a character"),
                  ("walk.c3d --model model.json --character standard_20 -o out.mcap", "an optical trial")],

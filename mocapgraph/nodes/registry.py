@@ -15,6 +15,7 @@ NODE_TYPES: dict[str, str] = {
     "serial_reader": "mocapgraph.nodes.serial_reader:SerialReader",
     "udp_reader": "mocapgraph.nodes.udp_reader:UDPReader",
     "lsl_reader": "mocapgraph.nodes.lsl_reader:LSLReader",
+    "qtm_reader": "mocapgraph.nodes.qtm_reader:QTMReader",
     "kinect_reader": "mocapgraph.nodes.kinect_reader:KinectReader",
     "video_pose_reader": "mocapgraph.nodes.video_pose_reader:VideoPoseReader",
     "multiview_pose": "mocapgraph.nodes.video_pose_reader:MultiviewPose",
