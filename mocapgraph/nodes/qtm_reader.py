@@ -20,10 +20,12 @@ from typing import Any
 import numpy as np
 
 from ..bus import Output, Param
+from ..bus.diagnostics import ClockRecord
 from ..formats import qtm_rt as q
 from ..formats.device_file import DeviceConfig, DeviceConfigError, device_or_default
 from ..formats.qtm_session import QTMSession, QTMToWorld, SessionEvent
 from ..messages import MarkerFrame, RigidBodyFrame, RigidBodyLayout, SkeletonInfo, SkeletonPose
+from ..messages.clock_sync import ClockSync
 from .marker_source import UP_AXIS_CHOICES, MarkerSourceNode
 from .source_base import INPUT_ERRORS
 
@@ -63,7 +65,7 @@ class QTMLink(MarkerSourceNode):
         self._deadline = None
         self._retry = None
         self._backoff = self.reconnect_s
-        self._offset_ns: int | None = None
+        self.clock = ClockSync(reset_s=RESYNC_S)   # QTM's frame clock (µs) onto ours
         self._last_frame: int | None = None
         self.counts = dict(frames=0, device_gaps=0, bad_packets=0, count_mismatches=0, disconnects=0,
                            connect_attempts=0, no_more_data=0, clock_resyncs=0, restarts=0, refusals=0)
@@ -135,7 +137,7 @@ class QTMLink(MarkerSourceNode):
     def _drop(self, why: str, lost: bool) -> None:
         """Close the connection; ``lost``: it was streaming (a disconnect, counted once)."""
         self._close()
-        self._offset_ns = None
+        self.clock.forget()
         self._last_frame = None
         if lost:
             self.counts["disconnects"] += 1
@@ -255,7 +257,7 @@ class QTMReader(QTMLink):
             elif ev.kind == "no_more_data":
                 self.counts["no_more_data"] += 1
                 self._last_frame = None
-                self._offset_ns = None
+                self.clock.forget()
                 self.log.info("qtm %s: no measurement running (no more data); waiting for one", self.endpoint)
                 self.set_state("waiting", f"qtm {self.endpoint}: no measurement running")
             elif ev.kind == "refused":
@@ -320,18 +322,12 @@ class QTMReader(QTMLink):
 
     # ----- frames ---------------------------------------------------------------------------------
     def stamp_capture(self, device_us: int, arrival_ns: int) -> int:
-        """QTM's frame time stamp (µs) -> our clock: the smallest arrival-minus-device offset seen
-        (the least delayed frame; a first frame held up at start-up is soon bettered), re-anchored
-        and counted when a frame arrives over RESYNC_S later than that offset says (QTM's clock
-        went back: a restart). The one place frames are stamped, so a shared clock
-        estimator can replace it."""
-        cand = arrival_ns - device_us * 1000
-        if self._offset_ns is None or cand < self._offset_ns:
-            self._offset_ns = cand
-        elif cand - self._offset_ns > RESYNC_S * 1e9:
-            self.counts["clock_resyncs"] += 1
-            self._offset_ns = cand
-        return device_us * 1000 + self._offset_ns
+        """QTM's frame time stamp (µs) -> our clock through :class:`ClockSync` (offset and drift
+        followed by minimum-delay filtering; a clock that goes back or jumps, a restart, re-seeds it
+        and is counted in ``clock_resyncs``). The one place frames are stamped."""
+        capture = self.clock.update(device_us * 1000, arrival_ns)
+        self.counts["clock_resyncs"] = self.clock.resets
+        return capture
 
     def _frame(self, f: q.QTMFrame, arrival_ns: int) -> None:
         if self.qtm is None:
@@ -408,9 +404,16 @@ class QTMReader(QTMLink):
     def status_data(self) -> dict[str, Any]:
         d = dict(self.counts)
         d.update(session=self.session.state if self.session else "closed", timecode=self.last_timecode,
-                 rate_hz=self.qtm.frequency if self.qtm else 0.0,
+                 rate_hz=self.qtm.frequency if self.qtm else 0.0, clock=self.clock.stats().as_dict(),
                  last_frame_age_s=(time.monotonic() - self.last_arrival) if self.last_arrival else None)
         return d
+
+    def clock_records(self) -> list[ClockRecord]:
+        c = self.clock.stats()
+        if not c.samples:
+            return super().clock_records()
+        return super().clock_records() + [ClockRecord(f"qtm:{self.endpoint}", c.offset_ns / 1e6, c.drift_ppm,
+                                                      c.jitter_ms, c.resets)]
 
     def device_edges(self) -> list[dict[str, Any]]:
         return [{"topic": f"qtm:{self.endpoint}", "sender": "qtm", "rate_hz": self.qtm.frequency if self.qtm else 0.0,
