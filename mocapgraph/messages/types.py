@@ -112,6 +112,31 @@ class SkeletonPose(Message):
     tracking_state = array("int8", ("J",), "0 not tracked, 1 inferred, 2 tracked")
 
 
+class RigidBodyLayout(Message):
+    """Latched: the rigid bodies of a tracking system (names, device ids, parents), RigidBodyFrame order."""
+
+    type_name = "RigidBodyLayout"
+    version = 1
+    latched_by_default = True
+    names = strings("rigid body names, RigidBodyFrame order")
+    ids = array("int32", ("R",), "the device's id of each body (NatNet streaming id)")
+    parent = array("int32", ("R",), "index of the parent body, -1 for none")
+    units_note: str = scalar("str", "what the reader converted to reach the world frame")
+    source: str = scalar("str", "where the bodies come from (device, server)")
+
+
+class RigidBodyFrame(Message):
+    """One frame of tracked rigid bodies, in the order of the latched RigidBodyLayout."""
+
+    type_name = "RigidBodyFrame"
+    version = 1
+    frame_number: int = scalar("int", "capture frame index as the device numbers it")
+    positions = array("float64", ("R", 3), "body origin, m, world frame; NaN where not tracked")
+    orientations = array("float64", ("R", 4), "body orientation, wxyz, world frame; NaN where not tracked")
+    error = array("float32", ("R",), "mean marker error of the fit reported by the device, m; NaN where not tracked")
+    quality = array("int8", ("R",), "0 missing (not tracked or not valid), 2 good")
+
+
 class CharacterInfo(Message):
     """Latched: a user character's skeleton (names, parents, rest offsets)."""
 

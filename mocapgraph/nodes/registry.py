@@ -15,6 +15,7 @@ NODE_TYPES: dict[str, str] = {
     "serial_reader": "mocapgraph.nodes.serial_reader:SerialReader",
     "udp_reader": "mocapgraph.nodes.udp_reader:UDPReader",
     "lsl_reader": "mocapgraph.nodes.lsl_reader:LSLReader",
+    "natnet_reader": "mocapgraph.nodes.natnet_reader:NatNetReader",
     "kinect_reader": "mocapgraph.nodes.kinect_reader:KinectReader",
     "bvh_player": "mocapgraph.nodes.bvh_player:BVHPlayer",
     "c3d_segment_reader": "mocapgraph.nodes.c3d_segment_reader:C3DSegmentReader",
