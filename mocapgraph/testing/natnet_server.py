@@ -88,8 +88,9 @@ class NatNetServer:
             pass
 
     def send(self, packet: bytes) -> None:
-        """One data packet to every unicast client, the multicast group and the extra targets."""
-        dests = list(self.clients) + self.targets + ([self.group] if self.group else [])
+        """One data packet to the multicast group (as Motive multicasting: no unicast copies), else to
+        every client that connected; and to the extra targets."""
+        dests = ([self.group] if self.group else list(self.clients)) + self.targets
         for addr in dests:
             self._reply(packet, addr)
         self.sent += 1

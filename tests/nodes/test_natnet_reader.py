@@ -115,4 +115,104 @@ def test_server_that_never_answers_gives_one_line_and_retries(run_node) -> None:
     time.sleep(1.0)
     lines = [ln for ln in n.log().splitlines() if "no answer after" in ln]
     assert len(lines) == 1 and n.alive()
-    assert status(n)["connect_requests"] >= 5          # still trying
+    n.wait_for(lambda: status(n)["connect_requests"] >= 8, timeout=5, what="still trying")
+
+
+def _with_wand(f: nn.Frame) -> nn.Frame:
+    """A frame with one more rigid body (id 200) and its three labelled markers."""
+    rb = np.zeros(1, nn.RIGID_BODY)
+    rb["id"], rb["pos"], rb["quat_xyzw"], rb["error"], rb["params"] = 200, (1, 2, 3), (0, 0, 0, 1), 0.001, 1
+    lm = np.zeros(3, nn.LABELLED_MARKER)
+    lm["id"] = (200 << 16) | np.arange(1, 4)
+    lm["pos"] = np.array([[1.0, 2.0, 3.0], [1.1, 2.0, 3.0], [1.0, 2.1, 3.0]], np.float32)
+    lm["params"] = [nn.MARKER_PC_SOLVED, nn.MARKER_OCCLUDED, nn.MARKER_PC_SOLVED]
+    f.rigid_bodies = np.concatenate([f.rigid_bodies, rb])
+    f.labelled_markers = np.concatenate([f.labelled_markers, lm])
+    return f
+
+
+def test_a_rigid_body_added_mid_stream_is_picked_up_without_restart(run_node) -> None:
+    stream = ActorStream("plug_in_gait", rate_hz=120.0, n_bodies=2)
+    version = (4, 2)
+    defs = stream.model_defs()
+    server = NatNetServer(ne.server_info(stream.server_info(version)), ne.model_defs(defs, version), command_port=0)
+    n = reader(run_node, server.command_port, up_axis="auto", silence_s=5.0)
+    assert wait_until_ready(server, 10.0)
+    frames = list(stream.frames(0, 40))
+    for f in frames[:20]:
+        server.serve()
+        server.send(ne.frame(f, version))
+        time.sleep(0.004)
+    n.wait_for(lambda: len(n.records("markers")) >= 20, what="20 frames")
+    n_labels = len(n.messages("marker_layout")[-1].labels)
+    # Motive: a new rigid body (with its marker set) is created while streaming
+    defs.rigid_bodies.append(nn.RigidBodyDef("Wand", 200, -1, np.zeros(3, np.float32)))
+    defs.marker_sets["Wand"] = ["W1", "W2", "W3"]
+    server.defs_packet = ne.model_defs(defs, version)
+    for f in frames[20:]:
+        server.serve()
+        server.send(ne.frame(_with_wand(f), version))
+        time.sleep(0.01)
+    n.wait_for(lambda: n.messages("rigid_body_layout")[-1].names[-1:] == ["Wand"], what="the new layout")
+    n.wait_for(lambda: n.messages("rigid_bodies")[-1].positions.shape == (3, 3), what="3 bodies")
+    last = n.messages("rigid_bodies")[-1]
+    assert last.positions[2].tolist() == [1, 2, 3] and last.quality.tolist() == [2, 2, 2]
+    m = n.messages("markers")[-1]
+    labels = n.messages("marker_layout")[-1].labels
+    assert len(labels) == n_labels + 3 and labels[-3:] == ["Wand:W1", "Wand:W2", "Wand:W3"]
+    np.testing.assert_allclose(m.positions[-3], [1, 2, 3], atol=1e-6)
+    assert np.isnan(m.positions[-2]).all() and not m.valid[-2]            # occluded: NaN, never 0,0,0
+    n.wait_for(lambda: status(n)["model_updates"] == 1, what="the update counted")
+    st = status(n)
+    assert st["reconnects"] == 0 and st["unknown_id_frames"] >= 1
+    assert server.requests[nn.NAT_REQUEST_MODELDEF] == 2               # asked once more, not per frame
+    server.close()
+
+
+def test_restart_is_one_logged_reconnect_within_2_s_and_loss_is_counted_exactly(run_node) -> None:
+    port = free_udp_port()
+    stream = ActorStream("plug_in_gait", rate_hz=240.0, n_bodies=1)
+    n = reader(run_node, port)
+    faults = Faults(loss=0.05, restart_after=300, restart_gap_s=1.5, seed=11)
+    t, out = start_sim(stream=stream, version=(4, 1), command_port=port, count=600, faults=faults, wait_s=10.0)
+    t.join(20)
+    assert not t.is_alive()
+    n.wait_for(lambda: status(n)["last_frame_age_s"] and status(n)["last_frame_age_s"] > 0.1, what="the end")
+    recs = n.records("markers")
+    numbers = [r.msg.frame_number for r in recs]
+    cut = next(i for i in range(1, len(numbers)) if numbers[i] < numbers[i - 1])
+    states = [r for r in n.records("reader_status") if r.msg.state == "reconnecting"]
+    assert len(states) >= 1
+    delay = (states[0].receive_ns - recs[cut - 1].receive_ns) / 1e9
+    st = status(n)
+    sent = set(numbers)
+    # the injected drops of each run that fall between frames the reader saw are what it can count
+    d = faults.dropped
+    split = next((i for i in range(1, len(d)) if d[i] < d[i - 1]), len(d))
+    runs = [(d[:split], numbers[:cut]), (d[split:], numbers[cut:])]
+    expected_gaps = sum(sum(seen[0] < x < seen[-1] for x in drops) for drops, seen in runs)
+    print(f"\nrestart: reconnect state {delay:.2f} s after the last frame; dropped {len(faults.dropped)} of 600, "
+          f"gaps counted {st['gaps']}, reconnects {st['reconnects']}")
+    assert 0.4 < delay < 2.0
+    assert st["reconnects"] == 1 and n.logged("reconnecting (reconnect 1)")
+    assert len(numbers) == out["sent"] and not (set(faults.dropped) - set(range(600))) and sent
+    assert st["gaps"] == expected_gaps and len(faults.dropped) > 10
+
+
+def test_multicast_frames_on_loopback(run_node) -> None:
+    port, data_port = free_udp_port(), free_udp_port()
+    stream = ActorStream("plug_in_gait", rate_hz=120.0, n_bodies=1)
+    n = reader(run_node, port, multicast_group="239.255.42.99", data_port=data_port, local_address="127.0.0.1")
+    n.wait_for(lambda: n.messages("reader_status") and n.messages("reader_status")[-1].state == "connecting",
+               what="sockets open")
+    t, out = start_sim(stream=stream, version=(4, 0), command_port=port, count=40, wait_s=10.0,
+                       multicast_group="239.255.42.99", data_port=data_port)
+    t.join(10)
+    recs = n.wait_for(lambda: n.records("markers") if len(n.records("markers")) >= 40 else None, what="40 frames")
+    assert [r.msg.frame_number for r in recs] == list(range(40))
+    # multicast: the simulator knows no unicast client, the frames came through the group
+    truth = stream.world(0, 40)[0]
+    got = np.array([r.msg.positions for r in recs])
+    np.testing.assert_allclose(got, truth, atol=2e-6, equal_nan=True)
+    n.wait_for(lambda: status(n)["frames"] == 40, what="status")
+    assert status(n)["out_of_order"] == 0
