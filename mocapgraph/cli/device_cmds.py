@@ -131,7 +131,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser("device", help="simulated marker devices for trying lab graphs without hardware")
     ds = d.add_subparsers(dest="device_command", required=True)
-    sim = ds.add_parser("simulate", help="send a synthetic performer as a serial, UDP or LSL device")
+    sim = ds.add_parser("simulate", help="send a synthetic performer as a serial, UDP, LSL or NatNet device")
     ss = sim.add_subparsers(dest="transport", required=True)
 
     def common(p: argparse.ArgumentParser, device: str) -> None:
