@@ -164,3 +164,19 @@ def capture_time_ns(arrival_ns: int, f: nn.Frame, clock_hz: int) -> int:
     mid-exposure to transmit). The one place a NatNet frame is stamped, so a shared clock
     estimator can take over here."""
     return arrival_ns - system_latency_ns(f, clock_hz)
+
+
+def rotation_quat(R: np.ndarray) -> np.ndarray:
+    """A rotation matrix as a unit quaternion (w, x, y, z), once per device (not per frame)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(np.asarray(R, float)).as_quat(scalar_first=True)
+
+
+def rotate_quats(q: np.ndarray, wxyz: np.ndarray) -> np.ndarray:
+    """``q`` (w, x, y, z) composed after each row of ``wxyz`` [..., 4]: the Hamilton product q * p,
+    vectorised (a NaN row stays NaN). What a device-to-world rotation does to body orientations."""
+    w1, x1, y1, z1 = q
+    w2, x2, y2, z2 = np.moveaxis(np.asarray(wxyz, float), -1, 0)
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)

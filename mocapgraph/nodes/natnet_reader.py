@@ -16,7 +16,7 @@ import numpy as np
 from ..bus import Output, Param
 from ..formats import natnet as nn
 from ..formats.device_file import DeviceConfig, device_or_default
-from ..formats.natnet_model import NatNetModel, capture_time_ns, unlabelled
+from ..formats.natnet_model import NatNetModel, capture_time_ns, rotate_quats, rotation_quat, unlabelled
 from ..messages import MarkerFrame, RigidBodyFrame, RigidBodyLayout
 from ..net.natnet_link import LinkConfig, NatNetLink
 from .marker_source import UP_AXIS_CHOICES, LayoutMap, MarkerSourceNode, check_device_param
@@ -97,6 +97,7 @@ class NatNetReader(MarkerSourceNode):
         except ValueError:
             self.config_error = f"natnet_version {self.natnet_version!r}: expected MAJOR.MINOR such as 3.0"
             self.dev = DeviceConfig()
+        self._dev_q = rotation_quat(self.dev.rotation)
         cfg = LinkConfig(self.server, self.command_port, self.data_port, self.multicast_group, self.local_address,
                          retry_s=self.retry_s, silence_s=self.silence_s)
         self.link = NatNetLink(cfg, self.log)
@@ -290,7 +291,7 @@ class NatNetReader(MarkerSourceNode):
                                                     valid=np.ones(len(upos), bool), residual=ures),
                                         capture_ns=capture_ns)
         self.rigid_bodies.publish(RigidBodyFrame(frame_number=f.frame_number, positions=dev.points_to_world(
-            bodies.positions), orientations=dev.quats_to_world(bodies.quat_wxyz), error=bodies.error,
+            bodies.positions), orientations=rotate_quats(self._dev_q, bodies.quat_wxyz), error=bodies.error,
             quality=np.where(bodies.valid, 2, 0).astype(np.int8)), capture_ns=capture_ns)
         self.counts["frames"] += 1
 
