@@ -81,7 +81,7 @@ def cmd_natnet(args: argparse.Namespace) -> int:
     try:
         version = tuple(int(x) for x in args.natnet.split("."))[:2]
         stream = ActorStream(args.layout, args.rate, args.bodies, seed=args.seed,
-                             dropout_rate_hz=args.dropout_hz, device=args.device)
+                             dropout_rate_hz=args.dropout_hz, noise_mm=args.noise_mm, device=args.device)
     except (ValueError, OSError) as exc:
         raise UserError(f"natnet simulator: {exc}") from None
     faults = Faults(args.loss, args.restart_after, args.restart_gap, args.seed)

@@ -176,9 +176,11 @@ class NatNetLink:
             self._send(nn.command(NAT_DISCOVERY, body), (self.cfg.discovery_to, self.cfg.command_port))
 
     def got_server_info(self, sender: tuple[str, int]) -> None:
-        if not self.server:
+        if not self.server:  # a discovery answer: now connect to that server (unicast needs it)
             self.server = sender[0]
             self.log.info("natnet: discovered a server at %s", sender[0])
+            self._next_connect = 0.0
+            return
         if self.silent_warnings:
             self.log.info("natnet %s: the server answered", self.where)
         self.have_info = True

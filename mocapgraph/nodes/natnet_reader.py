@@ -64,6 +64,8 @@ class NatNetReader(MarkerSourceNode):
     data_port = Param(1511, "the server's data port (multicast frames)", minimum=1, maximum=65535)
     multicast_group = Param("", "multicast group to join for frames (Motive's default 239.255.42.99); "
                                 "'' = unicast (Motive's 'Transmission Type: Unicast')")
+    discovery_address = Param("255.255.255.255", "where discovery is sent when server is '' (a subnet's "
+                                                  "broadcast address, e.g. 192.168.0.255)")
     local_address = Param("0.0.0.0", "address of the network interface to bind and join the multicast group on "
                                      "(the interface facing Motive)")
     natnet_version = Param("", "NatNet version of the frames, e.g. '3.0'; '' = the server's, from its server info")
@@ -99,7 +101,7 @@ class NatNetReader(MarkerSourceNode):
             self.dev = DeviceConfig()
         self._dev_q = rotation_quat(self.dev.rotation)
         cfg = LinkConfig(self.server, self.command_port, self.data_port, self.multicast_group, self.local_address,
-                         retry_s=self.retry_s, silence_s=self.silence_s)
+                         retry_s=self.retry_s, silence_s=self.silence_s, discovery_to=self.discovery_address)
         self.link = NatNetLink(cfg, self.log)
         self.version: nn.Version | None = self.forced
         self.clock_hz = 0

@@ -111,6 +111,7 @@ class ActorStream:
     n_unlabelled: int = 2
     seed: int = 0
     dropout_rate_hz: float = 0.0
+    noise_mm: float = 0.0
     device: str = ""
     up_axis: str = "y"
     dev: DeviceConfig = field(init=False)
@@ -119,7 +120,8 @@ class ActorStream:
         from ..kinematics.synthetic.actor import CaptureOptions, SyntheticActor
 
         self.actor = SyntheticActor(self.layout, rate=self.rate_hz, seed=self.seed,
-                                    options=CaptureOptions(dropout_rate_hz=self.dropout_rate_hz))
+                                    options=CaptureOptions(noise_mm=self.noise_mm,
+                                                           dropout_rate_hz=self.dropout_rate_hz))
         self.dev = device_or_default(self.device, self.up_axis)
         self.labels = list(self.actor.skeleton.marker_labels)
         limbs = list(self.actor.skeleton.limb_names)
