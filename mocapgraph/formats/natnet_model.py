@@ -3,7 +3,8 @@
 Pure, vectorised per frame. A :class:`NatNetModel` is built once per NAT_MODELDEF:
 
 - **Labelled markers**: one source label per marker of each marker set, ``"SET:MARKER"`` (a
-  layout matches the part after the colon, as it ignores a Vicon subject prefix). A marker set
+  layout matches the part after the colon, as it ignores a Vicon subject prefix; a marker named
+  ``SET_MARKER`` loses the repeated ``SET_``). A marker set
   named like a rigid body or skeleton takes its frame positions from the labelled-marker list,
   where a marker's id is ``model id << 16 | marker index (1-based)`` and the model id is that rigid
   body's or skeleton's id: there the occluded flag and residual live, so an occluded marker is NaN,
@@ -67,7 +68,7 @@ class NatNetModel:
             if name == ALL_SET and len(defs.marker_sets) > 1:
                 continue
             start = len(labels)
-            labels += [f"{name}:{m}" for m in markers]
+            labels += [f"{name}:{_unprefixed(m, name)}" for m in markers]
             if name in owners:
                 keys += [(owners[name] << 16) | (k + 1) for k in range(len(markers))]
                 cols += range(start, start + len(markers))
@@ -138,6 +139,12 @@ class NatNetModel:
         valid = np.zeros(r, bool)
         valid[rows] = True
         return Bodies(pos, quat, err, valid, bool((~found).any()))
+
+
+def _unprefixed(marker: str, asset: str) -> str:
+    """``Actor_LFHD`` in set ``Actor`` -> ``LFHD``: the asset name once, before the colon."""
+    head = asset + "_"
+    return marker[len(head):] if marker.startswith(head) and len(marker) > len(head) else marker
 
 
 def unlabelled(f: nn.Frame) -> tuple[np.ndarray, np.ndarray]:

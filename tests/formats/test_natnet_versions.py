@@ -138,3 +138,27 @@ def test_simulator_frames_decode_to_their_source_values(version) -> None:
     assert occluded.any()
     d = nn.decode_model_defs(ne.model_defs(stream.model_defs(), version), version)
     assert d.marker_sets["Actor"] == stream.labels and [b.name for b in d.rigid_bodies] == stream.body_names
+
+
+def test_labels_from_marker_sets_and_bodies() -> None:
+    from mocapgraph.formats.natnet_model import NatNetModel
+
+    d = nn.ModelDefs(marker_sets={"Actor": ["Actor_LFHD", "RFHD"], "Loose": ["A"], "all": ["x", "y", "z"]})
+    d.skeletons["Actor"] = (3, [])
+    d.rigid_bodies.append(nn.RigidBodyDef("Wand", 9, -1, np.zeros(3, np.float32), np.zeros((2, 3), np.float32),
+                                          np.zeros(2, np.int32), ["Tip", "Base"]))
+    m = NatNetModel(d)
+    assert m.labels == ["Actor:LFHD", "Actor:RFHD", "Loose:A", "Wand:Tip", "Wand:Base"]
+    lm = np.zeros(5, nn.LABELLED_MARKER)
+    lm["id"] = [(3 << 16) | 2, (9 << 16) | 1, (9 << 16) | 2, 40001, (7 << 16) | 1]
+    lm["pos"] = np.arange(15, dtype=np.float32).reshape(5, 3)
+    lm["params"] = [0, 0, nn.MARKER_OCCLUDED, nn.MARKER_UNLABELLED, 0]
+    f = nn.Frame(1, {"Loose": np.array([[0, 0, 0]], np.float32)}, np.zeros((0, 3), np.float32),
+                 np.zeros(0, nn.RIGID_BODY), {}, lm, 0, 0, 0.0, 0, 0, 0)
+    lab = m.labelled(f)
+    assert np.isnan(lab.positions[0]).all() and lab.positions[1].tolist() == [0, 1, 2]
+    assert np.isnan(lab.positions[2]).all()                       # Motive's 0,0,0 in a set: not seen
+    assert lab.positions[3].tolist() == [3, 4, 5] and np.isnan(lab.positions[4]).all()   # occluded: NaN
+    assert lab.unknown                                            # model 7 is not described
+    from mocapgraph.formats.natnet_model import unlabelled
+    assert unlabelled(f)[0].tolist() == [[9, 10, 11]]
