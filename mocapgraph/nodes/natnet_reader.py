@@ -113,7 +113,7 @@ class NatNetReader(MarkerSourceNode):
         self._last_ts = 0.0
         self.counts: dict[str, int] = dict(packets=0, frames=0, gaps=0, out_of_order=0, restarts=0,
                                            model_updates=0, unknown_id_frames=0, before_server_info=0,
-                                           before_model_defs=0, other_messages=0)
+                                           before_model_defs=0, other_messages=0, skipped_items=0)
         self.rejected: dict[str, int] = {}
 
     # ----- start and stop ------------------------------------------------------------------
@@ -245,6 +245,7 @@ class NatNetReader(MarkerSourceNode):
         if f.models_changed:
             self.link.request_model_defs()
         self._measure_rate(f.timestamp)
+        self.counts["skipped_items"] += f.skipped_items
         self._publish(f, capture_time_ns(arrival_ns, f, self.clock_hz))
         if self.state != "streaming":
             self.set_state("streaming", f"natnet {self.link.where}: {self.app}, NatNet {self.version[0]}."
