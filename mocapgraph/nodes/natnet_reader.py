@@ -104,6 +104,7 @@ class NatNetReader(MarkerSourceNode):
                          retry_s=self.retry_s, silence_s=self.silence_s, discovery_to=self.discovery_address)
         self.link = NatNetLink(cfg, self.log)
         self.version: nn.Version | None = self.forced
+        self.unsupported = ""  # the server's NatNet version when this reader cannot read it
         self.clock_hz = 0
         self.app = ""
         self.model: NatNetModel | None = None
@@ -184,12 +185,12 @@ class NatNetReader(MarkerSourceNode):
         self.clock_hz, self.app = info.clock_hz, f"{info.app_name} {'.'.join(map(str, info.app_version))}"
         version = self.forced or info.version
         if version < (3, 0):
-            self.version = None
+            self.version, self.unsupported = None, f"NatNet {version[0]}.{version[1]}"
             self.warn_limited("version", "natnet %s: the server streams NatNet %d.%d; this reader reads 3.0 and "
                               "later (update Motive, or set its streaming bitstream to 3.0+)", self.link.where,
                               *version)
             return
-        self.version = version
+        self.version, self.unsupported = version, ""
         self.log.info("natnet %s: %s, NatNet %d.%d, clock %d Hz%s", self.link.where, self.app, *version,
                       info.clock_hz, f", multicast {info.multicast_group}:{info.data_port}" if info.multicast else "")
         if self.state == "connecting":
@@ -228,6 +229,8 @@ class NatNetReader(MarkerSourceNode):
             units_note=f"NatNet metres, quaternions xyzw -> wxyz; {self.dev.describe()}", source=source))
 
     def _frame(self, data: bytes, arrival_ns: int) -> None:
+        if self.unsupported:
+            raise nn.NatNetError(f"frame of data: {self.unsupported} is not supported (3.0 and later are)")
         if self.version is None:
             self.counts["before_server_info"] += 1
             return

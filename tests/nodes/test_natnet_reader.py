@@ -42,7 +42,7 @@ def reader(run_node, port: int, **params):
     return run_node("natnet_reader", p)
 
 
-@pytest.mark.parametrize("version", [(3, 0), (4, 1)])
+@pytest.mark.parametrize("version", [(3, 0), (4, 0), (4, 1), (4, 2)], ids=lambda v: "%d.%d" % v)
 def test_reader_publishes_the_simulated_actor(run_node, version) -> None:
     port = free_udp_port()
     stream = ActorStream("plug_in_gait", rate_hz=120.0, n_bodies=3, dropout_rate_hz=0.3, seed=3)
@@ -289,4 +289,23 @@ def test_100000_bad_packets_counted_with_memory_flat(run_node) -> None:
     assert not n.records("markers")
     lines = [ln for ln in n.log().splitlines() if "packet skipped" in ln]
     assert len(lines) < 20                                      # rate-limited: a line per 5 s at most
+    server.close()
+
+
+def test_a_natnet_2_server_is_refused_in_one_line_and_its_frames_counted(run_node) -> None:
+    stream = ActorStream("plug_in_gait", rate_hz=120.0, n_bodies=1)
+    info = stream.server_info((4, 1))
+    old = nn.ServerInfo("Motive", (1, 10, 0, 0), (2, 10, 0, 0), info.clock_hz, info.data_port)
+    server = NatNetServer(ne.server_info(old), ne.model_defs(stream.model_defs(), (4, 1)), command_port=0)
+    n = reader(run_node, server.command_port, silence_s=5.0)
+    end = time.monotonic() + 10
+    while not server.clients and time.monotonic() < end:
+        server.serve()
+        time.sleep(0.005)
+    for f in stream.frames(0, 10):
+        server.send(ne.frame(f, (4, 1)))
+        time.sleep(0.004)
+    n.wait_for(lambda: status(n)["rejected"].get("wrong_version") == 10, what="10 frames refused")
+    assert n.logged("streams NatNet 2.10; this reader reads 3.0 and later") and not n.records("markers")
+    assert len([ln for ln in n.log().splitlines() if "streams NatNet 2.10" in ln]) == 1
     server.close()
