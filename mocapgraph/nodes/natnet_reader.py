@@ -164,7 +164,7 @@ class NatNetReader(MarkerSourceNode):
             raise nn.NatNetError(f"message id {msg}: not a NatNet message ({len(data)} bytes)")
         if len(data) >= 4:
             extra = len(data) - 4 - struct.unpack_from("<H", data, 2)[0]
-            if extra > 4:  # Motive's frames end with a 4-byte tag its count leaves out; more is not NatNet
+            if extra > 4:  # a 4-byte end tag left out of the count is tolerated; more is not NatNet
                 raise nn.NatNetError(f"{nn.MESSAGE_NAMES.get(msg, msg)}: oversized: {extra} bytes after "
                                      "what its header counts")
         if msg == nn.NAT_FRAMEOFDATA:
