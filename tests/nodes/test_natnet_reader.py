@@ -169,6 +169,7 @@ def test_a_rigid_body_added_mid_stream_is_picked_up_without_restart(run_node) ->
     server.close()
 
 
+@pytest.mark.timing
 def test_restart_is_one_logged_reconnect_within_2_s_and_loss_is_counted_exactly(run_node) -> None:
     port = free_udp_port()
     stream = ActorStream("plug_in_gait", rate_hz=240.0, n_bodies=1)
