@@ -30,7 +30,7 @@ def test_replayed_capture_agrees_with_the_sample_client(run_node, natnet_dir, tm
     port = free_udp_port()
     # up_axis auto, no device file: Motive's own axes, as the SampleClient prints them
     n = run_node("natnet_reader", {"server": "127.0.0.1", "command_port": port, "up_axis": "auto",
-                                   "retry_s": 0.1})
+                                   "retry_s": 0.1, "silence_s": 30.0})
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (os.getcwd(), os.environ.get("PYTHONPATH")) if p))
     rep = subprocess.run([sys.executable, "-m", "mocapgraph", "device", "replay", str(natnet_dir / "traffic.pcapng"),
                           "--port", str(port), "--wait", "20"], capture_output=True, text=True, timeout=60, env=env)
@@ -67,6 +67,7 @@ def test_replayed_capture_agrees_with_the_sample_client(run_node, natnet_dir, tm
         worst["error"] = max(worst["error"], abs(float(b.error[0]) - err))
         # stamped at arrival minus the system latency the SampleClient printed
         excess.append((markers[fid].receive_ns - markers[fid].env.capture_ns) / 1e6 - r.system_ms)
+    n.wait_for(lambda: json.loads(n.messages("reader_status")[-1].data_json)["frames"] == 518, what="the status")
     st = json.loads(n.messages("reader_status")[-1].data_json)
     print(f"\nreplay: {compared} frames compared with the SampleClient; max |difference| "
           + ", ".join(f"{k} {v:.4f}" for k, v in worst.items())
