@@ -300,7 +300,7 @@ def simulate(stream: ActorStream, version: nn.Version, host: str = "127.0.0.1", 
             on_ready(server)
         if wait_s:
             wait_until_ready(server, wait_s)
-        todo = count - sent if count else 0
+        todo = count - sent - len(faults.dropped) if count else 0   # frames to go, sent or dropped
         if faults.restart_after:
             todo = min(todo, faults.restart_after) if todo else faults.restart_after
         frames = stream.frames(number, todo)
