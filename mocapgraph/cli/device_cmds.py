@@ -93,7 +93,7 @@ def cmd_natnet(args: argparse.Namespace) -> int:
 
     try:
         n = simulate(stream, version, args.host, args.port, args.multicast_group, args.data_port, args.count,
-                     faults, on_ready=ready)
+                     faults, on_ready=ready, wait_s=args.wait)
     except OSError as exc:
         raise UserError(f"natnet simulator: {args.host}:{args.port}: {exc.strerror or exc}") from None
     print(f"sent {n} frames, dropped {len(faults.dropped)}", file=sys.stderr)
@@ -170,6 +170,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     nat.add_argument("--loss", type=float, default=0.0, help="fraction of frames never sent (seeded)")
     nat.add_argument("--restart-after", type=int, default=0, help="restart the server after N frames (0 = never)")
     nat.add_argument("--restart-gap", type=float, default=2.0, help="seconds the restarted server is gone")
+    nat.add_argument("--wait", type=float, default=0.0,
+                     help="wait up to this many seconds for a reader to connect before streaming (0 = stream at once)")
     common(nat, "")
     nat.set_defaults(func=cmd_natnet)
     rep = ds.add_parser("replay", help="replay a NatNet pcapng capture to a reader at its original timing")
