@@ -1,4 +1,4 @@
-"""``mocapgraph device simulate serial|udp|lsl|qtm``: a synthetic performer as a marker device."""
+"""``mocapgraph device simulate serial|udp|lsl|qtm|natnet`` and ``device replay``: simulated and replayed marker devices."""
 from __future__ import annotations
 
 import argparse
@@ -109,10 +109,71 @@ def cmd_qtm(args: argparse.Namespace) -> int:
     return 0
 
 
+def _host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    try:
+        return host or default_host, int(port)
+    except ValueError:
+        raise UserError(f"{text!r}: expected HOST:PORT") from None
+
+
+def cmd_natnet(args: argparse.Namespace) -> int:
+    from ..testing.natnet_server import ActorStream, Faults, simulate
+
+    try:
+        version = tuple(int(x) for x in args.natnet.split("."))[:2]
+        stream = ActorStream(args.layout, args.rate, args.bodies, seed=args.seed,
+                             dropout_rate_hz=args.dropout_hz, noise_mm=args.noise_mm, device=args.device)
+    except (ValueError, OSError) as exc:
+        raise UserError(f"natnet simulator: {exc}") from None
+    faults = Faults(args.loss, args.restart_after, args.restart_gap, args.seed)
+    mode = f"multicast {args.multicast_group}:{args.data_port}" if args.multicast_group else "unicast"
+
+    def ready(server) -> None:
+        print(f"NatNet {args.natnet} server (Motive simulator) on {args.host}:{server.command_port}, {mode}, "
+              f"{len(stream.labels)} markers + {stream.n_bodies} rigid bodies at {args.rate:g} Hz", flush=True)
+
+    try:
+        n = simulate(stream, version, args.host, args.port, args.multicast_group, args.data_port, args.count,
+                     faults, on_ready=ready, wait_s=args.wait)
+    except OSError as exc:
+        raise UserError(f"natnet simulator: {args.host}:{args.port}: {exc.strerror or exc}") from None
+    print(f"sent {n} frames, dropped {len(faults.dropped)}", file=sys.stderr)
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from ..testing.natnet_server import NatNetServer, capture_packets, paced_send, wait_until_ready
+    from ..testing.pcapng import PcapngError
+
+    try:
+        info, defs, frames = capture_packets(args.file)
+    except (PcapngError, ValueError, OSError) as exc:
+        raise UserError(str(exc)) from None
+    targets = [_host_port(t) for t in args.to]
+    try:
+        server = NatNetServer(info, defs, args.host, args.port, targets=targets)
+    except OSError as exc:
+        raise UserError(f"replay: cannot serve on {args.host}:{args.port}: {exc.strerror or exc}") from None
+    span = frames[-1][0] - frames[0][0]
+    print(f"replaying {len(frames)} NatNet frames ({span:.1f} s) from {args.file} x{args.speed:g}; command "
+          f"channel on {args.host}:{server.command_port}", flush=True)
+    if targets:
+        for packet in (info, defs):
+            server.send(packet)
+    elif not wait_until_ready(server, args.wait):
+        server.close()
+        raise UserError(f"replay: no reader connected to {args.host}:{server.command_port} in {args.wait:g} s")
+    n = paced_send(server, iter(frames), args.speed)
+    server.close()
+    print(f"sent {n} frames", file=sys.stderr)
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser("device", help="simulated marker devices for trying lab graphs without hardware")
     ds = d.add_subparsers(dest="device_command", required=True)
-    sim = ds.add_parser("simulate", help="send a synthetic performer as a serial, UDP or LSL device")
+    sim = ds.add_parser("simulate", help="send a synthetic performer as a serial, UDP, LSL or NatNet device")
     ss = sim.add_subparsers(dest="transport", required=True)
 
     def common(p: argparse.ArgumentParser, device: str) -> None:
@@ -163,3 +224,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     qtm.add_argument("--noise-mm", type=float, default=0.0, help="marker noise, mm")
     qtm.add_argument("--count", type=int, default=0, help="frames in the measurement, then 'no more data' (0 = endless)")
     qtm.set_defaults(func=cmd_qtm)
+    nat = ss.add_parser("natnet", help="an OptiTrack Motive NatNet server (command + data channels)")
+    nat.add_argument("--natnet", default="4.1", choices=["3.0", "4.0", "4.1", "4.2"], help="NatNet bitstream version")
+    nat.add_argument("--host", default="127.0.0.1", help="address to serve on")
+    nat.add_argument("--port", type=int, default=1510, help="command port (0 = any free one)")
+    nat.add_argument("--multicast-group", default="", help="send frames to this group too (e.g. 239.255.42.99)")
+    nat.add_argument("--data-port", type=int, default=1511, help="multicast data port")
+    nat.add_argument("--bodies", type=int, default=5, help="limbs streamed as rigid bodies")
+    nat.add_argument("--dropout-hz", type=float, default=0.0, help="marker occlusions per marker per second")
+    nat.add_argument("--loss", type=float, default=0.0, help="fraction of frames never sent (seeded)")
+    nat.add_argument("--restart-after", type=int, default=0, help="restart the server after N frames (0 = never)")
+    nat.add_argument("--restart-gap", type=float, default=2.0, help="seconds the restarted server is gone")
+    nat.add_argument("--wait", type=float, default=0.0,
+                     help="wait up to this many seconds for a reader to connect before streaming (0 = stream at once)")
+    common(nat, "")
+    nat.set_defaults(func=cmd_natnet)
+    rep = ds.add_parser("replay", help="replay a NatNet pcapng capture to a reader at its original timing")
+    rep.add_argument("file", help="a .pcapng capture of a NatNet session")
+    rep.add_argument("--host", default="127.0.0.1", help="address to serve the command channel on")
+    rep.add_argument("--port", type=int, default=1510, help="command port readers connect to (0 = any)")
+    rep.add_argument("--to", action="append", default=[], metavar="HOST:PORT",
+                     help="also send every packet here, without waiting for a reader to connect")
+    rep.add_argument("--speed", type=float, default=1.0, help="2 = twice as fast, 0 = as fast as possible")
+    rep.add_argument("--wait", type=float, default=30.0, help="seconds to wait for a reader to connect")
+    rep.set_defaults(func=cmd_replay)

@@ -17,6 +17,8 @@ from .types import (
     NodeStatus,
     PhysicsScene,
     PhysicsState,
+    RigidBodyFrame,
+    RigidBodyLayout,
     SkeletonInfo,
     SkeletonModel,
     SkeletonPose,

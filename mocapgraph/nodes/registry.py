@@ -16,6 +16,7 @@ NODE_TYPES: dict[str, str] = {
     "udp_reader": "mocapgraph.nodes.udp_reader:UDPReader",
     "lsl_reader": "mocapgraph.nodes.lsl_reader:LSLReader",
     "qtm_reader": "mocapgraph.nodes.qtm_reader:QTMReader",
+    "natnet_reader": "mocapgraph.nodes.natnet_reader:NatNetReader",
     "kinect_reader": "mocapgraph.nodes.kinect_reader:KinectReader",
     "video_pose_reader": "mocapgraph.nodes.video_pose_reader:VideoPoseReader",
     "multiview_pose": "mocapgraph.nodes.video_pose_reader:MultiviewPose",
