@@ -29,7 +29,9 @@ import numpy as np
 from mocapgraph.formats import natnet as nn
 from mocapgraph.formats import natnet_encode as ne
 from mocapgraph.formats.device_file import device_or_default
-from mocapgraph.formats.natnet_model import NatNetModel, capture_time_ns, rotate_quats, rotation_quat, unlabelled
+from mocapgraph.formats.natnet_model import NatNetModel, device_time_ns, rotation_quat, unlabelled
+from mocapgraph.kinematics.quaternion import quat_multiply
+from mocapgraph.messages.clock_sync import ClockSync
 import zmq
 
 from mocapgraph.formats.wire_protocol import encode_binary
@@ -76,10 +78,12 @@ def socket_receive_us(packets: list[bytes], batch: int = 32) -> float:
 
 def reader_path(version: nn.Version, model: NatNetModel, lmap: LayoutMap, dev):
     dev_q = rotation_quat(dev.rotation)
+    clock = ClockSync()
 
     def run(packet: bytes) -> None:
         f = nn.decode_frame(packet, version)
-        cap = capture_time_ns(time.time_ns(), f, 10_000_000)
+        device_ns, latency_ns = device_time_ns(f, 10_000_000)
+        cap = clock.update(device_ns, time.time_ns(), latency_ns)
         lab, bodies = model.labelled(f), model.bodies(f)
         pos = lmap.positions(dev.points_to_world(lab.positions))
         m = MarkerFrame(frame_number=f.frame_number, rate_hz=240.0, positions=pos, valid=~np.isnan(pos).any(axis=1),
@@ -88,7 +92,7 @@ def reader_path(version: nn.Version, model: NatNetModel, lmap: LayoutMap, dev):
         u = MarkerFrame(frame_number=f.frame_number, rate_hz=240.0, positions=dev.points_to_world(upos),
                         valid=np.ones(len(upos), bool), residual=ures)
         b = RigidBodyFrame(frame_number=f.frame_number, positions=dev.points_to_world(bodies.positions),
-                           orientations=rotate_quats(dev_q, bodies.quat_wxyz), error=bodies.error,
+                           orientations=quat_multiply(dev_q, bodies.quat_wxyz), error=bodies.error,
                            quality=np.where(bodies.valid, 2, 0).astype(np.int8))
         for topic, msg in (("markers", m), ("unlabelled_markers", u), ("rigid_bodies", b)):
             encode(topic, msg, 1, cap)

@@ -166,11 +166,14 @@ def system_latency_ns(f: nn.Frame, clock_hz: int) -> int:
     return int(lat) if lat < 1_000_000_000 else 0
 
 
-def capture_time_ns(arrival_ns: int, f: nn.Frame, clock_hz: int) -> int:
-    """Capture stamp of a frame: its arrival minus the latency the server reports (camera
-    mid-exposure to transmit). The one place a NatNet frame is stamped, so a shared clock
-    estimator can take over here."""
-    return arrival_ns - system_latency_ns(f, clock_hz)
+def device_time_ns(f: nn.Frame, clock_hz: int) -> tuple[int, int]:
+    """(the frame's transmit time on the server's clock, ns; mid-exposure to transmit, ns) from the
+    high-resolution stamps, for ClockSync.update(device, arrival, latency): the capture stamp is the
+    mapped transmit time less that latency. Without them (no clock rate, no transmit stamp):
+    (Motive's frame timestamp, 0)."""
+    if clock_hz > 0 and f.transmit_ticks > 0:
+        return f.transmit_ticks * 1_000_000_000 // clock_hz, system_latency_ns(f, clock_hz)
+    return int(round(f.timestamp * 1e9)), 0
 
 
 def rotation_quat(R: np.ndarray) -> np.ndarray:
@@ -178,12 +181,3 @@ def rotation_quat(R: np.ndarray) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     return Rotation.from_matrix(np.asarray(R, float)).as_quat(scalar_first=True)
-
-
-def rotate_quats(q: np.ndarray, wxyz: np.ndarray) -> np.ndarray:
-    """``q`` (w, x, y, z) composed after each row of ``wxyz`` [..., 4]: the Hamilton product q * p,
-    vectorised (a NaN row stays NaN). What a device-to-world rotation does to body orientations."""
-    w1, x1, y1, z1 = q
-    w2, x2, y2, z2 = np.moveaxis(np.asarray(wxyz, float), -1, 0)
-    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)

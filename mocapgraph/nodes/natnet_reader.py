@@ -16,8 +16,11 @@ import numpy as np
 from ..bus import Output, Param
 from ..formats import natnet as nn
 from ..formats.device_file import DeviceConfig, device_or_default
-from ..formats.natnet_model import NatNetModel, capture_time_ns, rotate_quats, rotation_quat, unlabelled
+from ..bus.diagnostics import ClockRecord
+from ..formats.natnet_model import NatNetModel, device_time_ns, rotation_quat, unlabelled
+from ..kinematics.quaternion import quat_multiply
 from ..messages import MarkerFrame, RigidBodyFrame, RigidBodyLayout
+from ..messages.clock_sync import ClockSync
 from ..net.natnet_link import LinkConfig, NatNetLink
 from .marker_source import UP_AXIS_CHOICES, LayoutMap, MarkerSourceNode, check_device_param
 from .source_base import INPUT_ERRORS
@@ -106,6 +109,7 @@ class NatNetReader(MarkerSourceNode):
         self.version: nn.Version | None = self.forced
         self.unsupported = ""  # the server's NatNet version when this reader cannot read it
         self.clock_hz = 0
+        self.clock = ClockSync()   # the server's clock onto ours (offset and drift, restarts re-seeded)
         self.app = ""
         self.model: NatNetModel | None = None
         self._rate = 0.0
@@ -249,7 +253,8 @@ class NatNetReader(MarkerSourceNode):
             self.link.request_model_defs()
         self._measure_rate(f.timestamp)
         self.counts["skipped_items"] += f.skipped_items
-        self._publish(f, capture_time_ns(arrival_ns, f, self.clock_hz))
+        device_ns, latency_ns = device_time_ns(f, self.clock_hz)
+        self._publish(f, self.clock.update(device_ns, arrival_ns, latency_ns))
         if self.state != "streaming":
             self.set_state("streaming", f"natnet {self.link.where}: {self.app}, NatNet {self.version[0]}."
                                         f"{self.version[1]}")
@@ -297,7 +302,7 @@ class NatNetReader(MarkerSourceNode):
                                                     valid=np.ones(len(upos), bool), residual=ures),
                                         capture_ns=capture_ns)
         self.rigid_bodies.publish(RigidBodyFrame(frame_number=f.frame_number, positions=dev.points_to_world(
-            bodies.positions), orientations=rotate_quats(self._dev_q, bodies.quat_wxyz), error=bodies.error,
+            bodies.positions), orientations=quat_multiply(self._dev_q, bodies.quat_wxyz), error=bodies.error,
             quality=np.where(bodies.valid, 2, 0).astype(np.int8)), capture_ns=capture_ns)
         self.counts["frames"] += 1
 
@@ -308,8 +313,16 @@ class NatNetReader(MarkerSourceNode):
                  reconnects=self.link.reconnects, server=self.link.where, app=self.app,
                  natnet_version=".".join(map(str, self.version)) if self.version else "",
                  rate_hz=self.rate_hz or self._rate, connect_requests=self.link.connect_sent,
+                 clock=self.clock.stats().as_dict(),
                  last_frame_age_s=(time.monotonic() - self.link.last_frame) if self.link.last_frame else None)
         return d
+
+    def clock_records(self) -> list[ClockRecord]:
+        c = self.clock.stats()
+        if not c.samples:
+            return super().clock_records()
+        return super().clock_records() + [ClockRecord(f"natnet:{self.link.where}", c.offset_ns / 1e6, c.drift_ppm,
+                                                      c.jitter_ms, c.resets)]
 
     def device_edges(self) -> list[dict[str, Any]]:
         return [{"topic": f"natnet:{self.link.where}", "sender": self.app or "?", "rate_hz": self.rate_hz or self._rate,

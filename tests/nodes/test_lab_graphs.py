@@ -22,10 +22,10 @@ from mocapgraph.nodes.registry import NODE_TYPES
 from graph_helpers import pid_alive, read_jsonl, wait_until
 
 CONFIGS = Path(__file__).resolve().parents[2] / "graph_configs"
-MARKER_LABS = ["lab_synthetic", "lab_c3d", "lab_trc", "lab_serial", "lab_udp", "lab_lsl", "lab_qtm"]
+MARKER_LABS = ["lab_synthetic", "lab_c3d", "lab_trc", "lab_serial", "lab_udp", "lab_lsl", "lab_qtm", "lab_natnet"]
 SKELETON_LABS = ["kinect_playback", "bvh_playback"]
 READERS = ["synthetic_actor", "c3d_reader", "trc_reader", "serial_reader", "udp_reader", "lsl_reader",
-           "kinect_reader", "bvh_player", "qtm_reader"]
+           "kinect_reader", "bvh_player", "qtm_reader", "natnet_reader"]
 
 
 @pytest.mark.parametrize("group", [MARKER_LABS, SKELETON_LABS])

@@ -26,7 +26,7 @@ NOT_FOR_OUTLETS = {"scipy", "numba", "ezc3d", "mujoco", "networkx"}
 MUST_NOT_LOAD: dict[str, set[str]] = {
     **{t: NOT_FOR_READERS for t in ("c3d_reader", "trc_reader", "serial_reader", "udp_reader",
                                     "lsl_reader", "kinect_reader", "topic_logger", "marker_test_pattern",
-                                    "qtm_reader")},
+                                    "qtm_reader", "natnet_reader")},
     "synthetic_actor": {"numba", "ezc3d", "mujoco", "networkx", "asyncio", "mocapgraph.kinematics.solving.solver"},
     # (their math comes when the node is built or calibrates: the launcher's check loads the class only)
     "calibration": {"scipy", "numba", "ezc3d", "mujoco", "networkx", "mocapgraph.kinematics.calibration.calibrate"},
