@@ -184,7 +184,7 @@ class ActorModel:
                         "reliable": bool(q.reliable[j]),
                         "method": q.method[j],
                         "inputs": q.inputs[j] if j < len(q.inputs) else {},
-                        "centre_se": arr(q.centre_se[j : j + 1], 7)[0],
+                        "centre_se": arr(q.centre_se[j : j + 1], 10)[0],
                         "centre_cov": arr(q.centre_cov[j], 10),
                         "axis_se_rad": arr(q.axis_se[j : j + 1], 6)[0],
                         "from_points": bool(q.from_points[j]),

@@ -358,11 +358,16 @@ def _auto_joint_points(definition: Any, jpts: np.ndarray, rot_sd: np.ndarray,
     declared = np.array([bool(r) for r in rows])
     weak = (rot_sd > max_rot) & ~declared
     why: dict[int, str] = {}
-    for l in np.flatnonzero(weak):
+    frame = declared.copy()   # limbs fitted through points (they cannot be another's frame)
+    used = np.zeros(len(rows), dtype=bool)   # limbs serving as some points limb's frame
+    for l in sorted(np.flatnonzero(weak), key=lambda v: -rot_sd[v]):   # the worst first
+        if used[l]:
+            continue
         for j in np.flatnonzero((jl == l).any(1)):
             m = int(jl[j, 0] if jl[j, 1] == l else jl[j, 1])
-            if m < 0 or weak[m] or declared[m]:
+            if m < 0 or frame[m] or rot_sd[m] >= rot_sd[l]:
                 continue
+            frame[l], used[m] = True, True
             rows[l].append(int(j))
             why[int(j)] = (f"{definition.limb_names[l]} cluster cannot fix its orientation (rotation sd "
                            f"{np.degrees(min(rot_sd[l], np.pi)):.0f} deg): its markers as points in "
