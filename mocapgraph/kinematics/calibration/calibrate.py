@@ -340,7 +340,7 @@ def calibrate(
                                 min_rom_deg, max_uncertainty_mm)
     model = _actor_model(definition, idx, base, fit, c0, offsets, joint_base, axes, quality, markers, rate_hz,
                          jpts, static_only)
-    model.marker_noise, model.max_uncertainty = sigma, max_uncertainty_mm / 1000.0
+    model.marker_noise, model.max_uncertainty = sigma, max_uncertainty_mm / 1000.0 if white else float("nan")
     model.bone_length = _bone_lengths(model, markers)
     model.warnings = tuple(warns)
     for msg in warns:
