@@ -39,6 +39,12 @@ class Jig:
             if s:
                 limb["parent"] = NAMES[s - 1]
                 limb["joint"] = {"name": JOINTS[s - 1], "type": "hinge" if self.hinge[s - 1] else "ball"}
+            if len(self.local[s]) < 3:
+                # Two markers cannot fix a segment: the layout names a joint whose centre, seen from
+                # the neighbour, is its third fit point (the neighbour has three or more markers).
+                near = [s - 1] if s > 0 and len(self.local[s - 1]) >= 3 else []
+                near += [s] if s + 1 < len(self.local) and len(self.local[s + 1]) >= 3 else []
+                limb["joint_points"] = [JOINTS[near[0]]]
             limbs.append(limb)
         return {"name": "random_jig", "description": "random virtual limb chain", "limbs": limbs}
 
@@ -117,22 +123,27 @@ def _cluster(rng: np.random.Generator, bone: float, n: int, size: float | None, 
 
 
 def random_jig(rng: np.random.Generator, n_markers: int | tuple[int, int] = 3,
-               size: float | tuple[float, float] | None = None, hinge_share: float = 0.0,
+               size: float | tuple[float, float] | None = None, hinge_share: float | tuple[bool, ...] = 0.0,
                collinear: int | None = None, bones: tuple[float, ...] = BONES) -> Jig:
     """A random chain: ``n_markers`` per segment (or a range), cluster sizes (m, or a range;
     None: markers along the segment as in issue 27's arm),
-    each joint a hinge with probability ``hinge_share``; ``collinear``: the segment whose
+    each joint a hinge with probability ``hinge_share`` (or the joints named hinges by a tuple of bools); ``collinear``: the segment whose
     cluster is nearly a line (None: none)."""
     S = len(bones)
     lo_n, hi_n = (n_markers, n_markers) if isinstance(n_markers, int) else n_markers
     lo_s, hi_s = (size, size) if size is None or isinstance(size, float) else size
-    hinge = rng.random(S - 1) < hinge_share
+    hinge = (np.array(hinge_share, dtype=bool) if isinstance(hinge_share, tuple)
+             else rng.random(S - 1) < hinge_share)
     coll = np.zeros(S, dtype=bool)
     if collinear is not None:
         coll[collinear] = True
     local = []
+    counts = rng.integers(lo_n, hi_n + 1, size=S)
+    for s in range(1, S):   # no two two-marker segments side by side (neither could frame the other)
+        if counts[s] < 3 and counts[s - 1] < 3:
+            counts[s] = 3
     for s in range(S):
-        n = int(rng.integers(lo_n, hi_n + 1))
+        n = int(counts[s])
         sz = None if lo_s is None else float(rng.uniform(lo_s, hi_s))
         local.append(_cluster(rng, bones[s], n, sz, bool(coll[s])))
     rel = [Rotation.random(random_state=rng).as_matrix()]

@@ -325,6 +325,7 @@ def calibrate(
     white = bool(np.isfinite(lag1) and lag1 < _WHITE_LAG1)
     jpts, auto = _joint_points(definition), {}
     if white:
+        base, ref, c0, fit = _mean_shape_base(base, idx, markers, fit, w0)
         jpts, auto = _auto_joint_points(definition, jpts, cluster_rotation_sd(ref, w0, sigma),
                                         np.radians(degenerate_rotation_deg))
     else:
@@ -348,12 +349,34 @@ def calibrate(
     return model
 
 
+def _mean_shape_base(base: np.ndarray, idx: np.ndarray, markers: np.ndarray, fit: Any, w0: np.ndarray):
+    """The base pose with each cluster's mean shape over the gym (every frame's markers carried
+    back by its rigid fit and averaged) in place of the one base frame's noisy markers, and the
+    fits redone against it: a noisy base frame tilts each cluster's frame by a different small
+    rotation (0.5-1 deg at 1 mm noise), which the hinge rules and the centres' average between
+    two limbs would turn into millimetres. Returns (base [M,3], ref [L,K,3], c0 [L,3], fit)."""
+    cur = gather_limb_markers(markers, idx)
+    y = np.einsum("tlji,tlkj->tlki", np.where(fit.valid[..., None, None], fit.rotation, 0.0),
+                  cur - np.where(fit.valid[..., None], fit.translation, 0.0)[:, :, None, :])
+    ok = np.isfinite(y).all(-1) & fit.valid[..., None]
+    cnt = ok.sum(0)
+    mean = np.where(ok[..., None], y, 0.0).sum(0) / np.maximum(cnt, 1)[..., None]     # [L,K,3]
+    new = base.copy()
+    done = np.zeros(len(base), dtype=bool)
+    for l, k in zip(*np.nonzero((idx >= 0) & (cnt >= 3))):
+        if not done[idx[l, k]]:
+            new[idx[l, k]], done[idx[l, k]] = mean[l, k], True
+    ref = gather_limb_markers(new, idx)
+    return new, ref, np.nanmean(ref, axis=1), fit_rigid(ref, cur, w0)
+
+
 def _auto_joint_points(definition: Any, jpts: np.ndarray, rot_sd: np.ndarray,
                        max_rot: float) -> tuple[np.ndarray, dict[int, str]]:
     """The layout's joint points plus, for each limb whose cluster cannot fix its orientation
     (rotation sd rot_sd [L] rad above max_rot) and has none, its joints to limbs that can.
     Returns (int64[L,P], joint -> why, for the report)."""
     jl = np.asarray(definition.joint_limbs)
+    hinge = np.asarray(definition.joint_hinge, dtype=bool)
     rows = [list(r[r >= 0]) for r in jpts]
     declared = np.array([bool(r) for r in rows])
     weak = (rot_sd > max_rot) & ~declared
@@ -365,7 +388,8 @@ def _auto_joint_points(definition: Any, jpts: np.ndarray, rot_sd: np.ndarray,
             continue
         for j in np.flatnonzero((jl == l).any(1)):
             m = int(jl[j, 0] if jl[j, 1] == l else jl[j, 1])
-            if m < 0 or frame[m] or rot_sd[m] >= rot_sd[l]:
+            # (a hinge's markers move on circles: a sphere fit cannot place it along its axis)
+            if m < 0 or frame[m] or rot_sd[m] >= rot_sd[l] or hinge[j]:
                 continue
             frame[l], used[m] = True, True
             rows[l].append(int(j))
@@ -410,6 +434,28 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
     for j, why in auto.items():
         inputs[j]["points"] = why
     final_cov = np.array([picker.cov.get(j, cov[j]) for j in range(J)])
+    parent = np.asarray(definition.joint_parent)
+    s_base = cluster_rotation_cov(ref, w0, sigma)   # each cluster's base-pose frame: one noisy frame
+    t_base = np.trace(s_base, axis1=1, axis2=2)
+    for j in np.flatnonzero(hinge & np.array([m.startswith("hinge") for m in methods])):
+        # The axis is the two limbs' axes averaged; each limb's base frame is tilted by its noise.
+        axis_se[j] = np.sqrt(axis_se[j] ** 2 + (t_base[la[j]] + t_base[lb[j]]) / 6.0)
+        if (methods[j].endswith("+perpendicular") or methods[j].endswith("+plane")) and parent[j] >= 0:
+            # Placed along the axis by a rule through the parent joint: an axis tilt slides it.
+            n = axes[j] / np.linalg.norm(axes[j])
+            arm = float(np.linalg.norm(joint_base[parent[j]] - joint_base[j]))
+            final_cov[j] = final_cov[j] + (arm * axis_se[j]) ** 2 * np.outer(n, n)
+            if standard_error(final_cov[j]) > picker.max_se:
+                reliable[j] = False
+    for j in np.flatnonzero(hinge & np.array([m.endswith("+midplane") for m in methods])):
+        # Nothing measured the centre's place along the axis: the markers' mid-plane is a guess
+        # as uncertain as the two clusters are wide along it.
+        n = axes[j] / np.linalg.norm(axes[j])
+        pts = ref[[la[j], lb[j]]].reshape(-1, 3)
+        spread = np.nanstd(pts[np.isfinite(pts).all(1)] @ n)
+        final_cov[j] = final_cov[j] + spread * spread * np.outer(n, n)
+        if not np.isfinite(spread) or spread > picker.max_se:
+            reliable[j] = False
     axis_se = np.where(hinge & np.array([m.startswith("hinge") for m in methods]), axis_se, np.nan)
     axes[~hinge] = np.nan  # the axis sign is arbitrary; only the line matters to the solver
     quality = JointQuality(residual_rms=resid, range_of_motion=rom, n_frames=n_frames.astype(np.int64),
