@@ -338,7 +338,7 @@ def calibrate(
                                                        picker, cands, huber_k, irls_iterations, source, auto,
                                                        sigma if np.isfinite(sigma) else 0.0, white)
     warns, static_only = _notes(definition, markers, parts, n_static, quality, cands, source,
-                                min_rom_deg, max_uncertainty_mm)
+                                min_rom_deg, max_uncertainty_mm if white else None)
     model = _actor_model(definition, idx, base, fit, c0, offsets, joint_base, axes, quality, markers, rate_hz,
                          jpts, static_only)
     model.marker_noise, model.max_uncertainty = sigma, max_uncertainty_mm / 1000.0 if white else float("nan")
@@ -434,19 +434,9 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
     for j, why in auto.items():
         inputs[j]["points"] = why
     final_cov = np.array([picker.cov.get(j, cov[j]) for j in range(J)])
-    parent = np.asarray(definition.joint_parent)
-    s_base = cluster_rotation_cov(ref, w0, sigma)   # each cluster's base-pose frame: one noisy frame
-    t_base = np.trace(s_base, axis1=1, axis2=2)
-    for j in np.flatnonzero(hinge & np.array([m.startswith("hinge") for m in methods])):
-        # The axis is the two limbs' axes averaged; each limb's base frame is tilted by its noise.
-        axis_se[j] = np.sqrt(axis_se[j] ** 2 + (t_base[la[j]] + t_base[lb[j]]) / 6.0)
-        if (methods[j].endswith("+perpendicular") or methods[j].endswith("+plane")) and parent[j] >= 0:
-            # Placed along the axis by a rule through the parent joint: an axis tilt slides it.
-            n = axes[j] / np.linalg.norm(axes[j])
-            arm = float(np.linalg.norm(joint_base[parent[j]] - joint_base[j]))
-            final_cov[j] = final_cov[j] + (arm * axis_se[j]) ** 2 * np.outer(n, n)
-            if standard_error(final_cov[j]) > picker.max_se:
-                reliable[j] = False
+    # (Not covered: a hinge centre placed along its axis by a rule through the parent joint or
+    # the neighbours' plane; a tilt of the axis slides it. On random arms 0.7-2.6 mm mean at
+    # 0.5-1 mm noise, see benchmarks/accuracy.py.)
     for j in np.flatnonzero(hinge & np.array([m.endswith("+midplane") for m in methods])):
         # Nothing measured the centre's place along the axis: the markers' mid-plane is a guess
         # as uncertain as the two clusters are wide along it.
@@ -651,7 +641,7 @@ def _joint_offsets(fit: Any, c0: np.ndarray, la: np.ndarray, lb: np.ndarray, hin
 
 def _notes(definition: Any, markers: np.ndarray, parts: Sequence[tuple[str, int]] | None, n_static: int,
            quality: JointQuality, cands: CentreCandidates, source: str, min_rom_deg: float,
-           max_uncertainty_mm: float) -> tuple[list[str], tuple[str, ...]]:
+           max_uncertainty_mm: float | None) -> tuple[list[str], tuple[str, ...]]:
     """The calibration's warnings (joints with no reliable centre, with their range and standard
     error; the candidates' notes; clusters that changed between parts) and the markers only the
     static trial needs."""
@@ -661,8 +651,9 @@ def _notes(definition: Any, markers: np.ndarray, parts: Sequence[tuple[str, int]
     weak = np.flatnonzero(~quality.reliable)
     if weak.size:
         warns.append(
-            f"{source}: no reliable centre (range of motion < {min_rom_deg:g} deg or standard error > "
-            f"{max_uncertainty_mm:g} mm, and no landmarks or regression): centre from the "
+            f"{source}: no reliable centre (range of motion < {min_rom_deg:g} deg or "
+            + (f"standard error > {max_uncertainty_mm:g} mm" if max_uncertainty_mm is not None else "residual too large")
+            + ", and no landmarks or regression): centre from the "
             "prior or an untrusted fit: "
             + ", ".join(f"{names[j]} {np.degrees(rom[j]):.1f} deg, "
                         + (f"+-{1000 * se[j]:.1f} mm" if np.isfinite(se[j]) else "error unknown") for j in weak))
