@@ -163,7 +163,8 @@ def _swing_range(u: np.ndarray, max_samples: int = 240) -> float:
     return float(np.arccos((sel @ sel.T).clip(-1.0, 1.0).min()))
 
 
-def joint_range_of_motion(definition: Any, markers: np.ndarray, fit: Any | None = None) -> np.ndarray:
+def joint_range_of_motion(definition: Any, markers: np.ndarray, fit: Any | None = None,
+                          idx: np.ndarray | None = None) -> np.ndarray:
     """Range of motion (rad) of every joint from markers float[T,M,3] (layout order, metres).
 
     Measured from the markers alone, never through joint points: a limb with a rigid fit of its
@@ -173,7 +174,7 @@ def joint_range_of_motion(definition: Any, markers: np.ndarray, fit: Any | None 
     point would turn that point's noise into rotation (a still subject would "move" 30-180 deg).
     """
     markers = np.asarray(markers, dtype=float)
-    idx = np.asarray(definition.limb_marker_index())
+    idx = np.asarray(definition.limb_marker_index() if idx is None else idx)  # (idx: without lost markers)
     if fit is None:
         ref = gather_limb_markers(markers[0], idx)
         fit = fit_rigid(ref, gather_limb_markers(markers, idx), (idx >= 0).astype(float))
@@ -304,7 +305,8 @@ def calibrate(
     if bad:
         raise CalibrationError(f"{source}: unknown centre method {bad[0]!r} (known: {', '.join(METHODS)})")
     n_static = int(parts[0][1]) if parts else markers.shape[0]
-    base = markers[_base_frame(markers, labels, base_frame, rate_hz, max_base_search_s, source)]
+    idx, seen, lost_note = _drop_lost_markers(definition, idx, markers, source)
+    base = markers[_base_frame(seen, labels, base_frame, rate_hz, max_base_search_s, source)]
     ref = gather_limb_markers(base, idx)                      # [L,K,3]
     c0 = np.nanmean(ref, axis=1)                              # [L,3]
     w0 = (idx >= 0).astype(float)
@@ -312,7 +314,7 @@ def calibrate(
     jl = np.asarray(definition.joint_limbs)
     names = tuple(definition.joint_names)
     # Range of motion from the markers' own fits, before any joint point enters a fit.
-    rom = joint_range_of_motion(definition, markers, fit)
+    rom = joint_range_of_motion(definition, markers, fit, idx)
     low = rom < np.radians(min_rom_deg)
     cands = CentreCandidates(definition, markers, slice(0, n_static), subject)
     if low.all() and not cands.has_any():
@@ -343,10 +345,32 @@ def calibrate(
                          jpts, static_only)
     model.marker_noise, model.max_uncertainty = sigma, max_uncertainty_mm / 1000.0 if white else float("nan")
     model.bone_length = _bone_lengths(model, markers)
-    model.warnings = tuple(warns)
+    model.warnings = tuple(warns := lost_note + warns)
     for msg in warns:
         warnings.warn(msg, CalibrationWarning, stacklevel=2)
     return model
+
+
+def _drop_lost_markers(definition: Any, idx: np.ndarray, markers: np.ndarray,
+                       source: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Markers never seen in the whole capture (lost for the trial) taken out of the limbs' fit
+    sets: (limb index [L,K] compacted, the markers with those columns set to 0 for the base-pose
+    search, the warning naming them). A limb left with fewer than three is fitted through its
+    joints, as a degenerate cluster is."""
+    lost = ~np.isfinite(markers).all(-1).any(0)
+    used = np.isin(np.arange(markers.shape[1]), idx[idx >= 0])
+    if not (lost & used).any():
+        return idx, markers, []
+    rows = [[int(m) for m in r if m >= 0 and not lost[m]] for r in idx]
+    out = np.full_like(idx, -1)
+    for l, r in enumerate(rows):
+        out[l, : len(r)] = r
+    labels = definition.marker_labels
+    names = ", ".join(labels[m] for m in np.flatnonzero(lost & used))
+    few = [definition.limb_names[l] for l, r in enumerate(rows) if len(r) < MIN_MARKERS]
+    note = (f"{source}: markers never seen in the capture, left out: {names}"
+            + (f"; {', '.join(few)} fitted through {'its' if len(few) == 1 else 'their'} joints" if few else ""))
+    return out, np.where(lost[None, :, None], 0.0, markers), [note]
 
 
 def _mean_shape_base(base: np.ndarray, idx: np.ndarray, markers: np.ndarray, fit: Any, w0: np.ndarray):

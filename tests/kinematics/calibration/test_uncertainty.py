@@ -149,3 +149,27 @@ def test_a_stiff_joint_is_never_good_and_its_uncertainty_says_why():
     res = FrameSolver(model, max_gap_s=0).solve(clean[:50] + rng.normal(scale=NOISE, size=clean[:50].shape))
     assert (res.joint_quality[:, 2] == 1).all() and (res.joint_quality[:, :2] == 2).all()
     assert (res.joint_uncertainty[:, 2] > model.max_uncertainty).all()
+
+
+def test_a_marker_lost_for_the_whole_trial_leaves_its_limb_fitted_through_its_joint():
+    rng = np.random.default_rng(980)
+    jig = random_jig(rng)
+    definition = SkeletonDefinition.from_layout_dict(jig.layout(), "random_jig")
+    clean, joints = jig.forward(jig.rom_trial(rng, 1440, 70.0))
+    noisy = clean + rng.normal(scale=NOISE, size=clean.shape)
+    lost = definition.marker_labels.index("S3M1")   # a hand marker never seen
+    noisy[:, lost] = np.nan
+    with pytest.warns(CalibrationWarning, match="never seen.*S3M1.*hand fitted through its joints"):
+        model = calibrate(definition, noisy, rate_hz=120.0)
+    q = model.quality
+    err = FrameSolver(model, max_gap_s=0, enforce_lengths=False).solve(clean[:1]).joints[0] - joints[0]
+    print(f"\nlost S3M1: centre error mm {np.round(1000 * np.linalg.norm(err, axis=-1), 2)}, "
+          f"SE mm {np.round(1000 * q.centre_se, 2)}, methods {q.method}")
+    assert q.from_points[2] and q.reliable.all() and (np.linalg.norm(err, axis=-1) <= 0.002).all()
+    pose_m, pose_j = jig.forward(jig.test_poses(rng, 5), origin=np.array([0.3, -0.1, 1.2]))
+    pose_m = pose_m + rng.normal(scale=NOISE, size=pose_m.shape)
+    pose_m[:, lost] = np.nan
+    res = FrameSolver(model, max_gap_s=0, fit="global").solve(pose_m)
+    e = np.linalg.norm(res.joints - pose_j, axis=-1)
+    print(f"poses (global fit): mean {1000 * e.mean():.2f} max {1000 * e.max():.2f} mm")
+    assert (res.joint_quality == 2).all() and e.max() <= 0.005
