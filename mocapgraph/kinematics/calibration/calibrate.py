@@ -334,6 +334,9 @@ def calibrate(
         # Skin moving over bone (slow, correlated): the residuals are no noise model, so neither
         # degeneracy nor standard errors from them decide; the residual bound does, as it always did.
         max_residual_mm = _RESIDUAL_MM if max_residual_mm is None else max_residual_mm
+        if lost_note and ((idx >= 0).sum(1) + (jpts >= 0).sum(1) < MIN_MARKERS).any():
+            raise CalibrationError(lost_note[0] + " (a limb left with two markers needs its joint as a fit point: "
+                                   "its residuals are skin motion, so no centre can be found from its markers)")
     picker = _CentrePicker(centre_order, cands, low, None if max_residual_mm is None else max_residual_mm / 1000.0,
                            max_uncertainty_mm / 1000.0 if white else np.inf)
     fit, quality, offsets, joint_base, axes = _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low,
