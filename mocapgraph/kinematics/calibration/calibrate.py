@@ -454,6 +454,7 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
         resid[j], cov[j] = rms_j, cov_j
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
     functional_hinge = picker.settle(joint_base, offsets, methods, resid, point_centre, hinge, c0, la, lb, fit, cov)
+    before = joint_base.copy()
     _place_hinge_centres(definition, joint_base, offsets, axes, functional_hinge, methods, cands, fit, picker.chosen)
     picked = picker.picked
     reliable = np.array([picked[j][2] for j in range(J)], dtype=bool)
@@ -461,9 +462,18 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
     for j, why in auto.items():
         inputs[j]["points"] = why
     final_cov = np.array([picker.cov.get(j, cov[j]) for j in range(J)])
-    # (Not covered: a hinge centre placed along its axis by a rule through the parent joint or
-    # the neighbours' plane; a tilt of the axis slides it. On random arms 0.7-2.6 mm mean at
-    # 0.5-1 mm noise, see benchmarks/accuracy.py.)
+    # A hinge's axis: its error over the frames (bootstrap) and each cluster's one-frame base-pose
+    # tilt. A centre slid along the axis by the placement rules moves across the true axis by the
+    # slide times that tilt. (Not covered: where along the axis a rule through the parent joint or
+    # the neighbours' plane puts it; on random arms 0.7-2.6 mm mean at 0.5-1 mm noise, see
+    # benchmarks/accuracy.py.)
+    t_base = np.trace(cluster_rotation_cov(ref, w0, sigma), axis1=1, axis2=2)
+    for j in np.flatnonzero(hinge & np.isfinite(axis_se) & np.isfinite(axes).all(1)):
+        n = axes[j] / np.linalg.norm(axes[j])
+        axis_se[j] = np.sqrt(axis_se[j] ** 2 + (t_base[la[j]] + t_base[lb[j]]) / 6.0)
+        slide = float((joint_base[j] - before[j]) @ n)
+        final_cov[j] = final_cov[j] + 0.5 * (slide * axis_se[j]) ** 2 * (np.eye(3) - np.outer(n, n))
+        reliable[j] &= bool(standard_error(final_cov[j]) <= picker.max_se)
     for j in np.flatnonzero(hinge & np.array([m.endswith("+midplane") for m in methods])):
         # Nothing measured the centre's place along the axis: the markers' mid-plane is a guess
         # as uncertain as the two clusters are wide along it.
