@@ -446,7 +446,7 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
     rot_cov = cluster_rotation_cov(ref, w0, sigma) if white else None
     if rot_cov is not None:
         rot_cov[(jpts >= 0).any(1)] = 0.0  # limbs fitted through joint points: not their own clusters' noise
-    offsets, axes, methods, inlier, resid, n_frames, cov, axis_se = _joint_offsets(
+    offsets, axes, methods, inlier, resid, n_frames, cov, axis_se, limb_axes = _joint_offsets(
         fit, c0, la, lb, hinge, low, tuple(definition.joint_names), huber_k, irls_iterations, source, rot_cov)
     for j, (centre, rms_j, cov_j) in point_centre.items():
         offsets[j, 0], offsets[j, 1] = centre - c0[la[j]], centre - c0[lb[j]]
@@ -455,7 +455,8 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
     functional_hinge = picker.settle(joint_base, offsets, methods, resid, point_centre, hinge, c0, la, lb, fit, cov)
     before = joint_base.copy()
-    _place_hinge_centres(definition, joint_base, offsets, axes, functional_hinge, methods, cands, fit, picker.chosen)
+    _place_hinge_centres(definition, joint_base, offsets, axes, functional_hinge, methods, cands, fit, picker.chosen,
+                         c0 if white else None, limb_axes)
     picked = picker.picked
     reliable = np.array([picked[j][2] for j in range(J)], dtype=bool)
     inputs = [dict(picked[j][3]) for j in range(J)]
@@ -673,7 +674,13 @@ def _joint_offsets(fit: Any, c0: np.ndarray, la: np.ndarray, lb: np.ndarray, hin
     inlier = valid & (err <= c)
     resid = np.array([np.sqrt(np.mean(err[inlier[:, j], j] ** 2)) if inlier[:, j].any() else np.nan
                       for j in range(J)])
-    return offsets, axes, methods, inlier, resid, n_frames, cov, axis_se
+    # The axis as each limb holds it (SARA's two halves): their base frames differ by a little noise.
+    limb_axes = np.full((J, 2, 3), np.nan)
+    for j in np.flatnonzero(hinge & np.isfinite(axes).all(1)):
+        u = np.linalg.eigh(nmat[j])[1][:, 0].reshape(2, 3)
+        u = u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+        limb_axes[j] = u * np.sign(u @ axes[j])[:, None]
+    return offsets, axes, methods, inlier, resid, n_frames, cov, axis_se, limb_axes
 
 
 def _notes(definition: Any, markers: np.ndarray, parts: Sequence[tuple[str, int]] | None, n_static: int,
@@ -709,7 +716,8 @@ def _notes(definition: Any, markers: np.ndarray, parts: Sequence[tuple[str, int]
 def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.ndarray,
                          axes: np.ndarray, hinge: np.ndarray, methods: list[str],
                          cands: CentreCandidates | None = None, fit: Any = None,
-                         chosen: dict[int, np.ndarray] | None = None) -> None:
+                         chosen: dict[int, np.ndarray] | None = None, c0: np.ndarray | None = None,
+                         limb_axes: np.ndarray | None = None) -> None:
     """Fix each functional hinge centre's place along its axis (in place).
 
     Motion about one axis leaves the centre's position along it unobservable. In order: the
@@ -718,9 +726,21 @@ def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.nd
     child joint (an anatomical hinge's axis is normal to the plane of its neighbours: shoulder,
     elbow, wrist), else the axis point nearest the parent joint (the segment's long axis is
     perpendicular to its flexion axis), else the mid-plane of the two limbs' markers.
+    With ``c0`` (and ``fit``) the two rules are taken in the world, frame by frame (each joint as
+    its own limb sees it, about the axis as that limb holds it, ``limb_axes`` [J,2,3]) and the
+    median slide applied to each limb along its own axis: each limb's base frame is tilted by its
+    own noise, so base-pose points from different limbs do not quite agree (mm over a bone).
     """
     jl = np.asarray(definition.joint_limbs)
     parent = np.asarray(definition.joint_parent)
+    rule = _WorldRule(jl, offsets, fit, c0, limb_axes) if c0 is not None and fit is not None else None
+
+    def slide(j: int, s: float) -> None:
+        own = limb_axes[j] if rule is not None and limb_axes is not None and np.isfinite(limb_axes[j]).all() \
+            else np.stack([axes[j], axes[j]])
+        joint_base[j] += s * axes[j]
+        offsets[j] += s * own
+
     for j in np.flatnonzero(hinge):
         n = axes[j]
         if cands is not None and np.isfinite(n).all():
@@ -736,17 +756,13 @@ def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.nd
         n = axes[j]
         if p < 0 or not kids or not np.isfinite(n).all():
             continue
-        a, b = joint_base[p], joint_base[kids[0]]
-        d = b - a
-        dn = float(d @ n)
-        dd = float(d @ d)
-        den = dd - dn * dn  # |d|^2 sin^2(angle between line and axis)
-        if dd <= 0 or den < 0.25 * dd:  # line within 30 deg of the axis: no reliable crossing
+        got = rule.plane(j, p, kids[0], n) if rule is not None else None
+        if got is None:
+            a, b = joint_base[p], joint_base[kids[0]]
+            got = _plane_slide((b - a)[None], (joint_base[j] - a)[None], n[None])
+        if got is None:
             continue
-        w = joint_base[j] - a
-        s = (dn * float(w @ d) - dd * float(w @ n)) / den
-        joint_base[j] += s * n
-        offsets[j] += s * n
+        slide(j, got)
         methods[j] = "hinge+plane"
     for j in np.flatnonzero(hinge):
         p = parent[j]
@@ -754,16 +770,71 @@ def _place_hinge_centres(definition: Any, joint_base: np.ndarray, offsets: np.nd
         if methods[j] in ("hinge", "hinge+prior") and p >= 0 and np.isfinite(n).all():
             # The segment's long axis (parent joint to this centre) is perpendicular to its
             # flexion axis: the centre is the axis point nearest the parent joint.
-            d = joint_base[p] - joint_base[j]
-            s = float(d @ n)
+            got = rule.perpendicular(j, p, n) if rule is not None else None
+            s, dist = got if got is not None else (float((joint_base[p] - joint_base[j]) @ n),
+                                                   float(np.linalg.norm(joint_base[p] - joint_base[j])))
             # Only a small correction: a poorly found axis would otherwise slide the centre far
             # along it (the joint is at most a few centimetres wide).
-            if abs(s) < min(np.cos(np.radians(75.0)) * np.linalg.norm(d), _MAX_AXIAL_SHIFT):
-                joint_base[j] += s * n
-                offsets[j] += s * n
+            if abs(s) < min(np.cos(np.radians(75.0)) * dist, _MAX_AXIAL_SHIFT):
+                slide(j, s)
                 methods[j] = "hinge+perpendicular"
         if methods[j] in ("hinge", "hinge+prior"):
             methods[j] += "+midplane"
+
+
+def _plane_slide(d: np.ndarray, w: np.ndarray, n: np.ndarray) -> float | None:
+    """Median slide along the axes n [F,3] that puts the points w [F,3] (relative to the line's
+    start) on the lines d [F,3]; None when the line runs within 30 deg of the axis."""
+    dn, dd = (d * n).sum(-1), (d * d).sum(-1)
+    den = dd - dn * dn  # |d|^2 sin^2(angle between line and axis)
+    ok = (dd > 0) & (den >= 0.25 * dd)
+    if not ok.any() or ok.mean() < 0.5:
+        return None
+    s = (dn * (w * d).sum(-1) - dd * (w * n).sum(-1))[ok] / den[ok]
+    return float(np.median(s))
+
+
+class _WorldRule:
+    """The hinge placement rules frame by frame in the world: each joint where its own limb puts it."""
+
+    def __init__(self, jl: np.ndarray, offsets: np.ndarray, fit: Any, c0: np.ndarray,
+                 limb_axes: np.ndarray | None = None, n_frames: int = 240) -> None:
+        self.jl, self.offsets, self.fit, self.c0, self.n = jl, offsets, fit, c0, n_frames
+        self.limb_axes = limb_axes
+
+    def _axis(self, j: int, n: np.ndarray) -> np.ndarray:
+        """The axis as joint j's proximal limb holds it (else n)."""
+        la = None if self.limb_axes is None else self.limb_axes[j, 0]
+        return la if la is not None and np.isfinite(la).all() else n
+
+    def _frames(self, limbs) -> np.ndarray:
+        ok = np.flatnonzero(self.fit.valid[:, list(limbs)].all(1))
+        return ok[np.linspace(0, ok.size - 1, min(self.n, ok.size)).astype(int)] if ok.size else ok
+
+    def _seen(self, j: int, limb: int, frames: np.ndarray) -> np.ndarray | None:
+        k = np.flatnonzero(self.jl[j] == limb)
+        if not k.size:
+            return None
+        pt = self.c0[limb] + self.offsets[j, k[0]]
+        return (self.fit.rotation[frames, limb] @ pt) + self.fit.translation[frames, limb]
+
+    def plane(self, j: int, p: int, kid: int, n: np.ndarray) -> float | None:
+        a, b = (int(v) for v in self.jl[j])
+        frames = self._frames((a, b))
+        pa, kb, ja = self._seen(p, a, frames), self._seen(kid, b, frames), self._seen(j, a, frames)
+        if frames.size < 10 or pa is None or kb is None:
+            return None
+        return _plane_slide(kb - pa, ja - pa, self.fit.rotation[frames, a] @ self._axis(j, n))
+
+    def perpendicular(self, j: int, p: int, n: np.ndarray) -> tuple[float, float] | None:
+        a = int(self.jl[j, 0])
+        frames = self._frames((a,))
+        pa, ja = self._seen(p, a, frames), self._seen(j, a, frames)
+        if frames.size < 10 or pa is None:
+            return None
+        d = pa - ja
+        na = self.fit.rotation[frames, a] @ self._axis(j, n)
+        return float(np.median((d * na).sum(-1))), float(np.median(np.linalg.norm(d, axis=-1)))
 
 
 def _joint_points(definition: Any) -> np.ndarray:
