@@ -284,9 +284,10 @@ def calibrate(
     Per joint the centre's method is the first of ``centre_order`` that applies: "functional"
     (SCoRE/SARA, or a sphere fit for joint points: range >= min_rom_deg and a standard error,
     propagated from the marker noise the clusters' own residuals show, of at most
-    ``max_uncertainty_mm``; ``max_residual_mm``, if given, also bounds the residual), "anatomical" (the layout's landmark pair, midpoint over the static
-    frames), "regression" (the layout's Plug-in Gait / Harrington regression with ``subject``);
-    else the prior (a centre between the limbs, flagged unreliable). A functional hinge's place
+    ``max_uncertainty_mm``; ``max_residual_mm``, if given, also bounds the residual; when the
+    residuals are skin motion rather than noise, the residual bound alone, 10 mm by default),
+    "anatomical" (the layout's landmark pair, midpoint over the static frames), "regression"
+    (the layout's Plug-in Gait / Harrington regression with ``subject``); else the prior (a centre between the limbs, flagged unreliable). A functional hinge's place
     along its axis comes from its landmarks, else its regression, else the plane of its
     neighbours, else the mid-plane of the markers.
     parts: (file name, frame count) of concatenated captures: the first is the static trial
@@ -615,9 +616,10 @@ def _joint_offsets(fit: Any, c0: np.ndarray, la: np.ndarray, lb: np.ndarray, hin
     Huber-weighted IRLS over the gym frames. Marker noise turns each limb's fitted rotation by a
     small random amount (covariance S = rot_cov [L,3,3]), so a noisy rotation is on average
     ``R (I - (tr S - S) / 2)``: shorter, which pulls least squares towards small offsets (errors
-    in variables, ~0.5 mm at 1 mm noise); the normal equations are corrected for it. Returns (offsets [J,2,3] m, axes [J,3], methods, inlier [T,J],
+    in variables, ~0.5 mm at 1 mm noise); the normal equations are corrected for it.
+    Returns (offsets [J,2,3] m, axes [J,3], methods, inlier [T,J],
     residual rms [J] m, frames with both limbs tracked [J], centre covariance [J,3,3] m^2 (a hinge's:
-    across its axis), hinge axis standard error [J] rad)."""
+    across its axis), hinge axis standard error [J] rad, the axis as each limb holds it [J,2,3])."""
     J = len(la)
     rot = fit.rotation                                        # [T,L,3,3]
     cen = (rot @ c0[:, :, None])[..., 0] + fit.translation    # base centroid carried along
