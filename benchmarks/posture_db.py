@@ -8,6 +8,20 @@ between the query and the matched posture in the full space; percentage (Eq 6): 
 the summed e_60, minus one. Search time per query at each r, brute force and k-d tree. Then the
 search time over 10 000 postures at k = 7 (target <= 0.05 ms) and the PNG of the figure
 (artifacts/posture_db_figure5.png). Shum & Ho: under 3 % at 7 dimensions, 0.10 ms search.
+
+Why the 7-dimension figure moved between runs (issue 27): the script is deterministic for one
+commit and one data folder, but (a) CMU 131_01 joins the database only when ../shared/data is
+there (this split: 2.26 % without it, 4.26 % with it), (b) its postures come through the
+retargeter, so a change there changes them, and (c) the figure is decided by a handful of frames:
+10 of the 600 queries carry 84-97 % of the extra error, and it is not even monotonic in r (6: 1.15,
+7: 4.26, 8: 0.52 %). So it is also printed over fixed, stated splits (the session in 8 contiguous
+blocks, each held out in turn with 1 s either side left out of its database; with and without CMU)
+with its spread. This database is one performer's 37 s (460-830 postures after de-duplication): a
+held-out block's turns, kick or walk back have few near neighbours, so a wrong pick among far ones
+weighs much against the full-space error (Eq 6 is relative to it); Shum & Ho's matched against a
+large library of the same kinds of motion. Re-ranking the 8 nearest at 7 dimensions in the full
+space (printed beside, for comparison; not what the live completion does) brings it under 3 %
+in 14 of 16 folds (median 0.05 % / 1.34 %).
 Run: .venv/bin/python benchmarks/posture_db.py [--png PATH]
 """
 from __future__ import annotations
@@ -55,6 +69,75 @@ def two_op_ms(db: PostureDB, q: np.ndarray) -> float:
         for i in range(len(q)):
             np.array([np.argmin(sq - 2.0 * (q[i] @ rt))])
     return 1e3 * (time.process_time() - t0) / (3 * len(q))
+
+
+DIMS = (5, 6, 7, 8, 10)
+N_FOLDS = 8
+GAP_S = 1.0
+
+
+def extra_error(db: PostureDB, qn: np.ndarray, dims=DIMS) -> tuple[dict[int, float], np.ndarray]:
+    """Eq 6 at each r of ``dims`` for normalised queries qn [N, 3J] (summed over the queries),
+    and each query's share of the extra error at r = 7 (sorted, largest first)."""
+    full = db.positions.reshape(len(db), -1)
+    err = {}
+    per = {}
+    for r in tuple(dims) + (db.components.shape[0],):
+        db.set_k(int(r))
+        e = ((qn - full[db.nearest(db.project(qn))]) ** 2).sum(1)
+        err[r], per[r] = e.sum(), e
+    top = db.components.shape[0]
+    extra7 = np.sort(np.maximum(per[7] - per[top], 0.0))[::-1]
+    out = {r: 100.0 * (err[r] - err[top]) / err[top] for r in dims}
+    # a remedy, for comparison: the 8 nearest at 7 dimensions re-ranked in the full space
+    db.set_k(7)
+    cand = db._tree.query(db.project(qn), k=min(8, len(db)))[1]                     # [N, 8]
+    d = ((qn[:, None] - full[cand]) ** 2).sum(-1)
+    out["7+rerank8"] = 100.0 * (d.min(1).sum() - err[top]) / err[top]
+    return out, extra7 / max(extra7.sum(), 1e-300)
+
+
+def splits(ch, cmu) -> None:
+    """Eq 6 over fixed, stated splits: the session 1-37.5 s in N_FOLDS contiguous blocks, each held
+    out in turn (queries) with GAP_S either side left out of its database (no neighbouring frame
+    of a query in it); the database is the rest, with and without CMU 131_01."""
+    rate = 120.0
+    sess = synthetic_targets(1.0, 37.5)
+    n = len(sess.positions)
+    edges = np.linspace(0, n, N_FOLDS + 1).astype(int)
+    gap = int(GAP_S * rate)
+    blocks = [f"{1 + a / rate:.1f}-{1 + b / rate:.1f} s" for a, b in zip(edges[:-1], edges[1:])]
+    print_context("0 (synthetic_targets' performer: SyntheticActor kiip_full_body seed 0)",
+                  "the synthetic performer on standard_20 at 120 Hz, 1-37.5 s" + (", and CMU 131_01 retargeted onto "
+                                                                                 "standard_20" if cmu is not None else ""),
+                  f"{N_FOLDS} folds: each block held out as queries ({', '.join(blocks)}), its database the other "
+                  f"blocks less {GAP_S:g} s either side" + ("; with and without all CMU 131_01 frames" if cmu is not None
+                                                              else ""), section="fixed splits")
+    for label, extra in (("synthetic only", None), ("with CMU 131_01", cmu)):
+        if label != "synthetic only" and extra is None:
+            continue
+        rows = []
+        print(f"{label}: fold, queries, extra matching error % at r = {', '.join(map(str, DIMS))}; top 10 queries' "
+              "share of it at 7; at 7 with the 8 nearest re-ranked in full space")
+        for f, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+            keep = np.ones(n, dtype=bool)
+            keep[max(a - gap, 0): b + gap] = False
+            pos, rot = [sess.positions[keep]], [sess.local_rotations[keep]]
+            if extra is not None:
+                pos.append(extra[0])
+                rot.append(extra[1])
+            db = PostureDB.build(ch.joint_names, ch.parents, np.concatenate(pos), np.concatenate(rot), k=7, min_ssd=0.005)
+            qn = normalise(db.frame, sess.positions[a:b])[0].reshape(b - a, -1)
+            pct, share = extra_error(db, qn)
+            rows.append([pct[r] for r in DIMS] + [pct["7+rerank8"]])
+            print(f"  {f} {blocks[f]:>13} {b - a:5d}  " + "  ".join(f"{pct[r]:6.2f}" for r in DIMS)
+                  + f"   {100 * share[:10].sum():5.1f} %   {pct['7+rerank8']:6.2f}")
+        rows = np.array(rows)
+        i7 = DIMS.index(7)
+        print(f"  at 7 dimensions over the {N_FOLDS} folds: mean {rows[:, i7].mean():.2f} %, median "
+              f"{np.median(rows[:, i7]):.2f} %, std {rows[:, i7].std():.2f}, min {rows[:, i7].min():.2f}, "
+              f"max {rows[:, i7].max():.2f} (Shum & Ho: under 3 %); re-ranked: median {np.median(rows[:, -1]):.2f} %, "
+              f"max {rows[:, -1].max():.2f}")
 
 
 def main() -> None:
@@ -124,6 +207,7 @@ def main() -> None:
     print(f"{len(db10)} postures, k = 7: brute force {tb:.4f} ms, k-d tree {tk:.4f} ms per query "
           f"(target <= 0.05 ms; the faster is chosen at load); load average {os.getloadavg()[0]:.1f}")
     print(f"  in-run baseline, the earlier three-operation brute force: {t2:.4f} ms (one matmul: x{t2 / tb:.2f})")
+    splits(ch, cmu)
     try:
         import matplotlib
         matplotlib.use("Agg")

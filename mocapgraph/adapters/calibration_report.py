@@ -39,7 +39,7 @@ def model_report(model: ActorModel, min_rom_deg: float, origin: str, path: str,
     if path and origin == "calibration":
         detail += f", saved to {path}"
     if weak:
-        detail += f"; unreliable (too little motion): {', '.join(weak)}"
+        detail += f"; unreliable (too little motion or too uncertain): {', '.join(weak)}"
     return detail, report
 
 

@@ -85,7 +85,12 @@ def model_to_message(model: ActorModel, marker_limb: Sequence[int] | np.ndarray 
             "reliable": np.asarray(q.reliable, dtype=bool).tolist(),
             "method": list(q.method),
             "inputs": jsonable(list(q.inputs)),
+            "centre_cov": jsonable(np.asarray(q.centre_cov, dtype=float)),
+            "axis_se": jsonable(np.asarray(q.axis_se, dtype=float)),
+            "from_points": np.asarray(q.from_points, dtype=bool).tolist(),
         },
+        "marker_noise": jsonable(float(model.marker_noise)),
+        "max_uncertainty": jsonable(float(model.max_uncertainty)),
         "static_only_markers": list(model.static_only_markers),
         "warnings": list(model.warnings),
         "n_gym_frames": int(model.n_gym_frames),
@@ -101,7 +106,8 @@ def model_to_message(model: ActorModel, marker_limb: Sequence[int] | np.ndarray 
         base_markers=model.base_markers, joint_offsets=np.asarray(model.offsets).reshape(-1, 2, 3),
         base_joints=np.asarray(model.joint_base).reshape(-1, 3), bone_lengths=model.bone_length,
         hinge_axes=np.asarray(model.hinge_axis).reshape(-1, 3), joint_residual_rms=q.residual_rms,
-        joint_rom=q.range_of_motion, extra_json=json.dumps(extra, separators=(",", ":")),
+        joint_rom=q.range_of_motion, joint_centre_se=np.asarray(q.centre_se, dtype=float),
+        extra_json=json.dumps(extra, separators=(",", ":")),
     )
 
 
@@ -132,10 +138,17 @@ def model_from_message(msg: SkeletonModel, source: str = "skeleton_model message
                 reliable=np.array(eq["reliable"], dtype=bool).reshape(J),
                 method=tuple(eq["method"]),
                 inputs=tuple(dict(v) for v in eq.get("inputs", ())),
+                centre_se=msg.joint_centre_se.copy() if msg.joint_centre_se.shape == (J,) else np.full(J, np.nan),
+                centre_cov=(_farr(eq["centre_cov"], (J, 3, 3)) if "centre_cov" in eq
+                            else np.full((J, 3, 3), np.nan)),
+                axis_se=_farr(eq["axis_se"], (J,)) if "axis_se" in eq else np.full(J, np.nan),
+                from_points=np.array(eq.get("from_points", [False] * J), dtype=bool).reshape(J),
             ),
             static_only_markers=tuple(extra.get("static_only_markers", ())),
             warnings=tuple(extra.get("warnings", ())), n_gym_frames=int(extra.get("n_gym_frames", 0)),
             rate_hz=extra.get("rate_hz"), limb_joint_points=jp,
+            marker_noise=float("nan") if extra.get("marker_noise") is None else float(extra["marker_noise"]),
+            max_uncertainty=float("nan") if extra.get("max_uncertainty") is None else float(extra["max_uncertainty"]),
         )
     except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
         raise ModelFileError(f"{source}: malformed skeleton model ({exc})") from None
@@ -179,6 +192,7 @@ def pose_message(res: SolverResult, actor: str, frame_number: int) -> ActorPose:
         actor=actor, frame_number=int(frame_number), joint_positions=res.joints,
         joint_quality=res.joint_quality, limb_orientations=res.limb_rotation,
         limb_quality=res.limb_quality, limb_visible_markers=res.limb_visible.astype(np.int16),
+        joint_uncertainty=res.joint_uncertainty,
     )
 
 
@@ -189,31 +203,43 @@ def missing_pose(model: ActorModel, actor: str, frame_number: int) -> ActorPose:
         actor=actor, frame_number=int(frame_number), joint_positions=np.full((J, 3), np.nan),
         joint_quality=np.zeros(J, np.int8), limb_orientations=np.full((L, 4), np.nan),
         limb_quality=np.zeros(L, np.int8), limb_visible_markers=np.zeros(L, np.int16),
+        joint_uncertainty=np.full(J, np.nan),
     )
 
 
 # ----- quality report ----------------------------------------------------------------------------
 def quality_report(model: ActorModel, min_rom_deg: float | None = None) -> dict[str, Any]:
-    """Per-joint calibration quality for people: residual mm, range of motion deg, reliable."""
+    """Per-joint calibration quality for people: residual mm, range of motion deg, the centre's
+    standard error mm (and a hinge axis's, deg), how it was found, reliable."""
     q = model.quality
+    bound = model.max_uncertainty * 1000 if np.isfinite(model.max_uncertainty) else None
     joints = []
     for j, name in enumerate(model.joint_names):
         rom = float(np.degrees(q.range_of_motion[j]))
+        se = float(q.centre_se[j]) * 1000
         warn = []
         if not q.reliable[j]:
-            warn.append(f"range of motion {rom:.1f} deg"
-                        + (f" < {min_rom_deg:g} deg" if min_rom_deg is not None else "")
-                        + ": no reliable centre (move this joint more, or give landmarks / a regression)")
+            why = [f"range of motion {rom:.1f} deg" + (f" (needs {min_rom_deg:g})" if min_rom_deg is not None else "")]
+            if math.isfinite(se):
+                why.append(f"standard error {se:.1f} mm" + (f" (bound {bound:g})" if bound is not None else ""))
+            warn.append(", ".join(why) + ": no reliable centre (move this joint more, or give landmarks / a regression)")
+        inputs = q.inputs[j] if j < len(q.inputs) else {}
+        if q.from_points[j]:
+            warn.append("found from markers as points: " + str(inputs.get("points", "a limb's cluster cannot fix its orientation")))
         joints.append({
             "joint": name, "method": q.method[j],
             "residual_mm": jsonable(round(float(q.residual_rms[j]) * 1000, 3)),
+            "se_mm": jsonable(round(se, 3)),
+            "axis_se_deg": jsonable(round(float(np.degrees(q.axis_se[j])), 3)),
+            "from_points": bool(q.from_points[j]),
             "rom_deg": round(rom, 2), "frames": int(q.n_frames[j]),
             "outliers": jsonable(round(float(q.outlier_fraction[j]), 4)),
             "reliable": bool(q.reliable[j]), "warnings": warn,
-            "inputs": jsonable(q.inputs[j]) if j < len(q.inputs) else {},
+            "inputs": jsonable(inputs),
         })
     return {"layout": model.layout, "gym_frames": int(model.n_gym_frames), "joints": joints,
-            "warnings": list(model.warnings)}
+            "marker_noise_mm": jsonable(round(float(model.marker_noise) * 1000, 3)),
+            "max_uncertainty_mm": jsonable(bound), "warnings": list(model.warnings)}
 
 
 def quality_table(model: ActorModel) -> str:
@@ -221,9 +247,14 @@ def quality_table(model: ActorModel) -> str:
     rep = quality_report(model)
     w = max([len("joint")] + [len(r["joint"]) for r in rep["joints"]])
     mw = max([12] + [len(r["method"]) for r in rep["joints"]])
-    lines = [f"{'joint':<{w}}  {'method':<{mw}} {'ROM deg':>8} {'resid mm':>9} {'frames':>7}  reliable"]
+    lines = [f"{'joint':<{w}}  {'method':<{mw}} {'ROM deg':>8} {'resid mm':>9} {'+-SE mm':>8} {'frames':>7}  reliable"]
     for r in rep["joints"]:
         res = "-" if r["residual_mm"] is None else f"{r['residual_mm']:.2f}"
-        lines.append(f"{r['joint']:<{w}}  {r['method']:<{mw}} {r['rom_deg']:>8.1f} {res:>9} {r['frames']:>7}  "
-                     f"{'yes' if r['reliable'] else 'NO'}")
+        se = "-" if r["se_mm"] is None else f"{r['se_mm']:.2f}"
+        lines.append(f"{r['joint']:<{w}}  {r['method']:<{mw}} {r['rom_deg']:>8.1f} {res:>9} {se:>8} {r['frames']:>7}  "
+                     f"{'yes' if r['reliable'] else 'NO'}" + ("  (points)" if r["from_points"] else ""))
+    if rep["marker_noise_mm"] is not None:
+        lines.append(f"marker noise from the clusters' residuals: {rep['marker_noise_mm']:.2f} mm; "
+                     + (f"reliable: SE <= {rep['max_uncertainty_mm']:g} mm" if rep["max_uncertainty_mm"] is not None
+                        else "residuals are skin motion, not noise: the residual bound decides"))
     return "\n".join(lines)

@@ -171,6 +171,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                               max_base_search_s=args.base_search_s, min_rom_deg=args.min_rom_deg,
                               source=" + ".join(Path(f).name for f in args.files), centre_order=order,
                               max_residual_mm=args.max_residual_mm, subject=subject,
+                              max_uncertainty_mm=args.max_uncertainty_mm,
                               parts=list(zip(names, [len(p) for p in parts])))
         except CalibrationError as exc:
             raise UserError(str(exc)) from None
@@ -375,7 +376,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="joint-centre methods in order of preference, per joint the first that applies "
                         "(functional: SCoRE/SARA; anatomical: layout landmarks; regression: Plug-in Gait / "
                         "Harrington with subject measurements); e.g. regression,anatomical for Plug-in Gait")
-    p.add_argument("--max-residual-mm", type=float, default=10.0, help="functional centres with a larger residual are not trusted")
+    p.add_argument("--max-residual-mm", type=float, default=None,
+                   help="functional centres with a larger residual are not trusted (default: none when the "
+                        "residuals are marker noise, 10 mm when they are skin motion)")
+    p.add_argument("--max-uncertainty-mm", type=float, default=2.0,
+                   help="functional centres with a larger standard error are not reliable (when the residuals are noise)")
     p.add_argument("--vsk", metavar="FILE", help="Vicon VSK subject file (leg lengths, knee/ankle widths, ...)")
     p.add_argument("--subject", action="append", metavar="KEY=MM",
                    help="subject measurement in mm, e.g. LeftLegLength=877,RightKneeWidth=139 (repeatable; "

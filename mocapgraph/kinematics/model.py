@@ -18,7 +18,9 @@ import numpy as np
 from ..messages.quality import Quality  # noqa: F401  (the one definition; re-exported for the math)
 
 MODEL_FORMAT = "mocapgraph.skeleton_model"
-MODEL_VERSION = 1
+MODEL_VERSION = 2
+#: versions this build reads (1: no uncertainties; they load as NaN, "not known")
+READ_VERSIONS = (1, 2)
 
 
 class ModelFileError(ValueError):
@@ -43,6 +45,26 @@ class JointQuality:
     # "landmarks" (anatomical), "regression:pig_hip" ..., "prior"
     method: tuple[str, ...]
     inputs: tuple[dict, ...] = ()  # per joint: what the method used (landmarks, measurements, m)
+    # Standard error of each centre from the marker noise (m, RMS 3-D error ``sqrt(trace(cov))``;
+    # a hinge's: across its axis only), its covariance (m^2, base-pose frame) and a hinge axis's
+    # angular standard error (rad; NaN for ball joints). NaN: not known (a version 1 file).
+    centre_se: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    centre_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    axis_se: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # Joints whose centre came from one limb's markers as points in the other limb's frame
+    # because that limb's own cluster cannot fix its orientation (near-collinear, too small).
+    from_points: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __post_init__(self) -> None:
+        J = len(self.method)
+        if np.shape(self.centre_se) != (J,):
+            self.centre_se = np.full(J, np.nan)
+        if np.shape(self.centre_cov) != (J, 3, 3):
+            self.centre_cov = np.full((J, 3, 3), np.nan)
+        if np.shape(self.axis_se) != (J,):
+            self.axis_se = np.full(J, np.nan)
+        if np.shape(self.from_points) != (J,):
+            self.from_points = np.zeros(J, dtype=bool)
 
 
 @dataclass
@@ -75,6 +97,10 @@ class ActorModel:
     limb_joint_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=np.int64))
     # Markers seen only in the static trial (medial landmarks): later trials need not have them.
     static_only_markers: tuple[str, ...] = ()
+    # Marker noise (m, per coordinate) estimated from the clusters' own rigid-fit residuals, and
+    # the bound on a centre's standard error (m) under which calibration called it reliable.
+    marker_noise: float = float("nan")
+    max_uncertainty: float = float("nan")
 
     def __post_init__(self) -> None:
         if not self.marker_fingerprint:
@@ -126,6 +152,8 @@ class ActorModel:
             "warnings": list(self.warnings),
             "marker_labels": list(self.marker_labels),
             "static_only_markers": list(self.static_only_markers),
+            "marker_noise": arr(np.array([self.marker_noise]), 7)[0],
+            "max_uncertainty": arr(np.array([self.max_uncertainty]), 7)[0],
             "base_markers": arr(self.base_markers, 7),
             "limbs": [
                 {
@@ -156,6 +184,10 @@ class ActorModel:
                         "reliable": bool(q.reliable[j]),
                         "method": q.method[j],
                         "inputs": q.inputs[j] if j < len(q.inputs) else {},
+                        "centre_se": arr(q.centre_se[j : j + 1], 12)[0],
+                        "centre_cov": arr(q.centre_cov[j], 14),
+                        "axis_se_rad": arr(q.axis_se[j : j + 1], 6)[0],
+                        "from_points": bool(q.from_points[j]),
                     },
                 }
                 for j, n in enumerate(self.joint_names)
@@ -166,10 +198,10 @@ class ActorModel:
     def from_dict(cls, d: dict[str, Any], source: str = "model") -> "ActorModel":
         if d.get("format") != MODEL_FORMAT:
             raise ModelFileError(f"{source}: not a skeleton model file (format {d.get('format')!r})")
-        if d.get("version") != MODEL_VERSION:
+        if d.get("version") not in READ_VERSIONS:
             raise ModelFileError(
                 f"{source}: skeleton model version {d.get('version')} is not supported "
-                f"(expected {MODEL_VERSION})"
+                f"(this build reads {', '.join(map(str, READ_VERSIONS))})"
             )
 
         def f(v: Any) -> float:
@@ -215,12 +247,19 @@ class ActorModel:
                     reliable=np.array([q["reliable"] for q in qs], dtype=bool),
                     method=tuple(q["method"] for q in qs),
                     inputs=tuple(dict(q.get("inputs", {})) for q in qs),
+                    centre_se=np.array([f(q.get("centre_se")) for q in qs], dtype=float),
+                    centre_cov=np.array([np.full((3, 3), np.nan) if q.get("centre_cov") is None
+                                         else farr(q["centre_cov"], (3, 3)) for q in qs]).reshape(J, 3, 3),
+                    axis_se=np.array([f(q.get("axis_se_rad")) for q in qs], dtype=float),
+                    from_points=np.array([bool(q.get("from_points", False)) for q in qs], dtype=bool),
                 ),
                 warnings=tuple(d.get("warnings", ())),
                 n_gym_frames=int(d.get("n_gym_frames", 0)),
                 rate_hz=d.get("rate_hz"),
                 limb_joint_points=jpts,
                 static_only_markers=tuple(d.get("static_only_markers", ())),
+                marker_noise=f(d.get("marker_noise")),
+                max_uncertainty=f(d.get("max_uncertainty")),
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ModelFileError(f"{source}: malformed skeleton model ({exc.__class__.__name__}: {exc})") from None

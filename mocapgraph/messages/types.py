@@ -48,7 +48,7 @@ class SkeletonModel(Message):
     """Latched: a calibrated actor skeleton (marker-to-joint offsets, base pose, limb lengths)."""
 
     type_name = "SkeletonModel"
-    version = 1
+    version = 2
     latched_by_default = True
     layout_name: str = scalar("str", "marker layout the model was calibrated with")
     fingerprint: str = scalar("str", "hash of the marker labels, to refuse a model from another layout")
@@ -70,6 +70,10 @@ class SkeletonModel(Message):
     hinge_axes = array("float64", ("J", 3), "hinge axis in the base-pose world frame (unit); NaN for ball joints")
     joint_residual_rms = array("float64", ("J",), "calibration residual RMS per joint, m")
     joint_rom = array("float64", ("J",), "range of motion covered during calibration, rad")
+    # v2 (issue 27): S = J, or 0 from a model without standard errors; covariances, hinge axis errors
+    # and the joints found from a degenerate cluster's markers as points travel in extra_json
+    joint_centre_se = array("float64", ("S",), "standard error (RMS 3-D) of each calibrated centre, m; "
+                            "NaN where unknown")
     extra_json: str = scalar("str", "further model data as JSON (filters, notes); may be empty")
 
 
@@ -77,7 +81,7 @@ class ActorPose(Message):
     """Solved actor skeleton for one frame, in the order of the latched SkeletonModel."""
 
     type_name = "ActorPose"
-    version = 1
+    version = 2
     actor: str = scalar("str", "actor name")
     frame_number: int = scalar("int", "capture frame index of the markers it was solved from")
     joint_positions = array("float64", ("J", 3), "joint centres, m, world; NaN where missing")
@@ -85,6 +89,9 @@ class ActorPose(Message):
     limb_orientations = array("float64", ("L", 4), "limb rotation from its base pose, quaternion wxyz, world")
     limb_quality = array("int8", ("L",), "0 missing, 1 estimated, 2 good")
     limb_visible_markers = array("int16", ("L",), "markers of each limb seen this frame")
+    # v2 (issue 27): U = J, or 0 when the model has no standard errors
+    joint_uncertainty = array("float64", ("U",), "RMS 3-D uncertainty of each joint, m (calibrated centre's "
+                              "standard error with this frame's marker noise); NaN where missing or unknown")
 
 
 class SkeletonInfo(Message):

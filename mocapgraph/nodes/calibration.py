@@ -81,6 +81,8 @@ class CalibrationNode(Node):
     model_file = Param("", "model JSON: loaded at start if it exists, written after processing")
     auto = Param(False, "on start (without a model file to load): find base pose, capture gym, process")
     min_rom_deg = Param(25.0, "joints moving less than this are reported unreliable, deg", minimum=0.0)
+    max_uncertainty_mm = Param(2.0, "functional centres with a larger standard error are reported unreliable, mm "
+                               "(when the clusters' residuals are noise)", minimum=0.0)
     status_rate_hz = Param(2.0, "periodic status rate, Hz", minimum=0.1)
     centres = Param("functional,anatomical,regression", "joint-centre methods in order of preference")
     subject_file = Param("", "Vicon VSK with the subject's measurements (regression centres); '' none")
@@ -228,6 +230,7 @@ class CalibrationNode(Node):
             subject = read_vsk(self.subject_file) if self.subject_file else None
             model, warns = self.capture.process(
                 self.binding.definition, min_rom_deg=self.min_rom_deg, subject=subject,
+                max_uncertainty_mm=self.max_uncertainty_mm,
                 centre_order=tuple(m.strip() for m in self.centres.split(",") if m.strip()))
         except (CalibrationError, SubjectError) as exc:
             self._error(str(exc))

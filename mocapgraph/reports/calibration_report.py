@@ -154,8 +154,9 @@ def _html(model: ActorModel, pngs: dict[str, bytes], worst: list[tuple[str, floa
         rel = bool(q.reliable[j])
         rows.append(
             f'<tr class="{"ok" if rel else "bad"}"><td class="joint">{e(name)}</td>'
-            f'<td class="method">{e(q.method[j])}</td>'
+            f'<td class="method">{e(q.method[j])}{" (points)" if q.from_points[j] else ""}</td>'
             f'<td class="residual_mm">{_fmt(q.residual_rms[j] * 1000, 2)}</td>'
+            f'<td class="se_mm">{_fmt(q.centre_se[j] * 1000, 2)}</td>'
             f'<td class="rom_deg">{_fmt(np.degrees(q.range_of_motion[j]), 1)}</td>'
             f'<td class="frames">{int(q.n_frames[j])}</td>'
             f'<td class="bone_mm">{_fmt(model.bone_length[j] * 1000, 1)}</td>'
@@ -185,10 +186,13 @@ figure {{ margin: 0.5em 0; }} img {{ max-width: 100%; }}
 <span><b id="reliable-count">{n_ok}</b> of {len(model.joint_names)} joints reliable</span></p>
 <h2>Joints</h2>
 <p>Residual: RMS disagreement between the centres seen from the joint's two limbs over the gym
-frames, mm. Range of motion: largest rotation between the two limbs, degrees
-{f"(reliable from {min_rom_deg:g})" if min_rom_deg is not None else ""}.</p>
+frames, mm. +-SE: the centre's standard error from the marker noise the clusters' own residuals
+show ({_fmt(model.marker_noise * 1000, 2)} mm), mm{f"; reliable up to {model.max_uncertainty * 1000:g}"
+if np.isfinite(model.max_uncertainty) else ""}; "(points)": found from a limb's markers as points,
+its cluster unable to fix its own orientation. Range of motion: largest rotation between the two
+limbs, degrees {f"(reliable from {min_rom_deg:g})" if min_rom_deg is not None else ""}.</p>
 <table id="joints"><thead><tr><th class="l">joint</th><th class="l">method</th><th>residual mm</th>
-<th>ROM deg</th><th>frames</th><th>bone mm</th><th>reliable</th></tr></thead>
+<th>+-SE mm</th><th>ROM deg</th><th>frames</th><th>bone mm</th><th>reliable</th></tr></thead>
 <tbody>{"".join(rows)}</tbody></table>
 <h2>Warnings</h2><ul id="warnings">{warn}</ul>
 {figures}

@@ -43,6 +43,7 @@ def test_report_numbers_match_the_model_file_in_chromium(capture, tmp_path, caps
             rows = page.eval_on_selector_all("#joints tbody tr", """rows => rows.map(r => ({
                 joint: r.querySelector('.joint').textContent, residual: r.querySelector('.residual_mm').textContent,
                 rom: r.querySelector('.rom_deg').textContent, reliable: r.querySelector('.reliable').textContent,
+                se: r.querySelector('.se_mm').textContent,
                 frames: r.querySelector('.frames').textContent}))""")
             images = page.eval_on_selector_all(
                 "figure img", "imgs => imgs.map(i => [i.alt, i.naturalWidth, i.naturalHeight])")
@@ -59,6 +60,7 @@ def test_report_numbers_match_the_model_file_in_chromium(capture, tmp_path, caps
         q = j["quality"]
         assert r["residual"] == f"{q['residual_rms'] * 1000:.2f}"
         assert r["rom"] == f"{math.degrees(q['range_of_motion_rad']):.1f}"
+        assert r["se"] == f"{q['centre_se'] * 1000:.2f}"   # each centre's standard error (issue 27)
         assert r["reliable"] == ("yes" if q["reliable"] else "NO") and int(r["frames"]) == q["n_frames"]
     assert sorted(a for a, _, _ in images) == ["joints", "markers", "pose"]
     assert all(w > 500 and h > 200 for _, w, h in images)  # the figures decoded in the browser

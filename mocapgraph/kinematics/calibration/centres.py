@@ -23,23 +23,27 @@ MIN_STATIC_FRAMES = 1
 
 @dataclass
 class Candidate:
-    """A joint centre from one method: base-pose point (m), spread RMS (m), inputs for the model."""
+    """A joint centre from one method: base-pose point (m), spread RMS (m), inputs for the model,
+    covariance from the marker noise (m^2; NaN: not known)."""
 
     point: np.ndarray
     spread: float
     method: str
     inputs: dict = field(default_factory=dict)
+    cov: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
 
 
-def _to_base(fit: Any, limb: int, frames: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """World points pts [F,3] at ``frames`` -> median base-pose point of ``limb`` and its spread."""
+def _to_base(fit: Any, limb: int, frames: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """World points pts [F,3] at ``frames`` -> median base-pose point of ``limb``, its spread and
+    the covariance of that median from the per-frame scatter (``pi / 2`` times the mean's)."""
     ok = fit.valid[frames, limb] & np.isfinite(pts).all(-1)
     if ok.sum() < MIN_STATIC_FRAMES:
         return None
     rot, tr = fit.rotation[frames[ok], limb], fit.translation[frames[ok], limb]
     y = np.einsum("fji,fj->fi", rot, pts[ok] - tr)
     c = np.median(y, axis=0)
-    return c, float(np.sqrt(np.mean(((y - c) ** 2).sum(-1))))
+    cov = np.cov(y.T).reshape(3, 3) * (np.pi / 2) / y.shape[0] if y.shape[0] > 1 else np.full((3, 3), np.nan)
+    return c, float(np.sqrt(np.mean(((y - c) ** 2).sum(-1)))), cov
 
 
 class CentreCandidates:
@@ -93,7 +97,7 @@ class CentreCandidates:
         if got is None:
             return None
         labels = self.definition.marker_labels
-        return Candidate(got[0], got[1], "landmarks", {"landmarks": [labels[lm[0]], labels[lm[1]]]})
+        return Candidate(got[0], got[1], "landmarks", {"landmarks": [labels[lm[0]], labels[lm[1]]]}, got[2])
 
     def regression(self, j: int, fit: Any, chosen: dict[int, np.ndarray]) -> Candidate | None:
         """The layout's regression for joint j; knee/ankle chords need the parent joint in ``chosen``."""
@@ -129,7 +133,7 @@ class CentreCandidates:
         labels = self.definition.marker_labels
         inputs = dict(inputs, method=reg.method, markers={r: labels[k] for r, k in reg.markers.items()},
                       subject=self.subject.source)
-        return Candidate(got[0], got[1], f"regression:{reg.method}", inputs)
+        return Candidate(got[0], got[1], f"regression:{reg.method}", inputs, got[2])
 
     def _note(self, msg: str) -> None:
         if msg not in self.notes:

@@ -20,6 +20,7 @@ from mocapgraph.kinematics.solving.global_fit import GlobalFit, GlobalFitOptions
 from mocapgraph.kinematics.solving.global_track import MAX_KERNEL_MARKERS, GlobalTracker
 from mocapgraph.kinematics.solving.global_track_numpy import NumpyGlobalTracker
 from mocapgraph.kinematics.solving.joint_kernels import joint_model, joints_all_seen
+from mocapgraph.kinematics.solving.joint_uncertainty import JointUncertainty
 from mocapgraph.kinematics.solving.regression import RegressionStage
 from mocapgraph.kinematics.solving.rigid import MIN_MARKERS, fit_rigid, gather_limb_markers
 from mocapgraph.kinematics.solving.rigid_kernels import fit_frame, limbs_of, scratch
@@ -35,6 +36,9 @@ class SolverResult:
     joints: float[B,J,3] m world (NaN where MISSING); joint_quality: int8[B,J] (Quality codes).
     limb_matrix: float[B,L,3,3] limb rotation relative to the base pose (NaN if MISSING).
     limb_quality: int8[B,L]; limb_visible: int64[B,L] markers used; limb_rms: float[B,L] m.
+    joint_uncertainty: float[B,J] m, RMS 3-D uncertainty of each joint (the calibrated centre's
+    standard error with this frame's marker noise through its limbs' fits; NaN where missing or
+    the model has no standard errors); before any temporal filter or gap prediction.
     """
 
     joints: np.ndarray
@@ -43,6 +47,11 @@ class SolverResult:
     limb_quality: np.ndarray
     limb_visible: np.ndarray
     limb_rms: np.ndarray
+    joint_uncertainty: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.joint_uncertainty is None:
+            self.joint_uncertainty = np.full(self.joint_quality.shape, np.nan)
 
     @property
     def limb_rotation(self) -> np.ndarray:
@@ -57,7 +66,7 @@ class SolverResult:
 
     def __getitem__(self, i: int | slice) -> "SolverResult":
         return SolverResult(self.joints[i], self.joint_quality[i], self.limb_matrix[i],
-                            self.limb_quality[i], self.limb_visible[i], self.limb_rms[i])
+                            self.limb_quality[i], self.limb_visible[i], self.limb_rms[i], self.joint_uncertainty[i])
 
 
 class FrameSolver:
@@ -149,6 +158,7 @@ class FrameSolver:
             if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
         ]
         self._setup_joint_points(model)
+        self._uncertainty = JointUncertainty(model, self._ref, self._w0, self._labs, self._pt[..., 0], self._has)
         # The compiled live limb fit (one frame's Kabsch fits) and its scratch.
         self._kernel_fit = compiled
         if compiled:
@@ -260,7 +270,8 @@ class FrameSolver:
             if joints_all_seen(np.ascontiguousarray(rot[0]), np.ascontiguousarray(trans[0]),
                                np.ascontiguousarray(nfit[0], dtype=np.int64), np.ascontiguousarray(rms_l[0], dtype=float),
                                self._k_model, joints[0]):
-                return SolverResult(joints, self._jq_all_seen[None].copy(), rot, self._lq_good.copy(), n_seen, rms_l)
+                return SolverResult(joints, self._jq_all_seen[None].copy(), rot, self._lq_good.copy(), n_seen, rms_l,
+                                    self._uncertainty(valid, rms_l, nfit))
         all_seen = self._jq_all_seen is not None and bool(valid.all()) and bool((rms_l <= self._rms_tol).all())
         lab = self._labs
         rms = rms_l[:, lab]
@@ -300,7 +311,8 @@ class FrameSolver:
                 moved = pj + v * scale[..., None]
                 joints[:, c] = np.where(np.isfinite(moved), moved, joints[:, c])
         lq = np.where(valid, np.where(rms_l > self._rms_tol, _EST, _GOOD), _MISS)
-        return SolverResult(joints, jq, rot, lq, n_seen, rms_l)
+        unc = np.where(jq == _MISS, np.nan, self._uncertainty(valid, rms_l, nfit))
+        return SolverResult(joints, jq, rot, lq, n_seen, rms_l, unc)
 
     # ---- temporal stage (frame by frame, shared by live and batch) -------------------------
     def _temporal(self, joints: np.ndarray, jq: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:

@@ -85,7 +85,7 @@ def test_model_json_round_trip_and_layout_check(tmp_path):
     path = tmp_path / "actor.json"
     save_model(model, path)
     text = path.read_text()
-    assert '"format": "mocapgraph.skeleton_model"' in text and '"version": 1' in text
+    assert '"format": "mocapgraph.skeleton_model"' in text and '"version": 2' in text
     loaded = load_model(path, definition)
     np.testing.assert_allclose(loaded.offsets, model.offsets, atol=1e-7)
     np.testing.assert_allclose(loaded.bone_length, model.bone_length, atol=1e-7)
