@@ -112,7 +112,7 @@ def bag_clip(path: str, character, topic: str | None):
 def bvh_clip(path: str, character):
     """A BVH performance retargeted onto ``character`` (mapping derived from the two rest poses)."""
     from ..formats.bvh_file import bvh_to_skeleton, read_bvh
-    from ..formats.skeleton_trial import offsets_from_rest
+    from ..kinematics.rest_offsets import offsets_from_rest
     from ..retarget.retargeter import RetargetOptions, Retargeter
     from ..retarget.mapping import derive_mapping
     from ..retarget.source import skeleton_source

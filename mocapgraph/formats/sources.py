@@ -10,9 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..kinematics.rest_offsets import observed_rest_offsets, offsets_from_rest
 from .errors import FormatError
 from .marker_trial import MarkerTrial
-from .skeleton_trial import SkeletonTrial, observed_rest_offsets, offsets_from_rest
+from .skeleton_trial import SkeletonTrial
 
 #: extension -> kind of the files a skeleton or marker reader takes
 SKELETON_KINDS = {".bvh": "bvh", ".csv": "kinect_csv", ".txt": "kinect_csv",

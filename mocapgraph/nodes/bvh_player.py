@@ -7,7 +7,7 @@ import numpy as np
 
 from ..bus import Param
 from ..formats import SkeletonTrial, bvh_to_skeleton, read_bvh
-from ..formats.skeleton_trial import offsets_from_rest
+from ..kinematics.rest_offsets import offsets_from_rest
 from .skeleton_source import SkeletonFilePlayer
 
 

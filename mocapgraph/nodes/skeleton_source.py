@@ -15,7 +15,7 @@ import numpy as np
 
 from ..bus import Output, Param
 from ..formats import SkeletonTrial
-from ..formats.skeleton_trial import observed_rest_offsets
+from ..kinematics.rest_offsets import observed_rest_offsets
 from ..messages import SkeletonInfo, SkeletonPose
 from ..formats.device_file import DeviceConfig, device_or_default
 from .source_base import FilePlayback, SourceError

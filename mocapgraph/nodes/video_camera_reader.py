@@ -17,7 +17,7 @@ import numpy as np
 
 from ..bus import Output, Param
 from ..formats.kinect_csv import KINECT_V2_JOINTS, KINECT_V2_PARENTS
-from ..formats.skeleton_trial import observed_rest_offsets
+from ..kinematics.rest_offsets import observed_rest_offsets
 from ..messages import SkeletonInfo, SkeletonPose
 from .source_base import INPUT_ERRORS, SourceNode, resolve_data_path
 from .video_pose_reader import _video

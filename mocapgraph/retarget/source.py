@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kinematics.quaternion import matrix_to_quat, quat_between, quat_multiply, quat_rotate
+from ..kinematics.rest_offsets import offsets_from_rest
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -393,7 +394,7 @@ def kinect_source(names, parents, kind_hint: str = "", bone_lengths: np.ndarray 
     NaN or None keeps the canonical length) so that the leg-length ratio is the performer's."""
     rest = kinect_tpose(names, parents)
     par = np.asarray(parents, dtype=np.int64)
-    offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+    offs = offsets_from_rest(rest, par)
     if bone_lengths is not None:
         L = np.asarray(bone_lengths, dtype=np.float64)
         n = np.linalg.norm(offs, axis=1)
@@ -423,5 +424,5 @@ def character_from_actor(joint_names, joint_parent, base_joints, name: str = "ac
     remap = {old: new for new, old in enumerate(order)}
     par = np.array([-1 if parents[o] < 0 else remap[int(parents[o])] for o in order])
     rest = src.rest_points[order]
-    offs = np.where((par >= 0)[:, None], rest - rest[np.maximum(par, 0)], rest)
+    offs = offsets_from_rest(rest, par)
     return Character(name, tuple(names[o] for o in order), par, offs, np.tile(IDENTITY, (n, 1)))

@@ -10,7 +10,7 @@ from mocapgraph.bag.reader import BagReader
 from mocapgraph.bag.trial_frames import read_trial_frames as read_source
 from mocapgraph.formats.kinect_csv import read_kinect_csv
 from mocapgraph.formats.retarget_setup import source_from_skeleton_info
-from mocapgraph.formats.skeleton_trial import observed_rest_offsets
+from mocapgraph.kinematics.rest_offsets import observed_rest_offsets
 from mocapgraph.retarget.source import observed_bone_lengths
 
 KINECT = ["Ges01_wavehand.csv", "Ges03_drawlines.csv", "Ges05_demopoint.csv"]

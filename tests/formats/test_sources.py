@@ -13,7 +13,7 @@ from mocapgraph.formats.bvh_file import bvh_to_skeleton, read_bvh
 from mocapgraph.formats.c3d_file import read_c3d
 from mocapgraph.formats.errors import FormatError
 from mocapgraph.formats.kinect_csv import read_kinect_csv
-from mocapgraph.formats.skeleton_trial import offsets_from_rest
+from mocapgraph.kinematics.rest_offsets import offsets_from_rest
 from mocapgraph.formats.sources import file_kind, read_skeleton_file, skeleton_rest_offsets
 from mocapgraph.formats.trc_file import read_trc
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from mocapgraph.formats.bvh_file import bvh_to_skeleton, read_bvh
-from mocapgraph.formats.skeleton_trial import offsets_from_rest
+from mocapgraph.kinematics.rest_offsets import offsets_from_rest
 from mocapgraph.retarget.source import SourceSkeleton, skeleton_source
 
 

@@ -254,7 +254,7 @@ def test_calibration_missing_a_camera_or_names_mismatch_are_one_line(tmp_path) -
 # ----- into the pipeline: retargeted onto standard_20, tracked by the physical character ----------
 def test_triangulated_skeleton_retargeted_and_tracked_without_a_fall(four) -> None:
     from mocapgraph.formats.retarget_setup import build, source_from_skeleton_info
-    from mocapgraph.formats.skeleton_trial import observed_rest_offsets
+    from mocapgraph.kinematics.rest_offsets import observed_rest_offsets
     from mocapgraph.physics.tracker import TargetConditioner
     from mocapgraph.physics.world import PhysicsWorld, TrackerParams
     trial, _ = four
