@@ -5,7 +5,7 @@ import math
 import os
 import resource
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Any, Iterable
 
 from ..messages import Diagnostics
 from .stats import InputStats
@@ -38,6 +38,13 @@ class ClockRecord:
     drift_ppm: float = math.nan
     jitter_ms: float = math.nan
     resets: int = 0
+
+
+def device_clock(name: str, clock: Any) -> list[ClockRecord]:
+    """A device clock followed by a :class:`~mocapgraph.messages.clock_sync.ClockSync` as its record
+    (offset ms, drift ppm, jitter ms, resets), or none before its first frame."""
+    c = clock.stats()
+    return [ClockRecord(name, c.offset_ns / 1e6, c.drift_ppm, c.jitter_ms, c.resets)] if c.samples else []
 
 
 UNEXPECTED_SENDER = "(unexpected)"

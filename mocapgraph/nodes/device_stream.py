@@ -32,7 +32,7 @@ import numpy as np
 import zmq
 
 from ..bus import Param
-from ..bus.diagnostics import ClockRecord
+from ..bus.diagnostics import ClockRecord, device_clock
 from ..messages.clock_sync import ClockSync
 from ..formats.wire_protocol import WireFrame, make_decoder
 from ..formats.device_file import DeviceConfig, device_or_default
@@ -229,11 +229,7 @@ class WireDeviceSource(MarkerSourceNode):
         return f"{type(self).__name__.replace('Reader', '').lower()}:{self.endpoint}"
 
     def clock_records(self) -> list[ClockRecord]:
-        c = self.clock.stats()
-        if not c.samples:
-            return super().clock_records()
-        return super().clock_records() + [ClockRecord(self.device_topic(), c.offset_ns / 1e6, c.drift_ppm,
-                                                      c.jitter_ms, c.resets)]
+        return super().clock_records() + device_clock(self.device_topic(), self.clock)
 
     def device_edges(self) -> list[dict[str, Any]]:
         st = self.decoder.stats

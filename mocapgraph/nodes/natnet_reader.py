@@ -16,7 +16,7 @@ import numpy as np
 from ..bus import Output, Param
 from ..formats import natnet as nn
 from ..formats.device_file import DeviceConfig, device_or_default
-from ..bus.diagnostics import ClockRecord
+from ..bus.diagnostics import ClockRecord, device_clock
 from ..formats.natnet_model import NatNetModel, device_time_ns, rotation_quat, unlabelled
 from ..kinematics.quaternion import quat_multiply
 from ..messages import MarkerFrame, RigidBodyFrame, RigidBodyLayout
@@ -318,11 +318,7 @@ class NatNetReader(MarkerSourceNode):
         return d
 
     def clock_records(self) -> list[ClockRecord]:
-        c = self.clock.stats()
-        if not c.samples:
-            return super().clock_records()
-        return super().clock_records() + [ClockRecord(f"natnet:{self.link.where}", c.offset_ns / 1e6, c.drift_ppm,
-                                                      c.jitter_ms, c.resets)]
+        return super().clock_records() + device_clock(f"natnet:{self.link.where}", self.clock)
 
     def device_edges(self) -> list[dict[str, Any]]:
         return [{"topic": f"natnet:{self.link.where}", "sender": self.app or "?", "rate_hz": self.rate_hz or self._rate,

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..bus import Output, Param
-from ..bus.diagnostics import ClockRecord
+from ..bus.diagnostics import ClockRecord, device_clock
 from ..formats import qtm_rt as q
 from ..formats.device_file import DeviceConfig, DeviceConfigError, device_or_default
 from ..formats.qtm_session import QTMSession, QTMToWorld, SessionEvent
@@ -409,11 +409,7 @@ class QTMReader(QTMLink):
         return d
 
     def clock_records(self) -> list[ClockRecord]:
-        c = self.clock.stats()
-        if not c.samples:
-            return super().clock_records()
-        return super().clock_records() + [ClockRecord(f"qtm:{self.endpoint}", c.offset_ns / 1e6, c.drift_ppm,
-                                                      c.jitter_ms, c.resets)]
+        return super().clock_records() + device_clock(f"qtm:{self.endpoint}", self.clock)
 
     def device_edges(self) -> list[dict[str, Any]]:
         return [{"topic": f"qtm:{self.endpoint}", "sender": "qtm", "rate_hz": self.qtm.frequency if self.qtm else 0.0,
