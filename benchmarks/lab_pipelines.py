@@ -14,7 +14,8 @@ Prints per lab, from this process's own subscription to markers, actor_pose and 
 - gaps: frame numbers the reader reports skipped, and those this benchmark sees missing among the
   published MarkerFrames (``unreported`` = seen minus reported; 0 means every missing frame number
   is in the reader's counters);
-- poses solved and missing in the measured window, the solved joint error against the synthetic
+- the capture time of the first pose (when the auto calibration was done: it must fall inside the
+  lead), poses solved of the measured window's frames, the solved joint error against the synthetic
   actor's ground truth (mean, p99, max, mm; joints over the window);
 - the latency reader -> solver the pipeline adds: the ActorPose publish stamp minus the MarkerFrame
   publish stamp of the same capture (p50, p99, ms), per lab in the same run, so NatNet's and QTM's
@@ -127,7 +128,7 @@ include:
     return run
 
 
-def report(lab: str, run: Run, count: int, lead: int, truth: np.ndarray) -> None:
+def report(lab: str, run: Run, count: int, lead: int, rate: float, truth: np.ndarray) -> None:
     st = run.status
     got = sorted(run.markers)
     if not got:
@@ -139,8 +140,9 @@ def report(lab: str, run: Run, count: int, lead: int, truth: np.ndarray) -> None
     reported = st.get("gaps", st.get("device_gaps", 0))
     window = [f for f in range(max(lead, first), count)]
     solved = [f for f in window if f in run.poses]
+    first_pose = f"{min(run.poses) / rate:.1f}" if run.poses else "-"
     line = (f"{lab:<8}{st.get('frames', 0):>7} of {sent:<6}{reported:>7}{seen_missing:>6}"
-            f"{max(0, seen_missing - reported):>11}{len(solved):>7} of {len(window):<6}")
+            f"{max(0, seen_missing - reported):>11}{first_pose:>7}{len(solved):>7} of {len(window):<6}")
     if not solved:
         print(line + "  no poses in the window")
         return
@@ -175,13 +177,14 @@ def main() -> None:
                   f"({args.seconds:g} s after a {args.lead_s:g} s calibration lead)")
     truth = actor.capture(0, actor.n_frames).joint_centres   # the simulators loop the session
     print("frames: counted by the reader of those sent; gaps: reported by the reader, seen missing here, "
-          "seen but unreported;\nposes solved in the window; joint error vs ground truth (mm); "
-          "added latency reader -> solver (ActorPose minus MarkerFrame publish stamp, ms)")
-    print(f"{'lab':<8}{'frames':>15}{'gaps':>7}{'seen':>6}{'unreported':>11}{'poses':>15}"
+          "seen but unreported;\npose@s: capture time of the first pose (calibration done); poses solved in "
+          "the window; joint error vs ground truth (mm);\nlat: added latency reader -> solver (ActorPose minus "
+          "MarkerFrame publish stamp of the same capture, ms)")
+    print(f"{'lab':<8}{'frames':>15}{'gaps':>7}{'seen':>6}{'unreported':>11}{'pose@s':>7}{'poses':>15}"
           f"{'err mean':>9}{'p99':>8}{'max':>8}{'lat p50':>8}{'p99':>8}", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for lab in labs:
-            report(lab, run_lab(lab, Path(tmp), count, args), count, lead, truth)
+            report(lab, run_lab(lab, Path(tmp), count, args), count, lead, args.rate, truth)
 
 
 if __name__ == "__main__":
