@@ -3,14 +3,16 @@
 Run: .venv/bin/python benchmarks/lab_pipelines.py [--seconds 60] [--rate 240] [--labs natnet,qtm,udp]
 Launches lab_natnet.yaml fed by `mocapgraph device simulate natnet` (NatNet 4.1), lab_qtm.yaml fed
 by `mocapgraph device simulate qtm` (QTM RT over TCP) and lab_udp.yaml fed by `mocapgraph device
-simulate udp` (wire protocol, no device file), one after the other, each in its own processes: the
+simulate udp` (wire protocol; lab_udp's device:='' and the simulator's --device '', since the
+example bridge's device file names Plug-in Gait channels only), one after the other, each in its own processes: the
 same synthetic performer (``--layout``, kiip_full_body's 62 markers by default, seed 0, the same
 ``--noise-mm`` draws) at ``--rate``, with auto calibration and the frame solver. Each simulator sends
 ``--lead-s`` of frames first (the calibration's base pose and gym, and its solve), then the
 ``--seconds`` measured.
 
 Prints per lab, from this process's own subscription to markers, actor_pose and reader_status:
-- frames: marker frames the reader counted (its reader_status) of those sent from its first one;
+- frames: marker frames the reader counted (its reader_status) of those the simulator says it sent
+  (its "sent N frames" line; the QTM simulator's count starts when the reader asks for frames);
 - gaps: frame numbers the reader reports skipped, and those this benchmark sees missing among the
   published MarkerFrames (``unreported`` = seen minus reported; 0 means every missing frame number
   is in the reader's counters);
@@ -26,6 +28,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
+import signal
 import socket
 import subprocess
 import sys
@@ -74,6 +78,7 @@ class Run:
     status: dict = field(default_factory=dict)
     status_at: float = 0.0
     marker_at: float = 0.0
+    sim_said: str = ""   # the simulator's last line on stderr
 
 
 def receive(sock, run: Run) -> None:
@@ -103,10 +108,11 @@ include:
     with launched_graph(graph, "actor_pose", work, timeout_s=120) as manifest:
         sock = subscribe(manifest, ["markers", "actor_pose", "reader_status"])
         time.sleep(2.0)
+        err = (work / "sim.err").open("w")
         proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "device", "simulate", *sim,
                                  "--rate", str(args.rate), "--count", str(count), "--layout", args.layout,
                                  "--seed", "0", "--noise-mm", str(args.noise_mm)], env=env,
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+                                stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
         t_sent = time.monotonic() + count / args.rate + 15.0   # the last frame is out by then
         t_end = t_sent + 30.0
         try:
@@ -122,9 +128,16 @@ include:
                     break
         finally:
             sock.close(0)
-            if proc.poll() is None:
-                proc.terminate()
-            proc.wait(10)
+            if proc.poll() is None:   # (the QTM simulator serves on: SIGINT has it print what it sent)
+                proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:   # (SIGINT ignored: started from a non-interactive shell's &)
+                proc.kill()
+                proc.wait()
+            err.close()
+    said = (work / "sim.err").read_text(errors="replace").strip().splitlines()
+    run.sim_said = said[-1] if said else ""
     return run
 
 
@@ -132,10 +145,11 @@ def report(lab: str, run: Run, count: int, lead: int, rate: float, truth: np.nda
     st = run.status
     got = sorted(run.markers)
     if not got:
-        print(f"{lab:<8} no marker frames published; reader status {st}")
+        print(f"{lab:<8} no marker frames published; reader status {st}; simulator: {run.sim_said or '(silent)'}")
         return
     first = got[0]
-    sent = count - first
+    said = re.search(r"sent (\d+) frames", run.sim_said)   # the simulator's own count, else all from the first
+    sent = int(said[1]) if said else count - first
     seen_missing = (count - first) - len([f for f in got if f < count])
     reported = st.get("gaps", st.get("device_gaps", 0))
     window = [f for f in range(max(lead, first), count)]
@@ -176,7 +190,7 @@ def main() -> None:
                   f"frames 0..{count - 1} at {args.rate:g} Hz; errors and latency over frames {lead}..{count - 1} "
                   f"({args.seconds:g} s after a {args.lead_s:g} s calibration lead)")
     truth = actor.capture(0, actor.n_frames).joint_centres   # the simulators loop the session
-    print("frames: counted by the reader of those sent; gaps: reported by the reader, seen missing here, "
+    print("frames: counted by the reader of those the simulator sent; gaps: reported by the reader, seen missing here, "
           "seen but unreported;\npose@s: capture time of the first pose (calibration done); poses solved in "
           "the window; joint error vs ground truth (mm);\nlat: added latency reader -> solver (ActorPose minus "
           "MarkerFrame publish stamp of the same capture, ms)")
