@@ -21,7 +21,8 @@ Prints per lab, from this process's own subscription to markers, actor_pose and 
   actor's ground truth (mean, p99, max, mm; joints over the window);
 - the latency reader -> solver the pipeline adds: the ActorPose publish stamp minus the MarkerFrame
   publish stamp of the same capture (p50, p99, ms), per lab in the same run, so NatNet's and QTM's
-  sit beside udp_reader's.
+  sit beside udp_reader's (the tails follow the machine's load: each row ends with the 1-min load
+  average as its lab ended).
 """
 from __future__ import annotations
 
@@ -165,6 +166,7 @@ def report(lab: str, run: Run, count: int, lead: int, rate: float, truth: np.nda
     lat = np.array([(run.poses[f][1] - run.markers[f][1]) * 1e-6 for f in solved
                     if f in run.markers and run.poses[f][0] == run.markers[f][0]])
     lat_txt = f"{np.percentile(lat, 50):>8.2f}{np.percentile(lat, 99):>8.2f}" if len(lat) else f"{'-':>8}{'-':>8}"
+    lat_txt += f"{os.getloadavg()[0]:>6.2f}"   # the tails follow the machine's load: this lab's, as it ended
     print(line + f"{np.nanmean(err):>9.3f}{np.nanpercentile(err, 99):>8.3f}{np.nanmax(err):>8.3f}" + lat_txt,
           flush=True)
 
@@ -193,9 +195,9 @@ def main() -> None:
     print("frames: counted by the reader of those the simulator sent; gaps: reported by the reader, seen missing here, "
           "seen but unreported;\npose@s: capture time of the first pose (calibration done); poses solved in "
           "the window; joint error vs ground truth (mm);\nlat: added latency reader -> solver (ActorPose minus "
-          "MarkerFrame publish stamp of the same capture, ms)")
+          "MarkerFrame publish stamp of the same capture, ms); load: 1-min load average as the lab ended")
     print(f"{'lab':<8}{'frames':>15}{'gaps':>7}{'seen':>6}{'unreported':>11}{'pose@s':>7}{'poses':>15}"
-          f"{'err mean':>9}{'p99':>8}{'max':>8}{'lat p50':>8}{'p99':>8}", flush=True)
+          f"{'err mean':>9}{'p99':>8}{'max':>8}{'lat p50':>8}{'p99':>8}{'load':>6}", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for lab in labs:
             report(lab, run_lab(lab, Path(tmp), count, args), count, lead, args.rate, truth)
