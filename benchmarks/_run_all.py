@@ -1,7 +1,7 @@
 """Run the benchmark scripts one at a time and rewrite benchmarks/RESULTS.md with every figure they print.
 
 What `make bench` calls. Each script of benchmarks/ (not the helpers: ``_*.py``, ``*_nodes.py``)
-runs as its own process with this interpreter, the repository first on PYTHONPATH, from the
+runs as its own process with this interpreter (and its SCRIPT_ARGS, if any), the repository first on PYTHONPATH, from the
 repository's root, with a timeout; its stdout goes into RESULTS.md verbatim, with its wall time,
 exit status and the load average before and after. A script that fails or times out is recorded as
 such, with the end of its stderr, and this runner then exits 1.
@@ -36,6 +36,8 @@ SHARED = (ROOT / ".." / "shared" / "data").resolve()   # where the scripts look 
 STDERR_TAIL = 40          # lines of a failed script's stderr kept in RESULTS.md
 SECTION = re.compile(r"<!-- bench:(?P<name>[\w.-]+) -->\n(?P<body>.*?)<!-- /bench:(?P=name) -->\n", re.S)
 NOTES = re.compile(r"<!-- notes -->\n(?P<body>.*?)<!-- /notes -->\n", re.S)
+# a script's args under make bench, where its own defaults would run too long for the whole set
+SCRIPT_ARGS = {"lab_pipelines.py": ["--seconds", "20"]}
 DEFAULT_NOTES = ("The machine is shared with other work (the load averages beside each figure show how "
                  "much): compare the ratios each script prints against its same-run baseline, not "
                  "absolute times across runs.\n")
@@ -88,8 +90,8 @@ def run_one(script: Path, timeout_s: float) -> tuple[str, bool]:
     env.setdefault("PYTHONUNBUFFERED", "1")
     print(f"== {rel} (timeout {timeout_s:.0f} s, load {load()})", flush=True)
     started, load_before, date = time.monotonic(), load(), now()
-    proc = subprocess.Popen([sys.executable, str(script)], cwd=ROOT, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, errors="replace", start_new_session=True)
+    proc = subprocess.Popen([sys.executable, str(script), *SCRIPT_ARGS.get(script.name, [])], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, errors="replace", start_new_session=True)
     timed_out = False
     try:
         out, err = proc.communicate(timeout=timeout_s)
@@ -118,7 +120,7 @@ def run_one(script: Path, timeout_s: float) -> tuple[str, bool]:
         status = f"FAILED (exit {proc.returncode})"
     print(out, end="" if out.endswith("\n") or not out else "\n", flush=True)
     print(f"-- {rel}: {status}, {wall:.1f} s", flush=True)
-    lines = [f"## {rel}", "",
+    lines = [" ".join([f"## {rel}", *SCRIPT_ARGS.get(script.name, [])]), "",
              f"- status: {status}",
              f"- wall time: {wall:.1f} s",
              f"- run: {date}, commit {commit()}",
