@@ -84,3 +84,38 @@ def launched_latencies_ms(graph_yaml: str, first_topic: str, second_topic: str, 
             return paired_latencies_ms(sock, first_topic, seconds, warm_s)
         finally:
             sock.close(0)
+
+
+def reader_process(tmp: Path, type_path: str, params: dict[str, Any]):
+    """A reader node in its own process, as the launcher starts one (``python -m
+    mocapgraph.bus.runtime WIRING.json``), and a SUB socket of this process on its ``markers``;
+    its stderr is kept (a pipe, text) for the caller's error line. Returns (process, socket)."""
+    import json
+
+    import zmq
+
+    from mocapgraph.messages.codec import topic_frame
+
+    ep = f"ipc://{tmp / ('reader-' + str(time.monotonic_ns()))}"
+    spec = {"class": type_path, "params": params,
+            "wiring": {"node": "reader", "pub_endpoint": ep,
+                       "outputs": {"markers": {"topic": "markers", "subscribers": 1}}}}
+    wf = tmp / f"wiring-{time.monotonic_ns()}.json"
+    wf.write_text(json.dumps(spec))
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, topic_frame("markers"))
+    sub.connect(ep)
+    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph.bus.runtime", str(wf)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    return proc, sub
+
+
+def stop_reader(proc: subprocess.Popen, sub) -> None:
+    """SIGTERM the reader (a kill after 5 s) and close the socket."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(5)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+    sub.close(0)

@@ -14,11 +14,8 @@ Run: .venv/bin/python benchmarks/natnet.py [--frames N] [--seconds S]
 from __future__ import annotations
 
 import argparse
-import json
-import signal
 import socket
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -36,11 +33,11 @@ import zmq
 
 from mocapgraph.formats.wire_protocol import encode_binary
 from mocapgraph.messages import MarkerFrame, RigidBodyFrame, decode, encode
-from mocapgraph.messages.codec import topic_frame
 from mocapgraph.nodes.marker_source import LayoutMap
 from mocapgraph.testing.natnet_server import ActorStream, NatNetServer
 
 from _context import print_context
+from _launched import reader_process, stop_reader
 
 
 def per_frame_us(fn, packets: list[bytes], repeat: int = 3) -> float:
@@ -99,23 +96,6 @@ def reader_path(version: nn.Version, model: NatNetModel, lmap: LayoutMap, dev):
     return run
 
 
-def node_process(tmp: Path, type_path: str, params: dict) -> tuple[subprocess.Popen, zmq.Socket]:
-    """A reader node in its own process (as the launcher starts it) and a subscriber to its markers."""
-    ep = f"ipc://{tmp / ('nn-' + str(time.monotonic_ns()))}"
-    spec = {"class": type_path, "params": params,
-            "wiring": {"node": "reader", "pub_endpoint": ep, "outputs": {"markers": {"topic": "markers",
-                                                                                     "subscribers": 1}}}}
-    wf = tmp / f"wiring-{time.monotonic_ns()}.json"
-    wf.write_text(json.dumps(spec))
-    sub = zmq.Context.instance().socket(zmq.SUB)
-    sub.setsockopt(zmq.RCVHWM, 0)
-    sub.setsockopt(zmq.SUBSCRIBE, topic_frame("markers"))
-    sub.connect(ep)
-    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph.bus.runtime", str(wf)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    return proc, sub
-
-
 def live(label: str, proc: subprocess.Popen, sub: zmq.Socket, send, n: int, rate: float) -> None:
     """Send ``n`` frames at ``rate`` from a thread (``send(k)`` sends frame k), receive on ``sub``."""
     sent = np.zeros(n, np.int64)
@@ -142,12 +122,7 @@ def live(label: str, proc: subprocess.Popen, sub: zmq.Socket, send, n: int, rate
                 got[msg.frame_number] = now
     finally:
         th.join(5)
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        sub.close(0)
+        stop_reader(proc, sub)
     ks = np.array(sorted(k for k in got if 0 <= k < n))
     lat = (np.array([got[k] for k in ks]) - sent[ks]) / 1e6 if len(ks) else np.zeros(1)
     gaps = int(np.sum(np.diff(ks) - 1)) if len(ks) > 1 else 0
@@ -166,7 +141,7 @@ def live_section(seconds: float) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         server = NatNetServer(ne.server_info(stream.server_info(version)),
                               ne.model_defs(stream.model_defs(), version), command_port=0, rate_hz=rate)
-        proc, sub = node_process(Path(tmp), "mocapgraph.nodes.natnet_reader:NatNetReader",
+        proc, sub = reader_process(Path(tmp), "mocapgraph.nodes.natnet_reader:NatNetReader",
                                  {"server": "127.0.0.1", "command_port": server.command_port, "silence_s": 30.0})
         end = time.monotonic() + 30
         while not (server.clients and server.requests.get(nn.NAT_REQUEST_MODELDEF)) and time.monotonic() < end:
@@ -180,7 +155,7 @@ def live_section(seconds: float) -> None:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
-        proc, sub = node_process(Path(tmp), "mocapgraph.nodes.udp_reader:UDPReader", {"port": port, "layout": ""})
+        proc, sub = reader_process(Path(tmp), "mocapgraph.nodes.udp_reader:UDPReader", {"port": port, "layout": ""})
         time.sleep(1.5)  # no handshake to wait on: let it bind
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         live("udp_reader (wire protocol)", proc, sub,

@@ -22,11 +22,7 @@ Usage: ``python benchmarks/qtm.py [--frames 5000] [--rounds 5] [--seconds 10]``.
 from __future__ import annotations
 
 import argparse
-import json
-import signal
 import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -40,9 +36,9 @@ from mocapgraph.formats.device_file import DeviceConfig
 from mocapgraph.formats.qtm_session import QTMToWorld
 
 from mocapgraph.messages import decode
-from mocapgraph.messages.codec import topic_frame
 
 from _context import print_context
+from _launched import reader_process, stop_reader
 
 N_MARKERS, N_BODIES, N_SEGMENTS = 60, 5, 20
 
@@ -87,24 +83,6 @@ def raw_receive(blob: bytes) -> None:
     b.close()
 
 
-def start_node(tmp: Path, cls: str, params: dict):
-    """A reader node process publishing ``markers`` to a SUB socket of this process."""
-    import zmq
-
-    ep = f"ipc://{tmp / ('lat-' + str(time.monotonic_ns()))}"
-    spec = {"class": cls, "params": params,
-            "wiring": {"node": "reader", "pub_endpoint": ep, "outputs": {"markers": {"topic": "markers", "subscribers": 1}}}}
-    wf = tmp / f"wiring-{time.monotonic_ns()}.json"
-    wf.write_text(json.dumps(spec))
-    sub = zmq.Context.instance().socket(zmq.SUB)
-    sub.setsockopt(zmq.RCVHWM, 0)
-    sub.setsockopt(zmq.SUBSCRIBE, topic_frame("markers"))
-    sub.connect(ep)
-    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph.bus.runtime", str(wf)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    return proc, sub
-
-
 def collect(proc, sub, seconds: float) -> dict[int, int]:
     """frame number -> receive time (wall ns) of each markers message for ``seconds``."""
     got: dict[int, int] = {}
@@ -117,15 +95,6 @@ def collect(proc, sub, seconds: float) -> dict[int, int]:
         elif proc.poll() is not None:
             raise SystemExit(f"reader exited: {proc.stderr.read()[-2000:]}")
     return got
-
-
-def stop(proc, sub) -> None:
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(5)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-    sub.close(0)
 
 
 def report(label: str, sent: dict[int, int], got: dict[int, int], rate: float) -> None:
@@ -146,17 +115,17 @@ def latency(seconds: float, rate: float = 240.0) -> None:
         src = ActorQTMSource("kiip_full_body", rate, n_bodies=5)
         src.preload(2400, int((seconds + 4) * rate))          # the simulator's own work out of the timing
         srv = QTMSimServer(src, port=0, start_frame=2400).start()
-        proc, sub = start_node(tmp, "mocapgraph.nodes.qtm_reader:QTMReader", {"port": srv.port, "layout": "kiip_full_body"})
+        proc, sub = reader_process(tmp, "mocapgraph.nodes.qtm_reader:QTMReader", {"port": srv.port, "layout": "kiip_full_body"})
         try:
             got = collect(proc, sub, seconds + 3)
         finally:
-            stop(proc, sub)
+            stop_reader(proc, sub)
             srv.stop()
         report("qtm_reader (QTM simulator, TCP, 62 markers + 5 bodies)", dict(srv.send_log), got, rate)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
-        proc, sub = start_node(tmp, "mocapgraph.nodes.udp_reader:UDPReader",
+        proc, sub = reader_process(tmp, "mocapgraph.nodes.udp_reader:UDPReader",
                                {"port": port, "layout": "kiip_full_body", "rate_hz": rate})
         sim = SimulatedDevice("kiip_full_body", "", rate_hz=rate, start_frame=2400)
         sent: dict[int, int] = {}
@@ -177,7 +146,7 @@ def latency(seconds: float, rate: float = 240.0) -> None:
             rx.join()
             got = out[0] if out else {}
         finally:
-            stop(proc, sub)
+            stop_reader(proc, sub)
         report("udp_reader (wire protocol datagrams, 62 markers)", sent, got, rate)
 
 
