@@ -137,7 +137,7 @@ class FoldedPlan:
         self.root_big = big
         self.root_c = np.array([0.0, 0.0, plan.h_c - plan.ratio * plan.h_s + plan.options.floor_z]) + plan.offset
         self.root_src = plan.root_src
-        # the mid-hip rule (Retargeter._midhip_rule): root += R(W[root]) s
+        # the mid-hip rule (plan._midhip_rule): root += R(W[root]) s
         self.root_j = int(plan.root)
         self.root_s = None if plan.root_s is None else [float(v) for v in plan.root_s]
 

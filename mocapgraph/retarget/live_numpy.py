@@ -175,7 +175,7 @@ class NumpyFrame(FoldedPlan):
         return D
 
     def _plant(self, state, W, Wp, pos, root, t: float):
-        """Retargeter._plant for one frame: contact and targets (foot_planting.plant_one), two-bone
+        """batched.plant_legs for one frame: contact and targets (foot_planting.plant_one), two-bone
         IK per leg in plain floats, the thigh and shin turns applied to the joints they carry."""
         plan, L, opt = self.plan, self.legs, self.plan.options
         hka = pos[L["idx"]].tolist()                      # hips, knees, ankles: l, r
