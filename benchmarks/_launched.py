@@ -86,9 +86,9 @@ def launched_latencies_ms(graph_yaml: str, first_topic: str, second_topic: str, 
             sock.close(0)
 
 
-def reader_process(tmp: Path, type_path: str, params: dict[str, Any]):
+def reader_process(tmp: Path, type_path: str, params: dict[str, Any], topic: str = "markers"):
     """A reader node in its own process, as the launcher starts one (``python -m
-    mocapgraph.bus.runtime WIRING.json``), and a SUB socket of this process on its ``markers``;
+    mocapgraph.bus.runtime WIRING.json``), and a SUB socket of this process on its output ``topic``;
     its stderr is kept (a pipe, text) for the caller's error line. Returns (process, socket)."""
     import json
 
@@ -99,12 +99,12 @@ def reader_process(tmp: Path, type_path: str, params: dict[str, Any]):
     ep = f"ipc://{tmp / ('reader-' + str(time.monotonic_ns()))}"
     spec = {"class": type_path, "params": params,
             "wiring": {"node": "reader", "pub_endpoint": ep,
-                       "outputs": {"markers": {"topic": "markers", "subscribers": 1}}}}
+                       "outputs": {topic: {"topic": topic, "subscribers": 1}}}}
     wf = tmp / f"wiring-{time.monotonic_ns()}.json"
     wf.write_text(json.dumps(spec))
     sub = zmq.Context.instance().socket(zmq.SUB)
     sub.setsockopt(zmq.RCVHWM, 0)
-    sub.setsockopt(zmq.SUBSCRIBE, topic_frame("markers"))
+    sub.setsockopt(zmq.SUBSCRIBE, topic_frame(topic))
     sub.connect(ep)
     proc = subprocess.Popen([sys.executable, "-m", "mocapgraph.bus.runtime", str(wf)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

@@ -19,22 +19,18 @@ part 1 (skipped without it).
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import signal
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-import zmq
 
 from mocapgraph.messages import decode_envelope
-from mocapgraph.messages.codec import topic_frame
 
 from _context import print_context
+from _launched import reader_process, stop_reader
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = (ROOT / ".." / "shared" / "data").resolve()
@@ -42,19 +38,7 @@ DATA = (ROOT / ".." / "shared" / "data").resolve()
 
 def run_node(tmp: Path, cls: str, params: dict, topic: str, n_frames: int, timeout: float) -> np.ndarray:
     """Start one node process, receive ``n_frames`` on ``topic``; int64 [n, 2] (publish, receive) ns."""
-    ep = f"ipc://{tmp / ('bench-' + str(time.monotonic_ns()))}"
-    port = {"markers": "markers", "skeleton_pose": "skeleton_pose"}[topic]
-    spec = {"class": cls, "params": params,
-            "wiring": {"node": "reader", "pub_endpoint": ep, "outputs": {port: {"topic": topic, "subscribers": 1}}}}
-    wf = tmp / f"wiring-{time.monotonic_ns()}.json"
-    wf.write_text(json.dumps(spec))
-    ctx = zmq.Context.instance()
-    sub = ctx.socket(zmq.SUB)
-    sub.setsockopt(zmq.RCVHWM, 0)
-    sub.setsockopt(zmq.SUBSCRIBE, topic_frame(topic))
-    sub.connect(ep)
-    proc = subprocess.Popen([sys.executable, "-m", "mocapgraph.bus.runtime", str(wf)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc, sub = reader_process(tmp, cls, params, topic)
     out = np.zeros((n_frames, 2), np.int64)
     k = 0
     t_end = time.monotonic() + timeout
@@ -69,12 +53,7 @@ def run_node(tmp: Path, cls: str, params: dict, topic: str, n_frames: int, timeo
             out[k] = decode_envelope(frames).publish_ns, now
             k += 1
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        sub.close(0)
+        stop_reader(proc, sub)
     if k < n_frames:
         raise SystemExit(f"only {k} of {n_frames} frames within {timeout} s")
     return out

@@ -50,16 +50,22 @@ def marker_noise(cur: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
     return float(np.sqrt((dev * dev).sum() / dof)), float(num / den) if den > 0 else float("nan")
 
 
-def cluster_rotation_cov(ref: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
-    """float[L,3,3] rad^2: covariance of each cluster's fitted rotation (a small rotation vector
-    in the base-pose frame), ``sigma^2 inertia^-1`` for markers ref float[L,K,3] with weights [L,K];
-    zero for fewer than three markers (no own fit to correct)."""
+def _cluster_inertia(ref: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(float[L,3,3] m^2: each cluster's inertia about its centroid, int[L]: its markers) for
+    markers ref float[L,K,3] (NaN padding) with weights [L,K] (a marker counts when weight > 0)."""
     has = (weight > 0) & np.isfinite(ref).all(-1)
     n = has.sum(1)
     a = np.where(has[..., None], ref, 0.0)
     c = a.sum(1) / np.maximum(n, 1)[:, None]
     d = np.where(has[..., None], a - c[:, None], 0.0)
-    inertia = (d * d).sum((1, 2))[:, None, None] * np.eye(3) - np.einsum("lki,lkj->lij", d, d)
+    return (d * d).sum((1, 2))[:, None, None] * np.eye(3) - np.einsum("lki,lkj->lij", d, d), n
+
+
+def cluster_rotation_cov(ref: np.ndarray, weight: np.ndarray, sigma: float) -> np.ndarray:
+    """float[L,3,3] rad^2: covariance of each cluster's fitted rotation (a small rotation vector
+    in the base-pose frame), ``sigma^2 inertia^-1`` for markers ref float[L,K,3] with weights [L,K];
+    zero for fewer than three markers (no own fit to correct)."""
+    inertia, n = _cluster_inertia(ref, weight)
     ok = (n >= 3) & (np.linalg.eigvalsh(inertia)[:, 0] > 1e-12)
     inv = np.linalg.inv(np.where(ok[:, None, None], inertia, np.eye(3)))
     return np.where(ok[:, None, None], sigma * sigma * inv, 0.0)
@@ -69,12 +75,7 @@ def cluster_rotation_sd(ref: np.ndarray, weight: np.ndarray, sigma: float) -> np
     """float[L] rad: standard deviation of each cluster's fitted rotation about its weakest axis,
     for markers ref float[L,K,3] (NaN padding) with weights [L,K] and noise sigma (m);
     inf for fewer than three markers."""
-    has = (weight > 0) & np.isfinite(ref).all(-1)
-    n = has.sum(1)
-    a = np.where(has[..., None], ref, 0.0)
-    c = a.sum(1) / np.maximum(n, 1)[:, None]
-    d = np.where(has[..., None], a - c[:, None], 0.0)
-    inertia = (d * d).sum((1, 2))[:, None, None] * np.eye(3) - np.einsum("lki,lkj->lij", d, d)
+    inertia, n = _cluster_inertia(ref, weight)
     lam = np.linalg.eigvalsh(inertia)[:, 0]
     out = sigma / np.sqrt(np.maximum(lam, 1e-300))
     return np.where(n >= 3, out, np.inf)
