@@ -14,7 +14,7 @@ from ..kinematics.quaternion import (matrix_between, matrix_to_quat, norm, quat_
                                      quat_rotate, quat_to_matrix, swing_twist, twist_angle)
 from .bone_follow import unfollowed
 from .character import Character
-from .foot_planting import PlantState, plant_targets, two_bone_ik
+from .foot_planting import MOVE_M, PlantState, plant_targets, two_bone_ik
 from .options import RetargetOptions, RetargetResult
 from .plan import RetargetPlan
 
@@ -53,7 +53,7 @@ def retarget_frames(plan: RetargetPlan, ch: Character, opt: RetargetOptions, pla
     contact = np.zeros((F, 2), bool)
     if plan.legs is not None:
         t = np.arange(F, dtype=float) if times_s is None else np.asarray(times_s, float).reshape(-1)
-        world, pos, contact = plant_legs(plan, ch, opt, plant, world, pos, root, t)
+        world, pos, contact = plant_legs(plan, ch, opt, plant, world, pos, root, t, pts)
     # local rotations: rest⁻¹ · W[parent]⁻¹ · W
     parent_w = world[:, plan.parents]
     parent_w[:, plan.root] = _EYE3
@@ -176,11 +176,14 @@ def apply_roll(ch: Character, world: np.ndarray, r: int, o: int, f: float, upper
 
 
 def plant_legs(plan: RetargetPlan, ch: Character, opt: RetargetOptions, plant: PlantState, world: np.ndarray,
-               pos: np.ndarray, root: np.ndarray, t: np.ndarray):
-    """Foot planting (Kiip 3.5.6): contact per leg, planted ankles held by two-bone leg IK, soles
+               pos: np.ndarray, root: np.ndarray, t: np.ndarray, pts: np.ndarray):
+    """Foot planting (Kiip 3.5.6): contact per leg, planted ankles held by two-bone leg IK (moving
+    only as the source points ``pts`` [F, P, 3] of the ankles do, scaled by the root ratio), soles
     above the floor; ``plant`` is updated. Returns (world, positions, contact [F, 2])."""
     L = plan.legs
     ankle = pos[:, L["ankle"]]
+    has = L["src_ankle"] >= 0
+    source_xy = np.where(has[None, :, None], plan.ratio * pts[:, np.maximum(L["src_ankle"], 0), :2], np.nan)
     toe_lift = None
     if (L["toe"] >= 0).all():
         toe_lift = (opt.floor_z + L["toe_h"]) - pos[:, L["toe"], 2]
@@ -188,15 +191,15 @@ def plant_legs(plan: RetargetPlan, ch: Character, opt: RetargetOptions, plant: P
     k = max(plan.ratio, 1e-3)
     target, contact = plant_targets(ankle, L["rest_h"], t, plant, floor_z=opt.floor_z,
                                     height_m=opt.contact_height_m * k, speed_mps=opt.contact_speed_mps * k,
-                                    release_s=opt.release_s, toe_lift=toe_lift)
-    if np.abs(target - ankle).max(initial=0.0) < 1e-12 or not np.isfinite(target).any():
+                                    release_s=opt.release_s, toe_lift=toe_lift, source_xy=source_xy)
+    if np.abs(target - ankle).max(initial=0.0) < MOVE_M or not np.isfinite(target).any():
         return world, pos, contact          # nothing to correct (free feet above the floor)
     hip, knee = pos[:, L["hip"]], pos[:, L["knee"]]
     pole = (world[:, L["hip"]] @ np.array([1.0, 0.0, 0.0]))  # the thigh's forward axis
     s1, s2, _ = two_bone_ik(hip, knee, ankle, target, L["l1"][None], L["l2"][None], pole)
     # a foot already where it should be keeps its leg (IK would bend a straight one by its reach margin),
     # so a frame's result does not depend on the other frames of its batch
-    need = (np.abs(target - ankle).max(-1) >= 1e-12)[..., None, None]
+    need = (np.abs(target - ankle).max(-1) >= MOVE_M)[..., None, None]
     s1, s2 = np.where(need, s1, _EYE3), np.where(need, s2, _EYE3)
     for i in range(2):
         above_knee = L["sub"][i].copy()

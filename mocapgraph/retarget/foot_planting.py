@@ -1,10 +1,13 @@
 """Foot planting (Kiip 3.5.6): contact from height and speed, planted targets, two-bone leg IK.
 
 World frame, metres, seconds. A foot is in contact while its ankle is within ``height_m`` of its
-rest height above the floor (or of the lowest it has been, when it never came down that far) and moves slower than ``speed_mps`` horizontally. While in contact the
-ankle's horizontal position stays where the contact began; at every frame the ankle and toe stay at
-or above their rest heights (the sole on the floor); after a contact ends the planted offset fades
-out over ``release_s``. The hip-knee-ankle chain reaches the target by two-bone IK in the leg's
+rest height above the floor (or of the lowest it has been, when it never came down that far) and moves
+slower than ``speed_mps`` horizontally. While in contact the ankle's horizontal position starts where
+the contact began and then moves only as the source's own ankle does (its xy, scaled by the root
+ratio): planting removes the sliding the source lacks (skating) and keeps the foot's real motion (a
+heel roll, a pivot), so a source onto its own skeleton is left as it is. Without a source ankle the
+plant is held still. At every frame the ankle and toe stay at or above their rest heights (the sole
+on the floor); after a contact ends the planted offset fades out over ``release_s``. The hip-knee-ankle chain reaches the target by two-bone IK in the leg's
 current bend plane; the foot keeps its world orientation.
 """
 from __future__ import annotations
@@ -15,6 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kinematics.quaternion import matrix_between, norm
+
+#: A leg whose ankle is within this of its target (m, any axis) is left alone: IK would bend a straight
+#: leg by its reach margin, and a plant that follows the source's own ankle differs from the ankle
+#: drawn only by rounding (a source onto its own skeleton).
+MOVE_M = 1e-12
 
 
 @dataclass
@@ -29,11 +37,23 @@ class PlantState:
     history_xy: list = None      # recent ankle xy [2, 2] per frame
     last_t: float = float("nan")
     low: np.ndarray = None       # [2] lowest ankle height above the floor so far, m (NaN: none yet)
+    src_last: np.ndarray = None  # [2, 2] the scaled source ankle xy last seen, m (NaN: none yet)
 
     @classmethod
     def fresh(cls) -> "PlantState":
         return cls(np.zeros(2, bool), np.zeros((2, 2)), np.zeros((2, 2)), np.full((2, 2), np.nan), [], [],
-                   low=np.full(2, np.nan))
+                   low=np.full(2, np.nan), src_last=np.full((2, 2), np.nan))
+
+
+def _follow(anchor: list, src_last: list, sx: float, sy: float, planted: bool) -> None:
+    """Move a held ``anchor`` [x, y] by the source ankle's step since ``src_last`` (both updated in
+    place; a NaN source point leaves both as they are)."""
+    if not (sx == sx and sy == sy):
+        return
+    if planted and src_last[0] == src_last[0]:
+        anchor[0] += sx - src_last[0]
+        anchor[1] += sy - src_last[1]
+    src_last[0], src_last[1] = sx, sy
 
 
 def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np.ndarray,
@@ -64,12 +84,15 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, target: np
 
 def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarray, state: PlantState, *,
                   floor_z: float, height_m: float, speed_mps: float, release_s: float,
-                  toe_lift: np.ndarray | None = None, window_s: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+                  toe_lift: np.ndarray | None = None, window_s: float = 0.05,
+                  source_xy: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Ankle targets [F, 2, 3] and contact flags [F, 2] for ankle positions [F, 2, 3] (NaN: no data).
 
     ``rest_height`` [2]: ankle height above the floor at rest. ``toe_lift`` [F, 2]: how far the toe
-    is below its own rest height (lifts the whole foot so the toe clears the floor). Sequential over
-    frames (a plant begins where the previous frame's contact did), vectorised over the two feet.
+    is below its own rest height (lifts the whole foot so the toe clears the floor). ``source_xy``
+    [F, 2, 2]: the source's ankles, horizontal, scaled by the root ratio (m; NaN: none), which a
+    plant moves with. Sequential over frames (a plant begins where the previous frame's contact
+    did), vectorised over the two feet.
     """
     F = ankle.shape[0]
     ok = np.isfinite(ankle).all(axis=2)                                 # [F, 2]
@@ -91,6 +114,8 @@ def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarra
     planted = [bool(state.planted[0]), bool(state.planted[1])]
     anchor = state.anchor.tolist()
     offset = state.offset.tolist()
+    src_last = state.src_last.tolist()
+    src = (np.full((F, 2, 2), np.nan) if source_xy is None else np.asarray(source_xy, np.float64)).tolist()
     en, kp, okl, xyl, tl = enter.tolist(), keep.tolist(), ok.tolist(), out_xy.tolist(), list(map(float, times_s))
     for f in range(F):
         t = tl[f]
@@ -99,14 +124,16 @@ def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarra
         for i in (0, 1):
             if not okl[f][i]:
                 planted[i] = False
+                _follow(anchor[i], src_last[i], src[f][i][0], src[f][i][1], False)
                 continue
             c = en[f][i] or (planted[i] and kp[f][i])
             x, y = xyl[f][i]
+            _follow(anchor[i], src_last[i], src[f][i][0], src[f][i][1], c and planted[i])
             if c:
                 if not planted[i]:   # begins where the foot is drawn now (a fading offset included): no jump
                     anchor[i] = [x + (offset[i][0] if dt == dt else 0.0), y + (offset[i][1] if dt == dt else 0.0)]
                 offset[i] = [anchor[i][0] - x, anchor[i][1] - y]
-                xyl[f][i] = anchor[i]
+                xyl[f][i] = [anchor[i][0], anchor[i][1]]   # a copy: the anchor moves on
             else:                    # released: the last offset fades out over release_s
                 offset[i] = [offset[i][0] * decay, offset[i][1] * decay]
                 xyl[f][i] = [x + offset[i][0], y + offset[i][1]]
@@ -116,6 +143,7 @@ def plant_targets(ankle: np.ndarray, rest_height: np.ndarray, times_s: np.ndarra
     state.planted = np.array(planted)
     state.anchor = np.array(anchor, dtype=np.float64).reshape(2, 2)
     state.offset = np.array(offset, dtype=np.float64).reshape(2, 2)
+    state.src_last = np.array(src_last, dtype=np.float64).reshape(2, 2)
     state.last_t = float(times_s[-1]) if F else state.last_t
     target = ankle.copy()
     z = np.maximum(ankle[..., 2], floor_z + rest_height)
@@ -184,10 +212,11 @@ def _window_speeds(state: PlantState, t: np.ndarray, xy: np.ndarray, window_s: f
 
 def plant_one(ankle: list, rest_height: list, t: float, state: PlantState, *, floor_z: float, height_m: float,
               speed_mps: float, release_s: float, toe_lift: list | None = None,
-              window_s: float = 0.05) -> tuple[list, list]:
+              window_s: float = 0.05, source_xy: list | None = None) -> tuple[list, list]:
     """:func:`plant_targets` for one frame in plain floats (the live path): ankle [[x, y, z]] * 2 (m,
-    NaN: no data), ``rest_height`` and ``toe_lift`` per foot; returns (targets [[x, y, z]] * 2,
-    contact [bool] * 2). Same state, same rules, same numbers to rounding."""
+    NaN: no data), ``rest_height`` and ``toe_lift`` per foot, ``source_xy`` [[x, y]] * 2 (m, scaled;
+    NaN or None: none); returns (targets [[x, y, z]] * 2, contact [bool] * 2). Same state, same
+    rules, same numbers to rounding."""
     nan = float("nan")
     ok = [a[0] == a[0] and a[1] == a[1] and a[2] == a[2] and abs(a[0]) + abs(a[1]) + abs(a[2]) < math.inf
           for a in ankle]
@@ -206,7 +235,8 @@ def plant_one(ankle: list, rest_height: list, t: float, state: PlantState, *, fl
     state.low = np.array(low)
     t_prev = state.last_t
     planted = [bool(state.planted[0]), bool(state.planted[1])]
-    anchor, offset = state.anchor.tolist(), state.offset.tolist()
+    anchor, offset, src_last = state.anchor.tolist(), state.offset.tolist(), state.src_last.tolist()
+    src = source_xy if source_xy is not None else [[nan, nan], [nan, nan]]
     dt = t - t_prev if t_prev == t_prev else nan
     decay = max(0.0, 1.0 - dt / release_s) if release_s > 0 and dt == dt else 0.0
     contact = [False, False]
@@ -214,14 +244,16 @@ def plant_one(ankle: list, rest_height: list, t: float, state: PlantState, *, fl
     for i in (0, 1):
         if not ok[i]:
             planted[i] = False
+            _follow(anchor[i], src_last[i], src[i][0], src[i][1], False)
             continue
         c = enter[i] or (planted[i] and keep[i])
         x, y = xy[i]
+        _follow(anchor[i], src_last[i], src[i][0], src[i][1], c and planted[i])
         if c:
             if not planted[i]:
                 anchor[i] = [x + (offset[i][0] if dt == dt else 0.0), y + (offset[i][1] if dt == dt else 0.0)]
             offset[i] = [anchor[i][0] - x, anchor[i][1] - y]
-            target[i][0], target[i][1] = anchor[i]
+            target[i][0], target[i][1] = anchor[i][0], anchor[i][1]
         else:
             offset[i] = [offset[i][0] * decay, offset[i][1] * decay]
             target[i][0], target[i][1] = x + offset[i][0], y + offset[i][1]
@@ -234,6 +266,7 @@ def plant_one(ankle: list, rest_height: list, t: float, state: PlantState, *, fl
     state.planted = np.array(planted)
     state.anchor = np.array(anchor, dtype=np.float64).reshape(2, 2)
     state.offset = np.array(offset, dtype=np.float64).reshape(2, 2)
+    state.src_last = np.array(src_last, dtype=np.float64).reshape(2, 2)
     state.last_t = float(t)
     return target, contact
 

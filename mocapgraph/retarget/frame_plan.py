@@ -56,6 +56,8 @@ FIELDS: tuple[tuple[str, type, int], ...] = (
     ("D", np.float64, 2), ("W", np.float64, 2), ("tmp", np.float64, 2), ("ank", np.float64, 2),
     ("toe_z", np.float64, 1), ("target", np.float64, 2), ("speed", np.float64, 1), ("turns", np.float64, 2),
     ("pin", np.float64, 2), ("pin_ok", np.bool_, 1), ("rot_ok", np.bool_, 1),
+    # foot planting's source ankles (points, -1: none), the root ratio that scales them; their xy, scratch
+    ("src_ankle", np.int64, 1), ("src_scale", np.float64, 0), ("src_xy", np.float64, 2),
 )
 
 
@@ -183,4 +185,7 @@ def _fill(x):
     p.pin = x[76]
     p.pin_ok = x[77]
     p.rot_ok = x[78]
+    p.src_ankle = x[79]
+    p.src_scale = x[80]
+    p.src_xy = x[81]
     return p

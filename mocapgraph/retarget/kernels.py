@@ -10,8 +10,9 @@ Z up, metres, seconds, quaternions wxyz. Inputs and outputs are float64/int64/bo
 :class:`live.CompiledFrame` preallocates; nothing here allocates per frame. The constants and the
 scratch travel in one :class:`frame_plan.FramePlan`, read by name (``p.K``, ``p.parents``).
 
-Plant state (carried between frames) is one float array ``ps`` [13]: planted l, r (0/1), anchor xy
-l, r, offset xy l, r, last time (NaN: none yet), lowest ankle height l, r (NaN: none yet); the
+Plant state (carried between frames) is one float array ``ps`` [17]: planted l, r (0/1), anchor xy
+l, r, offset xy l, r, last time (NaN: none yet), lowest ankle height l, r (NaN: none yet), the
+scaled source ankle xy l, r last seen (NaN: none yet); the
 speed window is ``ht`` [cap] times and ``hxy`` [cap, 4] ankle xy (l x, l y, r x, r y), ``hn[0]``
 of them in use (the caller keeps cap > hn[0]).
 """
@@ -24,6 +25,7 @@ import numpy as np
 from ..jit import kernel_calling
 from ..kinematics import quat_kernels
 from ..kinematics.quat_kernels import qmul
+from .foot_planting import MOVE_M
 
 kernel = kernel_calling(quat_kernels)   # qmul
 QUALITY_GOOD = 2
@@ -345,10 +347,22 @@ def _speeds(ht, hxy, hn, t, x_l, y_l, x_r, y_r, window_s, speed):
 
 
 @kernel
-def plant_feet(ankle, toe_z, has_toe, rest_h, toe_h, t, params, state, target, contact, speed):
+def _follow(ps, i, sx, sy, planted):
+    """foot_planting._follow on the state ``ps``: foot i's anchor moves by the source ankle's step."""
+    if not (sx == sx and sy == sy):
+        return
+    if planted and ps[13 + 2 * i] == ps[13 + 2 * i]:
+        ps[2 + 2 * i] += sx - ps[13 + 2 * i]
+        ps[3 + 2 * i] += sy - ps[14 + 2 * i]
+    ps[13 + 2 * i], ps[14 + 2 * i] = sx, sy
+
+
+@kernel
+def plant_feet(ankle, toe_z, has_toe, rest_h, toe_h, t, params, state, target, contact, speed, src_xy):
     """foot_planting.plant_one on arrays: ankles [2, 3] (m), toe heights [2] (m) -> targets [2, 3]
     and contact [2]; ``params`` = floor_z, height_m, speed_mps, release_s, window_s (m, m/s, s);
-    the plant ``state`` = ps, ht, hxy, hn (module docstring) updated in place; ``speed`` [2] scratch."""
+    the plant ``state`` = ps, ht, hxy, hn (module docstring) updated in place; ``speed`` [2] scratch;
+    ``src_xy`` [2, 2] the scaled source ankles (m, NaN: none) a plant moves with."""
     floor_z, height_m, speed_mps, release_s, window_s = params
     ps, ht, hxy, hn = state
     nan = np.nan
@@ -364,6 +378,7 @@ def plant_feet(ankle, toe_z, has_toe, rest_h, toe_h, t, params, state, target, c
         contact[i] = False
         if not (ok0 if i == 0 else ok1):
             ps[i] = 0.0
+            _follow(ps, i, src_xy[i, 0], src_xy[i, 1], False)
             continue
         h_rest = ankle[i, 2] - (floor_z + rest_h[i])
         if not ps[11 + i] <= h_rest:      # fmin: a NaN low is none yet
@@ -374,6 +389,7 @@ def plant_feet(ankle, toe_z, has_toe, rest_h, toe_h, t, params, state, target, c
         planted = ps[i] != 0.0
         c = enter or (planted and keep)
         x, y = ankle[i, 0], ankle[i, 1]
+        _follow(ps, i, src_xy[i, 0], src_xy[i, 1], c and planted)
         if c:
             if not planted:   # begins where the foot is drawn now (a fading offset included): no jump
                 ps[2 + 2 * i] = x + (ps[6 + 2 * i] if dt == dt else 0.0)
@@ -441,7 +457,7 @@ def legs_to_targets(p, pos):
             dv = abs(target[i, c] - pos[a, c])
             if dv > g:
                 g = dv
-        if not g >= 1e-12:
+        if not g >= MOVE_M:
             continue
         moved = True
         h = hip[i]
@@ -458,17 +474,22 @@ def legs_to_targets(p, pos):
 
 
 @kernel
-def plant_frame(p, pos, root, local, t, state, contact):
-    """Foot planting for one frame at ``t`` s: contact [2] and targets (:func:`plant_feet`), leg IK
-    (:func:`legs_to_targets`) and, when a leg moved, positions [J, 3] and local rotations [J, 4]
-    anew from the root [3]; ``state`` as :func:`plant_feet`'s."""
-    ank, toe_z, ankle, toe = p.ank, p.toe_z, p.ankle, p.toe
+def plant_frame(p, pos, root, local, t, state, contact, pts):
+    """Foot planting for one frame at ``t`` s: contact [2] and targets (:func:`plant_feet`, moving
+    with the held source points ``pts`` [P, 3] of the ankles), leg IK (:func:`legs_to_targets`) and,
+    when a leg moved, positions [J, 3] and local rotations [J, 4] anew from the root [3]; ``state``
+    as :func:`plant_feet`'s."""
+    ank, toe_z, ankle, toe, sxy = p.ank, p.toe_z, p.ankle, p.toe, p.src_xy
     for i in range(2):
         a = ankle[i]
         ank[i, 0], ank[i, 1], ank[i, 2] = pos[a, 0], pos[a, 1], pos[a, 2]
         toe_z[i] = pos[toe[i], 2] if p.has_toe else 0.0
+        s = p.src_ankle[i]
+        sxy[i, 0] = p.src_scale * pts[s, 0] if s >= 0 else np.nan
+        sxy[i, 1] = p.src_scale * pts[s, 1] if s >= 0 else np.nan
     plant_feet(ank, toe_z, p.has_toe, p.rest_h, p.toe_h, t,
-               (p.floor_z, p.height_m, p.speed_mps, p.release_s, p.window_s), state, p.target, contact, p.speed)
+               (p.floor_z, p.height_m, p.speed_mps, p.release_s, p.window_s), state, p.target, contact, p.speed,
+               sxy)
     if legs_to_targets(p, pos):
         pose_from_world(p, root, pos, local)
 
@@ -530,7 +551,7 @@ def retarget_frame(pts, pok, rot, rok, t, held, plant, p, out):
     pose_from_world(p, root, pos, local)
     contact[0], contact[1] = False, False
     if p.has_legs:
-        plant_frame(p, pos, root, local, t, plant, contact)
+        plant_frame(p, pos, root, local, t, plant, contact, st_pts)
     return good
 
 

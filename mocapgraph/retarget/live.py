@@ -26,13 +26,14 @@ if TYPE_CHECKING:   # annotations only
 
 
 def _pack_plant(plant, ps: np.ndarray, cap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A PlantState into the compiled path's arrays (kernels' layout): fills ``ps`` [13],
+    """A PlantState into the compiled path's arrays (kernels' layout): fills ``ps`` [17],
     returns (times [cap'], xy [cap', 4], count [1]) with cap' >= cap and room for one more sample."""
     ps[0:2] = plant.planted
     ps[2:6] = np.asarray(plant.anchor, float).reshape(4)
     ps[6:10] = np.asarray(plant.offset, float).reshape(4)
     ps[10] = plant.last_t
     ps[11:13] = plant.low
+    ps[13:17] = np.asarray(plant.src_last, float).reshape(4)
     n = len(plant.history_t)
     cap = max(cap, 2 * (n + 1))
     ht, hxy = np.zeros(cap), np.zeros((cap, 4))
@@ -50,6 +51,7 @@ def _unpack_plant(plant, ps: np.ndarray, ht: np.ndarray, hxy: np.ndarray, hn: np
     plant.offset = ps[6:10].reshape(2, 2).copy()
     plant.last_t = float(ps[10])
     plant.low = ps[11:13].copy()
+    plant.src_last = ps[13:17].reshape(2, 2).copy()
     plant.history_t = ht[:n].tolist()
     plant.history_xy = list(hxy[:n].reshape(n, 2, 2).copy())
 
@@ -134,12 +136,12 @@ class CompiledFrame:
                          f64(np.nan_to_num(L["toe_h"]), 2), i64(lk.legs["aff"]), i64(lk.legs["which"]))
             self.plant_params = (float(opt.floor_z), float(opt.contact_height_m * k), float(opt.contact_speed_mps * k),
                                  float(opt.release_s), 0.05)   # plant_one's window_s
-            self.ps = np.zeros(13)
+            self.ps = np.zeros(17)
             self.ht, self.hxy, self.hn = np.zeros(64), np.zeros((64, 4)), np.zeros(1, np.int64)
         self._plant_for = None      # the retargeter state whose plants the arrays above hold
         self._out_checked = None    # the last ``out`` of run_actor found to fit (see _check_out)
         if self.legs is None:       # the frame kernel's plant arguments, unused
-            self.ps, self.ht, self.hxy, self.hn = np.zeros(13), np.zeros(2), np.zeros((2, 4)), np.zeros(1, np.int64)
+            self.ps, self.ht, self.hxy, self.hn = np.zeros(17), np.zeros(2), np.zeros((2, 4)), np.zeros(1, np.int64)
         self.frame_plan = self._frame_plan(lk, n, na, P, R)
 
     def _frame_plan(self, lk: FoldedPlan, n: int, na: int, P: int, R: int):
@@ -168,7 +170,8 @@ class CompiledFrame:
             qn=np.zeros((R, 4)), qk=np.zeros((max(n, 1), 4)), dq=np.zeros((max(n, 1), 4)),
             ap=np.zeros((max(na, 1), 4)), D=np.zeros((J + 1, 4)), W=np.zeros((J, 4)), tmp=np.zeros((2, 4)),
             ank=np.zeros((2, 3)), toe_z=np.zeros(2), target=np.zeros((2, 3)), speed=np.zeros(2),
-            turns=np.zeros((4, 4)), pin=np.zeros((P, 3)), pin_ok=np.zeros(P, np.bool_), rot_ok=np.zeros(R, np.bool_))
+            turns=np.zeros((4, 4)), pin=np.zeros((P, 3)), pin_ok=np.zeros(P, np.bool_), rot_ok=np.zeros(R, np.bool_),
+            src_ankle=plan.legs["src_ankle"] if self.legs else z_i, src_scale=float(plan.ratio), src_xy=np.zeros((2, 2)))
         return build(values)
 
     def release_state(self) -> None:

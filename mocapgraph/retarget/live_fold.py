@@ -156,7 +156,7 @@ class FoldedPlan:
                              idx=np.concatenate([L["hip"], L["knee"], L["ankle"]]),
                              toe=L["toe"] if (L["toe"] >= 0).all() else None,
                              l1=L["l1"].tolist(), l2=L["l2"].tolist(), rest_h=L["rest_h"].tolist(),
-                             toe_h=L["toe_h"].tolist())
+                             toe_h=L["toe_h"].tolist(), src_ankle=L["src_ankle"].tolist())
 
     def _fold_local(self, plan: "RetargetPlan") -> None:
         """Local rotations (rest_local⁻¹ · conj(W[parent]) · W) as a bilinear form per joint, beside the bone vectors."""

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..kinematics.quaternion import quat_multiply, quat_multiply_rows
 from .batched import joint_quality
-from .foot_planting import plant_one
+from .foot_planting import MOVE_M, plant_one
 from .live_fold import FoldedPlan
 from .quat_forms import (ID, N2_HI, N2_LO, ONES3, ONES4, PHASE, between_rows, leg_ik, left_map,
                          power_left, rotate_const, v_rotate)
@@ -81,7 +81,8 @@ class NumpyFrame(FoldedPlan):
         local = bl[:, 3:]
         contact = np.zeros((1, 2), bool)
         if self.legs is not None:
-            W2, Wp, pos, contact = self._plant(state, W, Wp, pos, root, 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0])))
+            t_s = 0.0 if t is None else (t if isinstance(t, float) else float(np.asarray(t).reshape(-1)[0]))
+            W2, Wp, pos, contact = self._plant(state, W, Wp, pos, root, t_s, pts)
             if W2 is not W:   # the legs moved: their local rotations anew
                 local = ((Wp[:, :, None] * W2[:, None, :]).reshape(J, 1, 16) @ self.local_forms)[:, 0]
         local = local * np.copysign(1.0, local[:, :1])
@@ -174,9 +175,10 @@ class NumpyFrame(FoldedPlan):
             D[a["joint"]] = quat_multiply_rows(between_rows(carried, want), dp)
         return D
 
-    def _plant(self, state, W, Wp, pos, root, t: float):
-        """batched.plant_legs for one frame: contact and targets (foot_planting.plant_one), two-bone
-        IK per leg in plain floats, the thigh and shin turns applied to the joints they carry."""
+    def _plant(self, state, W, Wp, pos, root, t: float, pts: np.ndarray):
+        """batched.plant_legs for one frame: contact and targets (foot_planting.plant_one, moving with
+        the held source points ``pts`` [P, 3] of the ankles), two-bone IK per leg in plain floats, the
+        thigh and shin turns applied to the joints they carry."""
         plan, L, opt = self.plan, self.legs, self.plan.options
         hka = pos[L["idx"]].tolist()                      # hips, knees, ankles: l, r
         ankle = hka[4:6]
@@ -185,12 +187,15 @@ class NumpyFrame(FoldedPlan):
             tz = pos[L["toe"], 2].tolist()
             toe_lift = [opt.floor_z + L["toe_h"][i] - tz[i] for i in (0, 1)]
         k = max(plan.ratio, 1e-3)
+        nan = float("nan")
+        source_xy = [[plan.ratio * float(pts[s, 0]), plan.ratio * float(pts[s, 1])] if s >= 0 else [nan, nan]
+                     for s in L["src_ankle"]]
         target, contact = plant_one(ankle, L["rest_h"], t, state.plant, floor_z=opt.floor_z,
                                     height_m=opt.contact_height_m * k, speed_mps=opt.contact_speed_mps * k,
-                                    release_s=opt.release_s, toe_lift=toe_lift)
+                                    release_s=opt.release_s, toe_lift=toe_lift, source_xy=source_xy)
         contact = np.array([contact])
         gap = [max(abs(target[i][c] - ankle[i][c]) for c in range(3)) for i in (0, 1)]
-        need = [g >= 1e-12 for g in gap]                 # NaN gaps (no data) need nothing
+        need = [g >= MOVE_M for g in gap]                # NaN gaps (no data) need nothing
         if not (need[0] or need[1]):
             return W, Wp, pos, contact
         hq = W[plan.legs["hip"]].tolist()

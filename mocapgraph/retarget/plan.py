@@ -108,7 +108,7 @@ def build_plan(character: Character, mapping: Mapping, source: SourceSkeleton,
         chains=chains, aims=aims, aim_joint=aim_joint, src_pre=src_pre, src_post=src_post,
         undriven=np.flatnonzero(src_post < 0), rolls=rolls, **root,
         anc=anc, anc_full=anc_full,
-        legs=_legs(ch, m, jidx, cpos, rest_floor(cpos)) if opt.foot_planting and m.legs else None,
+        legs=_legs(ch, m, src, by, jidx, cpos, rest_floor(cpos)) if opt.foot_planting and m.legs else None,
         eye_j=np.broadcast_to(_EYE3, (J, 3, 3)), offset=np.asarray(opt.offset, dtype=np.float64),
         point_plan=plan_point_rotations(src) if src.derived_rotations else None,
         checks=plan_bone_checks(ch, m, src, opt.follow_tolerance_deg),
@@ -359,9 +359,11 @@ def _standing_lift(ch: Character, m: Mapping, src: SourceSkeleton, by: dict, cpo
     return float(np.mean(lift)) if lift else 0.0
 
 
-def _legs(ch: Character, m: Mapping, jidx: dict, cpos: np.ndarray, c_floor: float) -> dict[str, np.ndarray] | None:
+def _legs(ch: Character, m: Mapping, src: SourceSkeleton, by: dict, jidx: dict, cpos: np.ndarray,
+          c_floor: float) -> dict[str, np.ndarray] | None:
     """The two legs for foot planting: hip, knee, ankle, toe joints [2], the joints each thigh and
-    shin turn, bone lengths l1, l2 (m) and the rest ankle and toe heights above the floor (m); None
+    shin turn, bone lengths l1, l2 (m), the rest ankle and toe heights above the floor (m) and the
+    source points of the ankles [2] (``src_ankle``, -1: none; a plant moves with them); None
     without two mapped legs."""
     sides = [s for s in ("l", "r") if s in m.legs][:2]
     if len(sides) != 2:
@@ -369,10 +371,13 @@ def _legs(ch: Character, m: Mapping, jidx: dict, cpos: np.ndarray, c_floor: floa
     J = ch.n_joints
     hip, knee, ankle = (np.array([jidx[m.legs[s][i]] for s in sides]) for i in range(3))
     toe = np.array([jidx[m.legs[s][3]] if m.legs[s][3] else -1 for s in sides])
+    src_e = [by.get(m.legs[s][2]) for s in sides]
+    src_ankle = np.array([src.point(e.position) if e is not None and e.position is not None else -1 for e in src_e],
+                         dtype=np.int64)
     chains = [ch.chain(j) for j in range(J)]
     sub = np.array([[hip[i] in c and ankle[i] not in c for c in chains] for i in range(2)])   # turned by the thigh/shin
     below_knee = np.array([[knee[i] in c for c in chains] for i in range(2)])
-    return dict(below_knee=below_knee, hip=hip, knee=knee, ankle=ankle, toe=toe, sub=sub,
+    return dict(below_knee=below_knee, hip=hip, knee=knee, ankle=ankle, toe=toe, sub=sub, src_ankle=src_ankle,
                 l1=np.linalg.norm(cpos[knee] - cpos[hip], axis=1),
                 l2=np.linalg.norm(cpos[ankle] - cpos[knee], axis=1),
                 rest_h=cpos[ankle, 2] - c_floor,
