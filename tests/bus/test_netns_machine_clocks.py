@@ -19,7 +19,7 @@ from graph_helpers import read_jsonl, wait_until
 from mocapgraph.bus.manifest import fetch_manifest
 from test_netns_two_machines import A_IP, B_IP, two_namespaces  # noqa: F401 (the fixture)
 
-pytestmark = pytest.mark.slow  # two network namespaces
+pytestmark = [pytest.mark.slow, pytest.mark.timing]  # two network namespaces; an offset judged to 0.5 ms
 
 OFFSET_MS = 37.0
 

@@ -248,6 +248,7 @@ def _rss_kb(pid: int) -> int:
         return next(int(line.split()[1]) for line in fh if line.startswith("VmRSS:"))
 
 
+@pytest.mark.timing  # counts every one of 100 000 datagrams on loopback
 def test_100000_bad_packets_counted_with_memory_flat(run_node) -> None:
     stream = ActorStream("plug_in_gait", rate_hz=120.0, n_bodies=1)
     version = (4, 1)

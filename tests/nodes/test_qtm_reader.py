@@ -208,6 +208,7 @@ def rss_kb(pid: int) -> int:
         return next(int(line.split()[1]) for line in f if line.startswith("VmRSS"))
 
 
+@pytest.mark.timing  # counts every one of 100 000 datagrams on loopback
 def test_100000_malformed_packets_counted_memory_flat_and_a_broken_stream_reconnects(run_node) -> None:
     src = ActorQTMSource("plug_in_gait", 120.0, n_bodies=2)
     good = [q.encode_data(START + i, i * 8333, encode_components(src.frame(START + i), ("3dres",), 120.0))
@@ -288,6 +289,7 @@ def test_the_graph_check_refuses_a_version_qtm_cannot_be_asked_for(tmp_path) -> 
         assert (refused == "") == ok and (ok or "not a QTM RT protocol version" in refused), refused
 
 
+@pytest.mark.timing
 def test_capture_stamps_follow_qtm_time_despite_random_send_delays(run_node) -> None:
     src = ActorQTMSource("plug_in_gait", 240.0, n_bodies=1)
     srv = QTMSimServer(src, port=0, start_frame=START, delay_ms=(0.0, 20.0), seed=4).start()
