@@ -73,16 +73,14 @@ class VideoCameraReader(SourceNode):
         self.estimator_ms = float("nan")
 
     def on_start(self) -> None:
+        self._started_wall = time.time()           # first: the cameras of a rig start within milliseconds
         try:
-            capture = _video()
             from ..video.frames import camera_index
             src = self.camera
             self._source = camera_index(src) if camera_index(src) is not None else resolve_data_path(str(src))
         except INPUT_ERRORS as exc:
             self.fail(str(exc))
             return
-        self._capture = capture
-        self._started_wall = time.time()
         self._worker = threading.Thread(target=self._produce, name=f"{self.name}-estimator", daemon=True)
         self._worker.start()
         self.set_state("starting", f"opening {self.camera}")
@@ -102,6 +100,7 @@ class VideoCameraReader(SourceNode):
         from ..video.estimator import PoseEstimator
         from ..video.frames import VideoFrames
         try:
+            _video()                                # the extra installed (imported here: on_start stays quick)
             frames = VideoFrames(self._source, width=self.width, height=self.height)
             est = PoseEstimator()
         except Exception as exc:  # noqa: BLE001 - a VideoError, or the estimator failing: one line via the loop
