@@ -369,7 +369,11 @@ nodes:
     g.wait_ready(90)
     for cam in CAMS:                 # the demo's 100 frames, every third, at a quarter of their speed
         g.wait_for(f"node {cam} exited with code 0", timeout=90)
+    # the cameras gone, each is named once it has been silent for stall_s; the reader runs on
+    stalled = g.wait_for("stalled: no frame for", timeout=10)
+    assert "[reader] WARNING camera cam0" in stalled
     time.sleep(STATUS_WAIT_S)        # the reader's status once a second: the last groups counted
+    assert g.proc.poll() is None and "Traceback" not in g.output
     assert g.stop() == 0
     rows = [json.loads(line) for line in (tmp_path / "poses.jsonl").read_text().splitlines()]
     status = json.loads([r for r in rows if r["topic"] == "reader_status"][-1]["msg"]["data_json"])
@@ -393,6 +397,6 @@ nodes:
     db = d[:, body][both[:, body]]
     print(f"  body joints {np.median(db):.1f} mm median, {np.percentile(db, 95):.1f} mm p95")
     assert both.mean() > 0.9
-    # measured 12 mm median, 49-105 mm p95 over all 25 joints (the estimator tracks every third frame
+    # measured 12-15 mm median, 49-105 mm p95 over all 25 joints (the estimator tracks every third frame
     # live, every frame in batch: its smoothing differs); bounds about twice those
     assert np.median(d[both]) < 25 and np.percentile(d[both], 95) < 200
