@@ -19,7 +19,10 @@ from ..bus import Input, Interface, Output, Param
 from ..formats.kinect_csv import KINECT_V2_JOINTS, KINECT_V2_PARENTS
 from ..formats.skeleton_trial import topological_order
 from ..messages import ImageLandmarks, SkeletonInfo, SkeletonPose
+from ..video.multiview import off_cameras
 from .source_base import INPUT_ERRORS, SourceNode, resolve_data_path
+
+REPORT_AFTER_GROUPS = 20       # skeletons before a camera's reprojection error is judged against the others'
 
 
 class MultiviewLive(SourceNode):
@@ -174,7 +177,10 @@ class MultiviewLive(SourceNode):
         d["cameras"] = self.grouper.status()
         if self.errors:
             E = np.array(self.errors)
-            d["reprojection_px"] = {n: round(float(np.median(e[np.isfinite(e)])), 1) if np.isfinite(e).any() else None
-                                    for n, e in zip(self.names, E.T)}
+            med = np.array([np.median(e[np.isfinite(e)]) if np.isfinite(e).any() else np.nan for e in E.T])
+            d["reprojection_px"] = {n: None if np.isnan(m) else round(float(m), 1) for n, m in zip(self.names, med)}
+            if len(E) >= REPORT_AFTER_GROUPS:          # a camera far off the others: its calibration, named
+                for line in off_cameras(self.names, med):
+                    self.warn_limited(line.split(":")[0], "%s", line, every_s=30.0)
         d["triangulate_ms"] = round(float(self.triangulate_ms), 2)
         return d

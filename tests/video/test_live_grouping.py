@@ -83,3 +83,13 @@ def test_a_camera_offset_by_more_than_half_a_period_joins_the_others_nearest_fra
     assert len(groups) == 31
     assert groups[0].frames.tolist() == [-1, 0, 0, 0] and groups[-1].frames.tolist() == [29, -1, -1, -1]
     assert all(gr.frames.tolist() == [i, i + 1, i + 1, i + 1] for i, gr in enumerate(groups[1:-1]))
+
+
+def test_a_camera_far_off_the_others_is_named_from_its_median_reprojection_error() -> None:
+    from mocapgraph.video.multiview import off_cameras
+    names = ["a", "b", "c", "d"]
+    assert off_cameras(names, np.array([12.0, 9.0, 14.0, 11.0])) == []
+    assert off_cameras(names, np.array([12.0, 280.0, 14.0, 11.0])) == [
+        "camera b: median reprojection error 280.0 px, the others 12.0 px: check its calibration"]
+    assert off_cameras(names, np.array([12.0, np.nan, 30.0, 11.0])) == [
+        "camera c: median reprojection error 30.0 px, the others 11.5 px: check its calibration"]
