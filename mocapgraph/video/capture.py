@@ -93,14 +93,36 @@ def multiview_trial(dets: list[Detections], cameras: list[Camera], **tri_kw) -> 
     return trial, tri
 
 
-def multiview_from_files(calibration: str | Path, videos: list[Path] | None = None, progress=None,
+def synchronised(dets: list[Detections], cameras: list[Camera]) -> tuple[list[Detections], list[str]]:
+    """The detections (on common frames) with each camera resampled at its time offset found by
+    :func:`mocapgraph.video.sync.estimate_offsets` over the body's joints (shoulders to ankles),
+    and a note of the offsets and the median reprojection error before and after."""
+    from .estimator import LANDMARK_NAMES
+    from .sync import estimate_offsets, shifted
+    body = np.array([i for i, n in enumerate(LANDMARK_NAMES)
+                     if n.split("_")[-1] in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")])
+    off, before, after = estimate_offsets(cameras, np.stack([d.image for d in dets]),
+                                          np.stack([d.visibility for d in dets]), body)
+    out = [d if s == 0 else Detections(d.info, shifted(d.image, s), np.nan_to_num(shifted(d.visibility, s)),
+                                       shifted(d.world, s), d.found, d.times_s, d.ms_per_frame, d.notes)
+           for d, s in zip(dets, off)]
+    rate = dets[0].info.fps
+    listing = ", ".join(f"{c.name} {s:+g} frames ({1000 * s / rate:+.0f} ms)" for c, s in zip(cameras[1:], off[1:]))
+    return out, [f"time offsets from the detections, against {cameras[0].name}: {listing}; median reprojection "
+                 f"error {before:.1f} -> {after:.1f} px"]
+
+
+def multiview_from_files(calibration: str | Path, videos: list[Path] | None = None, progress=None, sync: bool = False,
                          **tri_kw) -> tuple[SkeletonTrial, Triangulation, list[Detections], list[Camera]]:
-    """Read the calibration, match every video to its camera (before any estimation), detect, align,
-    triangulate."""
+    """Read the calibration, match every video to its camera (before any estimation), detect, align
+    (and with ``sync``, find and undo the cameras' time offsets: :func:`synchronised`), triangulate."""
     videos = [Path(v) for v in videos] if videos else videos_beside(calibration)
     cams = cameras_for(calibration, videos)
     dets = [require_person(detect_video(v, progress=progress)) for v in videos]
     dets, notes = aligned(dets, [v.stem for v in videos])
+    if sync:
+        dets, more = synchronised(dets, cams)
+        notes += more
     trial, tri = multiview_trial(dets, cams, **tri_kw)
     trial.notes.extend(notes)
     return trial, tri, dets, cams

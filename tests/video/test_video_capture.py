@@ -332,6 +332,25 @@ def test_cameras_of_different_rates_are_aligned_by_time_stamp(demo) -> None:
     assert all(d.n_frames == 80 for d in cut) and "the first 80 of each used" in notes[0]
 
 
+def test_camera_time_offsets_are_found_from_the_detections(demo) -> None:
+    import dataclasses
+    from mocapgraph.video.capture import synchronised
+    from mocapgraph.video.sync import shifted
+    dets, _ = aligned(demo["dets"], CAMS)
+    late = list(dets)                        # cam02 as if started 5 frames (83 ms) after the others
+    late[1] = dataclasses.replace(dets[1], image=shifted(dets[1].image, -5),
+                                  visibility=np.nan_to_num(shifted(dets[1].visibility, -5)))
+    out, notes = synchronised(late, demo["cams"])
+    print(notes[0])
+    off = [float(n.split(" frames")[0].rsplit(" ", 1)[1]) for n in notes[0].split(": ", 1)[1].split(";")[0].split(", ")]
+    # the demo itself: cam02 +1, cam03 +3.5, cam04 +0.5 frames (cam03 about 58 ms late), error 13.8 -> 11.9 px
+    assert abs(off[0] - 6.0) <= 0.5 and 2.5 <= off[1] <= 4.5 and abs(off[2]) <= 1.0
+    before, after = (float(x) for x in notes[0].split("error ")[1].rstrip(" px").split(" -> "))
+    assert after < 0.9 * before
+    if off[0] == 6.0:        # whole frames: cam02 resampled is its own frames, one on (its natural +1)
+        np.testing.assert_array_equal(out[1].image[20:80], dets[1].image[21:81])
+
+
 def test_bones_held_at_their_first_second_lengths_move_the_joints_little(four) -> None:
     trial, _ = four
     held, lengths = hold_bone_lengths(trial, 1.0)
