@@ -416,6 +416,6 @@ nodes:
     db = d[:, body][both[:, body]]
     print(f"  body joints {np.median(db):.1f} mm median, {np.percentile(db, 95):.1f} mm p95")
     assert both.mean() > 0.9
-    # measured 12-15 mm median, 49-105 mm p95 over all 25 joints (the estimator tracks every third frame
+    # measured 11-15 mm median, 40-105 mm p95 over all 25 joints (the estimator tracks every third frame
     # live, every frame in batch: its smoothing differs); bounds about twice those
     assert np.median(d[both]) < 25 and np.percentile(d[both], 95) < 200
