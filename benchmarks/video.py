@@ -9,9 +9,13 @@ On ONE core (the process pinned to CPU 0), on the Pose2Sim demo (../shared/data/
    canvas, so the person is in it as a webcam would see them; a live camera hands over decoded
    frames): can one core keep up with a live 30 fps camera?
 3. triangulation of the four cameras' 33 landmarks: per frame one call (the live path) and per
-   frame of a whole-clip batch (the node's load path), in microseconds.
+   frame of a whole-clip batch (the node's load path), in microseconds;
+4. first, on every core: four live cameras (graph_configs/multiview_live.yaml, four
+   ``video_camera_reader`` processes streaming the demo as if live, ``multiview_live``
+   triangulating), at 30 fps (every second frame, real time) and at a quarter of that: per camera
+   frames estimated / skipped and the estimator's cost, the frame groups with a skeleton.
 
-Usage: ``python benchmarks/video.py [--frames 60]``. Needs the ``video`` extra and ../shared/data.
+Usage: ``python benchmarks/video.py [--frames 60] [--no-live]``. Needs the ``video`` extra and ../shared/data.
 """
 from __future__ import annotations
 
@@ -90,9 +94,65 @@ def triangulation_cost(reps: int = 200) -> None:
           f"{one:.0f} us per frame called alone, {batch:.0f} us per frame in a {T}-frame batch")
 
 
+def live_cameras(rate_scale: float, every: int) -> None:
+    """The four demo videos as four live cameras (real processes), grouped and triangulated."""
+    import json
+    import signal
+    import subprocess
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        log = tmp / "status.jsonl"
+        start = np.ceil(time.time()) + 15.0                    # after the launch and the estimators' warm-up
+        topics = ["reader_status"] + [f"{c}_status" for c in CAMS]
+        (tmp / "g.yaml").write_text(f"""
+include:
+  - file: {ROOT / "graph_configs" / "multiview_live.yaml"}
+    args: {{viewer: false, session_log: {tmp / "s.jsonl"}, rate_scale: {rate_scale}, every: {every}, start_at: {start}}}
+nodes:
+  - {{name: status_log, type: topic_logger, params: {{path: {log}, topics: {topics}}}}}
+""")
+        proc = subprocess.Popen([sys.executable, "-m", "mocapgraph", "launch", str(tmp / "g.yaml")], cwd=tmp,
+                                env=dict(os.environ, MOCAPGRAPH_MASTER=f"ipc://{tmp}/master"),
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        try:
+            last: dict[str, dict] = {}
+            t_end = time.time() + 120
+            while time.time() < t_end:
+                time.sleep(1.0)
+                if log.exists():
+                    for line in log.read_text().splitlines():
+                        r = json.loads(line)
+                        last[r["topic"]] = r["msg"]
+                done = [last.get(f"{c}_status", {}).get("state") in ("finished", "error") for c in CAMS]
+                if all(done) and time.time() > start + 100 / 60 / rate_scale + 2.5:
+                    break
+        finally:
+            os.killpg(proc.pid, signal.SIGINT)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+    fps = 60.0 * rate_scale / every
+    print(f"four live cameras at {fps:g} fps (the demo's every {every}. frame at {rate_scale:g} x its speed), "
+          f"4 estimator processes + the triangulating node on {os.cpu_count()} cores (load {os.getloadavg()[0]:.1f}):")
+    for c in CAMS:
+        d = json.loads(last.get(f"{c}_status", {}).get("data_json", "{}"))
+        print(f"  {c}: {d.get('read', 0)} frames, {d.get('estimated', 0)} estimated, {d.get('skipped', 0)} skipped, "
+              f"estimator {d.get('estimator_ms', float('nan'))} ms, keeps up {d.get('keeps_up', 'n/a')}")
+    r = json.loads(last.get("reader_status", {}).get("data_json", "{}"))
+    groups = r.get("groups", 0)
+    print(f"  multiview_live: {groups} frame groups, {r.get('triangulated', 0)} with a skeleton "
+          f"({r.get('triangulated', 0) / max(groups, 1):.0%}), triangulation {r.get('triangulate_ms', float('nan'))} ms "
+          f"a group; per camera grouped / missed / lagging: "
+          + ", ".join(f"{n} {v['grouped']}/{v['missed']}/{v['lagging']}" for n, v in r.get("cameras", {}).items()))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60, help="frames per camera (default 60)")
+    ap.add_argument("--no-live", action="store_true", help="leave out the four live cameras")
     a = ap.parse_args()
     if not DEMO.is_dir():
         print(f"skipped: {DEMO} is absent")
@@ -102,8 +162,11 @@ def main() -> int:
     except ImportError:
         print("skipped: the video extra (mediapipe) is not installed")
         return 0
-    os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     print_context(None, f"shared/data/video/pose2sim_demo ({', '.join(CAMS)})", f"first {a.frames} frames")
+    if not a.no_live:             # before pinning this process (its children would inherit one core)
+        for rate_scale in (1.0, 0.25):
+            live_cameras(rate_scale, every=2)
+    os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     print(f"one core ({len(os.sched_getaffinity(0))} CPU in the affinity mask)")
     for label, size in (("1088x1920 (demo)", None), ("640x480", (640, 480))):
         rates = []

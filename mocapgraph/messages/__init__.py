@@ -11,6 +11,7 @@ from .types import (
     CharacterInfo,
     CharacterPose,
     Diagnostics,
+    ImageLandmarks,
     MarkerFrame,
     MarkerLayout,
     NodeCommand,

@@ -119,6 +119,21 @@ class SkeletonPose(Message):
     tracking_state = array("int8", ("J",), "0 not tracked, 1 inferred, 2 tracked")
 
 
+class ImageLandmarks(Message):
+    """One camera frame's 2D body landmarks (the pose estimator's), for triangulating several cameras."""
+
+    type_name = "ImageLandmarks"
+    version = 1
+    camera: str = scalar("str", "camera name, as the calibration names it")
+    frame_number: int = scalar("int", "frame index of the camera (or of the file streamed as if live)")
+    width: int = scalar("int", "image width, px")
+    height: int = scalar("int", "image height, px")
+    rate_hz: float = scalar("float", "the camera's frame rate as captured, Hz (a file streamed as if live: its "
+                            "rate x rate_scale / every)")
+    points = array("float64", ("N", 2), "landmark image positions, px (x right, y down, distorted); NaN if not seen")
+    confidence = array("float32", ("N",), "estimator confidence of each landmark, 0..1 (0 where not seen)")
+
+
 class RigidBodyLayout(Message):
     """Latched: the rigid bodies of a tracking system (names, device ids, parents), RigidBodyFrame order."""
 

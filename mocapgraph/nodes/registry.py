@@ -21,6 +21,7 @@ NODE_TYPES: dict[str, str] = {
     "video_pose_reader": "mocapgraph.nodes.video_pose_reader:VideoPoseReader",
     "multiview_pose": "mocapgraph.nodes.video_pose_reader:MultiviewPose",
     "video_camera_reader": "mocapgraph.nodes.video_camera_reader:VideoCameraReader",
+    "multiview_live": "mocapgraph.nodes.multiview_live:MultiviewLive",
     "bvh_player": "mocapgraph.nodes.bvh_player:BVHPlayer",
     "c3d_segment_reader": "mocapgraph.nodes.c3d_segment_reader:C3DSegmentReader",
     # actor: calibration (latched SkeletonModel) and the per-frame solver (ActorPose)

@@ -5,9 +5,15 @@ comes (``skeleton_pose`` stamped with the frame's capture time). Frames that arr
 estimator is busy are skipped (counted): the stream stays live rather than falling behind. The
 latched ``skeleton_info`` is sent after ``calibrate_s`` seconds of frames, its rest offsets the
 bone lengths observed over them (the short calibration of a stream without a rest pose).
+
+Every estimated frame's 2D landmarks also go out on ``landmarks`` (``ImageLandmarks``, stamped
+with the capture time) for ``multiview_live``, which triangulates several cameras. A file streamed
+as if live is a camera whose frame ``k`` is captured at ``epoch + t_k / rate_scale`` (every
+``every``-th frame of the file): ``start_at`` gives the epoch that the cameras of one rig share.
 """
 from __future__ import annotations
 
+import math
 import queue
 import threading
 import time
@@ -18,7 +24,7 @@ import numpy as np
 from ..bus import Output, Param
 from ..formats.kinect_csv import KINECT_V2_JOINTS, KINECT_V2_PARENTS
 from ..kinematics.rest_offsets import observed_rest_offsets
-from ..messages import SkeletonInfo, SkeletonPose
+from ..messages import ImageLandmarks, SkeletonInfo, SkeletonPose
 from .source_base import INPUT_ERRORS, SourceNode, resolve_data_path
 from .video_pose_reader import _video
 
@@ -34,7 +40,15 @@ class VideoCameraReader(SourceNode):
                            "skeleton_info order")
     skeleton_info = Output("skeleton_info", SkeletonInfo, "latched joint names, parents, rest offsets "
                            "(observed over the first calibrate_s)")
+    landmarks = Output("landmarks", ImageLandmarks, "every estimated frame's 2D landmarks (px, capture-stamped), "
+                       "for multiview_live")
     camera = Param("0", "camera device index (0, camera:0) or a video file streamed at its own rate")
+    camera_name = Param("", "the camera's name in the calibration (empty: the file's stem, or cameraN)")
+    rate_scale = Param(1.0, "a file streamed as if live: its speed (0.25: four times slower)", minimum=0.01)
+    every = Param(1, "a file streamed as if live: take every k-th frame (a camera at the file's rate / k)",
+                  minimum=1)
+    start_at = Param(0.0, "a file streamed as if live: wall-clock time (unix s) of its first frame, shared by "
+                          "the cameras of a rig; -S: the next multiple of S s at least 2 s after start; 0: at once")
     width = Param(640, "requested camera width, px (a file keeps its own)", minimum=0)
     height = Param(480, "requested camera height, px", minimum=0)
     good = Param(0.8, "estimator confidence from which a joint is tracked (good)", minimum=0.0, maximum=1.0)
@@ -51,70 +65,94 @@ class VideoCameraReader(SourceNode):
         self._worker: threading.Thread | None = None
         self._calib: list[np.ndarray] = []
         self._t_first: float | None = None
+        self._started_wall = 0.0
+        self.cam_name = ""
         self.info: SkeletonInfo | None = None
         self.counts = {"read": 0, "estimated": 0, "skipped": 0, "no_person": 0, "published": 0}
         self.source_fps = 0.0
         self.estimator_ms = float("nan")
 
     def on_start(self) -> None:
+        self._started_wall = time.time()           # first: the cameras of a rig start within milliseconds
         try:
-            capture = _video()
             from ..video.frames import camera_index
             src = self.camera
             self._source = camera_index(src) if camera_index(src) is not None else resolve_data_path(str(src))
         except INPUT_ERRORS as exc:
             self.fail(str(exc))
             return
-        self._capture = capture
         self._worker = threading.Thread(target=self._produce, name=f"{self.name}-estimator", daemon=True)
         self._worker.start()
         self.set_state("starting", f"opening {self.camera}")
         self.add_timer(0.005, self._drain, first_delay_s=0.0)
 
     # ----- worker thread: frames -> estimator -> queue ----------------------------------------------
+    def _epoch(self) -> float:
+        """Wall-clock time (s) of a streamed file's first frame (see ``start_at``)."""
+        if self.start_at > 0:
+            return self.start_at
+        if self.start_at < 0:
+            step = -self.start_at
+            return math.ceil((self._started_wall + 2.0) / step) * step
+        return time.time()
+
     def _produce(self) -> None:
-        from ..video.estimator import PoseEstimator, single_view_points
+        from ..video.estimator import PoseEstimator
         from ..video.frames import VideoFrames
         try:
+            _video()                                # the extra installed (imported here: on_start stays quick)
             frames = VideoFrames(self._source, width=self.width, height=self.height)
             est = PoseEstimator()
         except Exception as exc:  # noqa: BLE001 - a VideoError, or the estimator failing: one line via the loop
             self._results.put(exc)
             return
         live_file = frames.camera is None
-        self.source_fps = frames.info.fps
-        t0 = None                                   # a file's clock starts once the first frame is done
+        info = frames.info
+        self.source_fps = info.fps * self.rate_scale / self.every if live_file else info.fps
+        self.cam_name = self.camera_name or (self._source.stem if live_file else f"camera{frames.camera}")
+        epoch = None                                # a file's clock starts once the estimator is warm
         try:
             for i, t, frame in frames:
                 if self._quit.is_set():
                     break
+                if live_file and i % self.every:
+                    continue
                 self.counts["read"] += 1
-                if live_file and t0 is not None:     # a file streamed as if live: wait for its time,
-                    lag = time.monotonic() - t0 - t  # skip the frames the estimator was too slow for
-                    if lag > 1.0 / frames.info.fps:
+                stamp = time.time_ns()
+                if live_file:                        # a file streamed as if live: wait for its time, skip
+                    if epoch is None:                # the frames the estimator was too slow for
+                        est.process(frame)           # the first estimate warms the models up (slow)
+                        epoch = self._epoch()
+                    due = epoch + t / self.rate_scale
+                    lag = time.time() - due
+                    if lag > 1.0 / self.source_fps:
                         self.counts["skipped"] += 1
                         continue
                     if lag < 0:
                         time.sleep(-lag)
-                stamp = time.time_ns()
-                c0 = time.perf_counter()
-                r = est.process(frame)
-                ms = 1000 * (time.perf_counter() - c0)
-                self.estimator_ms = ms if self.estimator_ms != self.estimator_ms else 0.9 * self.estimator_ms + 0.1 * ms
-                self.counts["estimated"] += 1
-                if t0 is None:                       # the first estimate warms the models up (slow)
-                    t0 = time.monotonic() - t
-                if r is None:
-                    self.counts["no_person"] += 1
-                    continue
-                P = single_view_points(r[2][None], r[1][None], missing=self.missing, ground=self.ground)
-                self._put((i, stamp, P, r[1][None]))
+                    stamp = int(round(due * 1e9))
+                self._estimate(est, i, stamp, frame)
             self._results.put(None)                # the end of a file
         except Exception as exc:  # noqa: BLE001
             self._results.put(exc)
         finally:
             est.close()
             frames.close()
+
+    def _estimate(self, est, index: int, stamp: int, frame: np.ndarray) -> None:
+        from ..video.estimator import N_LANDMARKS, single_view_points
+        c0 = time.perf_counter()
+        r = est.process(frame)
+        ms = 1000 * (time.perf_counter() - c0)
+        self.estimator_ms = ms if self.estimator_ms != self.estimator_ms else 0.9 * self.estimator_ms + 0.1 * ms
+        self.counts["estimated"] += 1
+        size = (frame.shape[1], frame.shape[0])
+        if r is None:
+            self.counts["no_person"] += 1
+            self._put((index, stamp, None, np.full((N_LANDMARKS, 2), np.nan), np.zeros(N_LANDMARKS), size))
+            return
+        P = single_view_points(r[2][None], r[1][None], missing=self.missing, ground=self.ground)
+        self._put((index, stamp, P, r[0], r[1], size))
 
     def _put(self, item) -> None:
         try:
@@ -144,8 +182,13 @@ class VideoCameraReader(SourceNode):
             if isinstance(item, Exception):
                 self.fail(str(item) if isinstance(item, INPUT_ERRORS) else f"{self.camera}: {type(item).__name__}: {item}")
                 return
-            index, stamp, P, vis = item
-            joints, q = kinect_joints(P, vis, good=self.good, missing=self.missing)
+            index, stamp, P, uv, vis, size = item
+            self.landmarks.publish(ImageLandmarks(camera=self.cam_name, frame_number=int(index), width=size[0],
+                                                  height=size[1], rate_hz=float(self.source_fps), points=uv,
+                                                  confidence=vis.astype(np.float32)), capture_ns=stamp)
+            if P is None:
+                continue
+            joints, q = kinect_joints(P, vis[None], good=self.good, missing=self.missing)
             if self.info is None and not self._calibrating(joints[0], q[0]):
                 continue
             self.skeleton_pose.publish(SkeletonPose(source_id=self.source_id, frame_number=int(index),

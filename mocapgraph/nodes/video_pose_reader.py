@@ -136,6 +136,8 @@ class MultiviewPose(_EstimatedPlayer):
     good_px = Param(30.0, "reprojection error up to which a joint seen by >= 3 cameras is good, px", minimum=1.0)
     hold_bones_s = Param(1.0, "hold every bone at its median length over the first seconds (0: raw triangulation)",
                          minimum=0.0)
+    sync = Param(False, "find each camera's time offset from the detections and undo it (videos not started "
+                        "together)")
 
     def check_inputs(self, path: Path) -> None:
         self._videos = [resolve_data_path(str(v)) for v in (self.videos or [])] or self._capture.videos_beside(path)
@@ -153,12 +155,16 @@ class MultiviewPose(_EstimatedPlayer):
             self._progress(video[0] * total + k, total * n)
 
         trial, tri, dets, cams = self._capture.multiview_from_files(path, self._videos, progress=progress,
-                                                                    reject_px=self.reject_px, good_px=self.good_px)
+                                                                    sync=self.sync, reject_px=self.reject_px,
+                                                                    good_px=self.good_px)
         if self.hold_bones_s > 0:
             trial, _ = self._capture.hold_bone_lengths(trial, self.hold_bones_s)
         self.camera_errors = {d.info.name: round(float(np.nanmedian(tri.error_px[k])), 1) for k, d in enumerate(dets)}
         for line in camera_report(cams, tri):
             self.log.warning("%s", line)
+        for note in trial.notes:
+            if note.startswith("time offsets"):
+                self.log.info("%s", note)
         return trial
 
     def source_kind(self, trial: SkeletonTrial) -> str:

@@ -93,44 +93,79 @@ def multiview_trial(dets: list[Detections], cameras: list[Camera], **tri_kw) -> 
     return trial, tri
 
 
-def multiview_from_files(calibration: str | Path, videos: list[Path] | None = None, progress=None,
+def synchronised(dets: list[Detections], cameras: list[Camera]) -> tuple[list[Detections], list[str]]:
+    """The detections (on common frames) with each camera resampled at its time offset found by
+    :func:`mocapgraph.video.sync.estimate_offsets` over the body's joints (shoulders to ankles),
+    and a note of the offsets and the median reprojection error before and after."""
+    from .estimator import LANDMARK_NAMES
+    from .sync import estimate_offsets, shifted
+    body = np.array([i for i, n in enumerate(LANDMARK_NAMES)
+                     if n.split("_")[-1] in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle")])
+    off, before, after = estimate_offsets(cameras, np.stack([d.image for d in dets]),
+                                          np.stack([d.visibility for d in dets]), body)
+    out = [d if s == 0 else Detections(d.info, shifted(d.image, s), np.nan_to_num(shifted(d.visibility, s)),
+                                       shifted(d.world, s), d.found, d.times_s, d.ms_per_frame, d.notes)
+           for d, s in zip(dets, off)]
+    rate = dets[0].info.fps
+    listing = ", ".join(f"{c.name} {s:+g} frames ({1000 * s / rate:+.0f} ms)" for c, s in zip(cameras[1:], off[1:]))
+    return out, [f"time offsets from the detections, against {cameras[0].name}: {listing}; median reprojection "
+                 f"error {before:.1f} -> {after:.1f} px"]
+
+
+def multiview_from_files(calibration: str | Path, videos: list[Path] | None = None, progress=None, sync: bool = False,
                          **tri_kw) -> tuple[SkeletonTrial, Triangulation, list[Detections], list[Camera]]:
-    """Read the calibration, match every video to its camera (before any estimation), detect, align,
-    triangulate."""
+    """Read the calibration, match every video to its camera (before any estimation), detect, align
+    (and with ``sync``, find and undo the cameras' time offsets: :func:`synchronised`), triangulate."""
     videos = [Path(v) for v in videos] if videos else videos_beside(calibration)
     cams = cameras_for(calibration, videos)
     dets = [require_person(detect_video(v, progress=progress)) for v in videos]
     dets, notes = aligned(dets, [v.stem for v in videos])
+    if sync:
+        dets, more = synchronised(dets, cams)
+        notes += more
     trial, tri = multiview_trial(dets, cams, **tri_kw)
     trial.notes.extend(notes)
     return trial, tri, dets, cams
 
 
-def hold_bone_lengths(trial: SkeletonTrial, calibrate_s: float) -> tuple[SkeletonTrial, np.ndarray]:
-    """The trial with every bone held at its length calibrated over the first ``calibrate_s``
-    seconds (median over the frames whose two ends are tracked), as the marker calibration holds
-    its segments: each child is put back along its observed direction from its (already placed)
-    parent, parents first; a joint whose parent is missing keeps its position. Returns the new
-    trial and the lengths [J] (NaN for roots and bones never seen in the calibration)."""
-    P = trial.positions
-    par = trial.parents
-    calib = trial.times_s <= calibrate_s
-    good = trial.tracking_state == 2
+def calibrated_lengths(P: np.ndarray, good: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """[J] each bone's median length over the frames of P [T, J, 3] whose two ends are good
+    (bool [T, J]); NaN for roots and bones never seen."""
+    par = np.asarray(parents)
     child = np.flatnonzero(par >= 0)
     lengths = np.full(len(par), np.nan)
     seg = np.linalg.norm(P[:, child] - P[:, par[child]], axis=-1)       # [T, C]
-    both = good[:, child] & good[:, par[child]] & calib[:, None]
+    both = good[:, child] & good[:, par[child]]
     seen = both.any(axis=0)
     lengths[child[seen]] = np.nanmedian(np.where(both, seg, np.nan)[:, seen], axis=0)
+    return lengths
+
+
+def hold_bones(P: np.ndarray, parents: np.ndarray, order, lengths: np.ndarray) -> np.ndarray:
+    """P [T, J, 3] with every bone of known length put back at it: each child along its observed
+    direction from its (already placed) parent, parents first (``order``: topological); a joint whose
+    parent is missing keeps its position."""
     out = P.copy()
-    for j in trial.topological_order:          # once per joint for the whole clip (vectorised over frames)
-        p = par[j]
+    for j in order:          # once per joint for the whole clip (vectorised over frames)
+        p = parents[j]
         if p < 0 or not np.isfinite(lengths[j]):
             continue
         d = P[:, j] - P[:, p]
         n = np.linalg.norm(d, axis=-1, keepdims=True)
         ok = np.isfinite(out[:, p]).all(-1) & np.isfinite(n[:, 0]) & (n[:, 0] > 1e-9)
         out[ok, j] = out[ok, p] + d[ok] / n[ok] * lengths[j]
+    return out
+
+
+def hold_bone_lengths(trial: SkeletonTrial, calibrate_s: float) -> tuple[SkeletonTrial, np.ndarray]:
+    """The trial with every bone held at its length calibrated over the first ``calibrate_s``
+    seconds (median over the frames whose two ends are tracked, :func:`calibrated_lengths`), as
+    the marker calibration holds its segments (:func:`hold_bones`). Returns the new trial and the
+    lengths [J] (NaN for roots and bones never seen in the calibration)."""
+    calib = trial.times_s <= calibrate_s
+    good = (trial.tracking_state == 2) & calib[:, None]
+    lengths = calibrated_lengths(trial.positions, good, trial.parents)
+    out = hold_bones(trial.positions, trial.parents, trial.topological_order, lengths)
     held = SkeletonTrial(trial.names, trial.parents, out, trial.tracking_state, trial.timestamps_ns, trial.rate_hz,
                          source=trial.source, notes=list(trial.notes), extra=dict(trial.extra),
                          conversions=list(trial.conversions) + [f"bone lengths held at their median over the "

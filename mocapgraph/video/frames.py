@@ -90,6 +90,7 @@ class VideoFrames:
             name = f"camera:{self.camera}"
             if not self.cap.isOpened():
                 raise VideoError(name, "cannot be opened (no such camera device, or busy)")
+            self.cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)    # the newest frame, not one queued (where the backend can)
             if width and height:
                 self.cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
                 self.cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)

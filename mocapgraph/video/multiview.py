@@ -316,10 +316,18 @@ def camera_report(cameras: list[Camera], tri: Triangulation, *, factor: float = 
     the others' (a camera with a wrong calibration): empty if they all agree."""
     med = np.array([np.nanmedian(tri.error_px[k]) if np.isfinite(tri.error_px[k]).any() else np.nan
                     for k in range(len(cameras))])
+    return off_cameras([c.name for c in cameras], med, factor=factor)
+
+
+def off_cameras(names: list[str], med: np.ndarray, *, factor: float = 2.0) -> list[str]:
+    """:func:`camera_report`'s lines from each camera's median reprojection error ``med`` [C] px."""
     lines = []
-    for k, c in enumerate(cameras):
-        others = np.nanmedian(np.delete(med, k))
+    for k, name in enumerate(names):
+        rest = np.delete(med, k)
+        if not np.isfinite(rest).any():
+            continue
+        others = np.nanmedian(rest)
         if np.isfinite(med[k]) and med[k] > factor * others:
-            lines.append(f"camera {c.name}: median reprojection error {med[k]:.1f} px, the others "
+            lines.append(f"camera {name}: median reprojection error {med[k]:.1f} px, the others "
                          f"{others:.1f} px: check its calibration")
     return lines

@@ -100,3 +100,15 @@ def test_video_camera_reader_without_the_camera_fails_in_one_line(run_node) -> N
     detail = n.messages("reader_status")[-1].detail
     assert detail == "camera:57: cannot be opened (no such camera device, or busy)"
     assert n.log().strip().splitlines() == [f"ERROR {detail}"]
+
+
+def test_multiview_live_with_a_camera_the_calibration_lacks_fails_in_one_line(run_node, shared_data) -> None:
+    calib = shared_data / "video" / "pose2sim_demo" / "Calib.qca.txt"
+    n = run_node("multiview_live", {"file": str(calib), "cameras": ["cam01", "side"]})
+    assert n.wait_exit(30) == 1
+    detail = n.messages("reader_status")[-1].detail
+    assert detail == "Calib.qca.txt: no camera for side (its cameras: cam01, cam02, cam03, cam04)"
+    assert n.log().strip().splitlines() == [f"ERROR {detail}"]
+    n = run_node("multiview_live", {"file": str(calib), "cameras": ["cam01"]})
+    assert n.wait_exit(30) == 1
+    assert n.log().strip().splitlines() == ["ERROR needs at least two cameras to triangulate, got 1"]

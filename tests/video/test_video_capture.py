@@ -28,6 +28,8 @@ from mocapgraph.video.multiview import (CalibrationError, camera_report, project
 DEMO = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "video" / "pose2sim_demo").resolve()
 CAMS = ["cam01", "cam02", "cam03", "cam04"]
 L = {n: i for i, n in enumerate(LANDMARK_NAMES)}
+STATUS_WAIT_S = 2.5
+START_IN_S = 12.0      # the live cameras' start after the launch: its 6 processes ready and estimators warm
 BONES = {"thigh": ("hip", "knee"), "shank": ("knee", "ankle"), "upper arm": ("shoulder", "elbow"),
          "forearm": ("elbow", "wrist")}
 
@@ -140,8 +142,10 @@ def test_four_cameras_reprojection_and_bone_lengths(four) -> None:
     good = tri.quality == 2
     assert good[:, body].mean() > 0.8
     # over the frames whose two ends are good (>= 3 cameras agree): measured thigh 2.8-3.2 %, shank
-    # 1.7-4.2 %, upper arm 2.4-4.3 %; the forearm misses the issue's 5 % (5.3-5.5 %, the estimator's
-    # wrists jitter between views): bound 6 % for it, stated
+    # 1.7-4.2 %, upper arm 2.4-4.3 %; the forearm misses the issue's 5 % (5.3-5.5 %: the estimator's
+    # wrist drifts along the forearm alike in every view; weighting, rejection, filtering, camera
+    # choice and mirrored estimates tried, none under 5 % on both sides: docs/video.md, "The
+    # forearm"): bound 6 % for it, stated
     for bone, bound in (("thigh", 0.05), ("shank", 0.05), ("upper arm", 0.05), ("forearm", 0.06)):
         for side in ("left", "right"):
             length = _bone(tri.points, side, bone)
@@ -272,30 +276,38 @@ def test_triangulated_skeleton_retargeted_and_tracked_without_a_fall(four) -> No
     w.set_pose(0, res.local_rotations[0], res.root_positions[0])
     feet = w.bodies[0].feet
     dt = 1.0 / trial.rate_hz
-    sim, lowest = [], []
+    sim, lowest, target = [], [], []
     for i in range(len(res.joint_positions)):
         c = cond.condition(res.joint_positions[i], res.local_rotations[i], res.root_positions[i], res.joint_quality[i])
         w.set_target(0, c.positions, c.orientations, float(trial.times_s[i]))
         w.step(dt)
         sim.append(w.joint_positions(0))
         lowest.append(w.lowest_point(0))
-    sim, lowest = np.array(sim), np.array(lowest)
+        target.append(c.positions)
+    sim, lowest, target = np.array(sim), np.array(lowest), np.array(target)
     root = sim[:, ch.root, 2]
     standing = w.bodies[0].standing_height
     err = np.linalg.norm(sim - res.joint_positions, axis=-1)
     pen = np.maximum(0.0, -lowest) * 1000
-    contact = res.contact[1:] & res.contact[:-1]                         # [F-1, 2] (l, r) in contact twice
-    step = np.linalg.norm(np.diff(sim[:, feet, :2], axis=0), axis=2) * 1000   # [F-1, n feet] mm/frame
-    legs = [0 if ch.joint_names[f].lower().find("left") >= 0 or ch.joint_names[f].endswith(("L", "_l")) else 1
-            for f in feet]
-    skate = np.concatenate([step[contact[:, s], k] for k, s in enumerate(legs)])
+    # skating as the physics tests measure it (#9, tests/physics/test_tracking.py, benchmarks/physics_feet.py):
+    # contact from the target foot (within contact_height of its rest height, slower than contact_speed,
+    # this frame and the one before), skating the simulated foot's horizontal step between such frames
+    tv = np.r_[np.zeros((1, len(feet))), np.linalg.norm(np.diff(target[:, feet, :2], axis=0), axis=2) / dt]
+    contact = (target[:, feet, 2] < w.pins.rest_z[None] + params.contact_height) & (tv < params.contact_speed)
+    both = contact.copy()
+    both[0] = False
+    both[1:] &= contact[:-1]
+    step = np.r_[np.zeros((1, len(feet))), np.linalg.norm(np.diff(sim[:, feet, :2], axis=0), axis=2)]
+    skate = 1000 * step[both]
     print(f"\nroot {root.min():.3f}-{root.max():.3f} m (standing {standing:.3f}); tracking error mean "
           f"{1000 * err.mean():.0f} mm; floor penetration p95 {np.percentile(pen, 95):.1f} mm, max {pen.max():.1f} mm; "
-          f"skating over {skate.size} contact foot-frames mean {skate.mean() if skate.size else 0:.2f} mm/frame, "
-          f"max {skate.max() if skate.size else 0:.2f}; resets {w.resets}")
+          f"skating over {skate.size} contact foot-frames (of {contact.sum()} in contact) mean {skate.mean():.2f} "
+          f"mm/frame, p95 {np.percentile(skate, 95):.2f}, max {skate.max():.2f} (60 Hz); resets {w.resets}")
     assert root.min() > 0.5 * standing and w.resets == 0                 # no fall
     assert pen.max() <= 10.0                                              # feet on the floor, not in it
     assert err.mean() < 0.08
+    # measured 18 contact foot-frames, mean 1.13 mm/frame, max 2.76 (at 60 Hz: 68 mm/s mean)
+    assert skate.size >= 10 and skate.mean() < 2.0 and skate.max() < 5.0
 
 
 def test_cameras_of_different_rates_are_aligned_by_time_stamp(demo) -> None:
@@ -320,6 +332,25 @@ def test_cameras_of_different_rates_are_aligned_by_time_stamp(demo) -> None:
     assert all(d.n_frames == 80 for d in cut) and "the first 80 of each used" in notes[0]
 
 
+def test_camera_time_offsets_are_found_from_the_detections(demo) -> None:
+    import dataclasses
+    from mocapgraph.video.capture import synchronised
+    from mocapgraph.video.sync import shifted
+    dets, _ = aligned(demo["dets"], CAMS)
+    late = list(dets)                        # cam02 as if started 5 frames (83 ms) after the others
+    late[1] = dataclasses.replace(dets[1], image=shifted(dets[1].image, -5),
+                                  visibility=np.nan_to_num(shifted(dets[1].visibility, -5)))
+    out, notes = synchronised(late, demo["cams"])
+    print(notes[0])
+    off = [float(n.split(" frames")[0].rsplit(" ", 1)[1]) for n in notes[0].split(": ", 1)[1].split(";")[0].split(", ")]
+    # the demo itself: cam02 +1, cam03 +3.5, cam04 +0.5 frames (cam03 about 58 ms late), error 13.8 -> 11.9 px
+    assert abs(off[0] - 6.0) <= 0.5 and 2.5 <= off[1] <= 4.5 and abs(off[2]) <= 1.0
+    before, after = (float(x) for x in notes[0].split("error ")[1].rstrip(" px").split(" -> "))
+    assert after < 0.9 * before
+    if off[0] == 6.0:        # whole frames: cam02 resampled is its own frames, one on (its natural +1)
+        np.testing.assert_array_equal(out[1].image[20:80], dets[1].image[21:81])
+
+
 def test_bones_held_at_their_first_second_lengths_move_the_joints_little(four) -> None:
     trial, _ = four
     held, lengths = hold_bone_lengths(trial, 1.0)
@@ -333,3 +364,58 @@ def test_bones_held_at_their_first_second_lengths_move_the_joints_little(four) -
     assert spread < 1e-9
     assert np.nanmedian(moved) < 20 and np.nanpercentile(moved, 95) < 70     # measured 10 and 45 mm
     np.testing.assert_array_equal(np.isfinite(held.positions), np.isfinite(trial.positions))
+
+
+# ----- several live cameras: four processes streaming the demo as if live, grouped and triangulated --
+def test_four_live_cameras_grouped_by_capture_time_match_the_batch_triangulation(demo, four, launch_graph,
+                                                                                   tmp_path) -> None:
+    import json
+    import time
+    from mocapgraph.video.estimator import kinect_joints
+    graph = tmp_path / "live.yaml"
+    start = np.ceil(time.time()) + START_IN_S          # the rig's shared start, after launch and warm-up
+    graph.write_text(f"""
+include:
+  - file: {Path(__file__).resolve().parents[2] / "graph_configs" / "multiview_live.yaml"}
+    args: {{viewer: false, session_log: {tmp_path / "s.jsonl"}, hold_bones_s: 0.0, every: 3,
+           start_at: {start}}}
+nodes:
+  - name: poses
+    type: topic_logger
+    params: {{path: {tmp_path / "poses.jsonl"}, topics: [skeleton_pose, reader_status]}}
+""")
+    g = launch_graph(graph)
+    g.wait_ready(90)
+    for cam in CAMS:                 # the demo's 100 frames, every third, at a quarter of their speed
+        g.wait_for(f"node {cam} exited with code 0", timeout=90)
+    # the cameras gone, each is named once it has been silent for stall_s; the reader runs on
+    stalled = g.wait_for("stalled: no frame for", timeout=10)
+    assert "[reader] WARNING camera cam0" in stalled
+    time.sleep(STATUS_WAIT_S)        # the reader's status once a second: the last groups counted
+    assert g.proc.poll() is None and "Traceback" not in g.output
+    assert g.stop() == 0
+    rows = [json.loads(line) for line in (tmp_path / "poses.jsonl").read_text().splitlines()]
+    status = json.loads([r for r in rows if r["topic"] == "reader_status"][-1]["msg"]["data_json"])
+    print(json.dumps(status))
+    groups, with_skeleton = status["groups"], status["triangulated"]
+    assert groups >= 30 and with_skeleton >= 0.95 * groups
+    poses = [r for r in rows if r["topic"] == "skeleton_pose"]
+    frames = np.array([p["msg"]["frame_number"] for p in poses])
+    live = np.array([p["msg"]["joint_positions"] for p in poses], dtype=np.float64)
+    stamps = np.array([p["capture_ns"] for p in poses])
+    assert len(poses) == status["published"] >= 0.9 * groups and (np.diff(stamps) > 0).all()
+    assert (frames % 3 == 0).all() and np.allclose(np.diff(stamps) / 1e9, np.diff(frames) / 60 / 0.25, atol=1e-6)
+    # the batch triangulation of every frame (the estimator tracking all 100 frames), on the same frames
+    trial, tri = four
+    batch = trial.positions[frames]
+    d = np.linalg.norm(live - batch, axis=-1) * 1000
+    both = np.isfinite(d)
+    print(f"live vs batch over {len(frames)} frames: joints {np.median(d[both]):.1f} mm median, "
+          f"{np.percentile(d[both], 95):.1f} mm p95, {both.mean():.0%} of joints in both")
+    body = [4, 5, 6, 8, 9, 10, 12, 13, 14, 16, 17, 18]        # shoulders, elbows, wrists, hips, knees, ankles
+    db = d[:, body][both[:, body]]
+    print(f"  body joints {np.median(db):.1f} mm median, {np.percentile(db, 95):.1f} mm p95")
+    assert both.mean() > 0.9
+    # measured 11-15 mm median, 40-105 mm p95 over all 25 joints (the estimator tracks every third frame
+    # live, every frame in batch: its smoothing differs); bounds about twice those
+    assert np.median(d[both]) < 25 and np.percentile(d[both], 95) < 200
