@@ -440,8 +440,9 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
     J = len(jl)
     hinge = np.asarray(definition.joint_hinge, dtype=bool)
     point_centre: dict[int, tuple] = {}
+    own: dict[tuple[int, int], np.ndarray] = {}
     if (jpts >= 0).any():
-        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low,
+        fit, point_centre, own = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low,
                                              picker.pick, picker.chosen, sigma,
                                              cluster_rotation_cov(ref, w0, sigma) if white else None)
     rot_cov = cluster_rotation_cov(ref, w0, sigma) if white else None
@@ -453,6 +454,8 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
         offsets[j, 0], offsets[j, 1] = centre - c0[la[j]], centre - c0[lb[j]]
         methods[j] = "prior" if low[j] else "sphere"
         resid[j], cov[j] = rms_j, cov_j
+    for (l, j), point in own.items():   # the points limb's own view of its joint (see _own_point)
+        offsets[j, int(lb[j] == l)] = point - c0[l]
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
     functional_hinge = picker.settle(joint_base, offsets, methods, resid, point_centre, hinge, c0, la, lb, fit, cov)
     before = joint_base.copy()
@@ -892,6 +895,7 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
     names = definition.joint_names
     pl = np.flatnonzero((jpts >= 0).any(1))
     centre: dict[int, tuple[np.ndarray, float]] = {}
+    own: dict[tuple[int, int], np.ndarray] = {}
     for l in pl:
         for j in jpts[l][jpts[l] >= 0]:
             m = jl[j, 0] if jl[j, 1] == l else jl[j, 1]
@@ -923,13 +927,15 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
                 if got is not None:
                     centre[int(j)] = (got.point, got.spread, got.cov)
                 chosen[int(j)] = centre[int(j)][0]
+            if noise is not None:
+                own[(int(l), int(j))] = _own_point(ref[l], y, centre[int(j)][0], noise)
     vmask = jpts[pl] >= 0
     js = np.where(vmask, jpts[pl], 0)
     other = np.where(jl[js, 1] == pl[:, None], jl[js, 0], jl[js, 1])
     cref = np.zeros(js.shape + (3,))
     for (i, k), j in np.ndenumerate(js):
         if vmask[i, k]:
-            cref[i, k] = centre[int(j)][0]
+            cref[i, k] = own.get((int(pl[i]), int(j)), centre[int(j)][0])
     cref = np.where(vmask[..., None], cref, np.nan)
     seen = np.einsum("tpkij,pkj->tpki", fit.rotation[:, other], cref) + fit.translation[:, other]
     cur2 = np.concatenate([gather_limb_markers(markers, idx[pl]), seen], axis=2)
@@ -940,7 +946,33 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
     for k in merged:
         if k != "n_visible":
             merged[k][:, pl] = getattr(fit2, k)
-    return type(fit)(**merged), centre
+    return type(fit)(**merged), centre, own
+
+
+def _own_point(ref: np.ndarray, y: np.ndarray, c: np.ndarray, noise: np.ndarray, iterations: int = 8) -> np.ndarray:
+    """A joint centre in the base frame of the limb whose markers (ref [K,3], NaN padded) found it
+    as points: the point at each marker's distance from the centre c over the gym (y [F,K,3] the
+    markers in the other limb's frame, noise [F,K,3,3] their covariance: E|y - c|^2 = r^2 + tr).
+
+    The two limbs' base frames are each placed by one noisy frame; c, carried over unchanged,
+    would sit millimetres (the other limb's tilt times its lever arm) from where this limb's own
+    markers put it, and a rigid fit of the limb through it would be a wrong body. Directions the
+    distances leave open (a line-like cluster's spin) stay at c."""
+    ok = np.isfinite(ref).all(-1)
+    d2 = ((y - c) ** 2).sum(-1) - np.trace(noise, axis1=-2, axis2=-1)          # [F,K]
+    fin = np.isfinite(d2)
+    r = np.sqrt(np.maximum(np.where(fin, d2, 0.0).sum(0) / np.maximum(fin.sum(0), 1), 0.0))
+    ok &= fin.any(0)
+    p, r = ref[ok], r[ok]
+    w = np.asarray(c, dtype=float).copy()
+    mu = 1e-3   # a weak pull to c: only the directions the distances leave open follow it
+    for _ in range(iterations):
+        v = w - p
+        n = np.maximum(np.linalg.norm(v, axis=-1), 1e-9)
+        jac = np.vstack([v / n[:, None], np.sqrt(mu) * np.eye(3)])
+        res = np.concatenate([n - r, np.sqrt(mu) * (w - c)])
+        w = w - np.linalg.lstsq(jac, res, rcond=None)[0]
+    return w
 
 
 def _bone_lengths(model: ActorModel, markers: np.ndarray) -> np.ndarray:

@@ -70,9 +70,10 @@ def test_near_collinear_cluster_is_solved_from_its_markers_as_points(collinear):
               f"SE mm {np.round(1000 * q.centre_se, 2)} methods {q.method}; poses mean {1000 * e.mean():.2f} max {1000 * e.max():.2f} mm")
         assert (np.linalg.norm(err, axis=-1) <= 0.002).all()
         assert q.reliable.all() and (res.joint_quality == 2).all()
-        # Issue 27 asks mean <= 1.5 mm: met on 801 (1.32) and 802 (1.29), NOT on 803 (2.11 mm),
-        # whose forearm cluster is itself weak (rotation sd over 5 deg); measured max 2.9-4.0 mm.
-        assert e.mean() <= (0.0015 if seed != 803 else 0.0025) and e.max() <= 0.005
+        # Issue 27 asks mean <= 1.5 mm, max <= 5 mm: measured 1.29 / 1.25 / 1.47 mm, max 1.9-2.8 mm
+        # (803 gave 2.04 mm while the hand's model held the wrist where the forearm's base frame
+        # put it, 3.6-4.9 mm short of the hand markers' own distances; see calibrate._own_point).
+        assert e.mean() <= 0.0015 and e.max() <= 0.005
         # The joints next to the line-like cluster were found from its markers as points, and say so.
         near = [j for j in range(model.n_joints) if collinear in model.joint_limbs[j]]
         assert all(q.from_points[j] and "cannot fix its orientation" in q.inputs[j]["points"] for j in near)
