@@ -454,9 +454,11 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
         offsets[j, 0], offsets[j, 1] = centre - c0[la[j]], centre - c0[lb[j]]
         methods[j] = "prior" if low[j] else "sphere"
         resid[j], cov[j] = rms_j, cov_j
-    for (l, j), point in own.items():   # the points limb's own view of its joint (see _own_point)
-        offsets[j, int(lb[j] == l)] = point - c0[l]
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
+    for (l, j), point in own.items():
+        # The points limb's own view of its joint (see _own_point); the base pose keeps the joint
+        # where the limb that found it holds it (the rules placing its neighbours read it there).
+        offsets[j, int(lb[j] == l)] = point - c0[l]
     functional_hinge = picker.settle(joint_base, offsets, methods, resid, point_centre, hinge, c0, la, lb, fit, cov)
     before = joint_base.copy()
     _place_hinge_centres(definition, joint_base, offsets, axes, functional_hinge, methods, cands, fit, picker.chosen,
@@ -927,19 +929,23 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
                 if got is not None:
                     centre[int(j)] = (got.point, got.spread, got.cov)
                 chosen[int(j)] = centre[int(j)][0]
-            if noise is not None:
+            if noise is not None and (idx[l] >= 0).sum() >= MIN_MARKERS:
+                # (a cluster of two has no mean shape: its one base frame's distance is as wrong
+                # as the joint's place, and the centre stays as the other limb holds it)
                 own[(int(l), int(j))] = _own_point(ref[l], y, centre[int(j)][0], noise)
     vmask = jpts[pl] >= 0
     js = np.where(vmask, jpts[pl], 0)
     other = np.where(jl[js, 1] == pl[:, None], jl[js, 0], jl[js, 1])
-    cref = np.zeros(js.shape + (3,))
+    cref = np.zeros(js.shape + (3,))   # the centre where the other limb holds it ...
+    mine = np.zeros(js.shape + (3,))   # ... and where this limb's own markers put it
     for (i, k), j in np.ndenumerate(js):
         if vmask[i, k]:
-            cref[i, k] = own.get((int(pl[i]), int(j)), centre[int(j)][0])
+            cref[i, k] = centre[int(j)][0]
+            mine[i, k] = own.get((int(pl[i]), int(j)), cref[i, k])
     cref = np.where(vmask[..., None], cref, np.nan)
     seen = np.einsum("tpkij,pkj->tpki", fit.rotation[:, other], cref) + fit.translation[:, other]
     cur2 = np.concatenate([gather_limb_markers(markers, idx[pl]), seen], axis=2)
-    ref2 = np.concatenate([ref[pl], cref], axis=1)
+    ref2 = np.concatenate([ref[pl], np.where(vmask[..., None], mine, np.nan)], axis=1)
     w2 = np.concatenate([w0[pl], vmask.astype(float)], axis=1)
     fit2 = fit_rigid(ref2, cur2, w2)
     merged = {k: getattr(fit, k).copy() for k in fit.__dataclass_fields__}
