@@ -307,7 +307,8 @@ def calibrate(
         raise CalibrationError(f"{source}: unknown centre method {bad[0]!r} (known: {', '.join(METHODS)})")
     n_static = int(parts[0][1]) if parts else markers.shape[0]
     idx, seen, lost_note = _drop_lost_markers(definition, idx, markers, source)
-    base = markers[_base_frame(seen, labels, base_frame, rate_hz, max_base_search_s, source)]
+    b0 = _base_frame(seen, labels, base_frame, rate_hz, max_base_search_s, source)
+    base = markers[b0]
     ref = gather_limb_markers(base, idx)                      # [L,K,3]
     c0 = np.nanmean(ref, axis=1)                              # [L,3]
     w0 = (idx >= 0).astype(float)
@@ -342,7 +343,7 @@ def calibrate(
                            max_uncertainty_mm / 1000.0 if white else np.inf)
     fit, quality, offsets, joint_base, axes = _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low,
                                                        picker, cands, huber_k, irls_iterations, source, auto,
-                                                       sigma if np.isfinite(sigma) else 0.0, white)
+                                                       sigma if np.isfinite(sigma) else 0.0, white, (base, b0))
     warns, static_only = _notes(definition, markers, parts, n_static, quality, cands, source,
                                 min_rom_deg, max_uncertainty_mm if white else None)
     model = _actor_model(definition, idx, base, fit, c0, offsets, joint_base, axes, quality, markers, rate_hz,
@@ -431,7 +432,7 @@ def _auto_joint_points(definition: Any, jpts: np.ndarray, rot_sd: np.ndarray,
 
 
 def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker, cands, huber_k,
-             irls_iterations, source, auto, sigma, white):
+             irls_iterations, source, auto, sigma, white, base_at=None):
     """Every joint's centre, its method, standard error and reliability: the functional fits
     (points limbs first), then the picker's choice per joint and the hinges placed on their axes.
     Returns (fit, JointQuality, offsets [J,2,3], joint_base [J,3], axes [J,3])."""
@@ -444,7 +445,7 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
     if (jpts >= 0).any():
         fit, point_centre, own = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low,
                                              picker.pick, picker.chosen, sigma,
-                                             cluster_rotation_cov(ref, w0, sigma) if white else None)
+                                             cluster_rotation_cov(ref, w0, sigma) if white else None, base_at)
     rot_cov = cluster_rotation_cov(ref, w0, sigma) if white else None
     if rot_cov is not None:
         rot_cov[(jpts >= 0).any(1)] = 0.0  # limbs fitted through joint points: not their own clusters' noise
@@ -889,7 +890,7 @@ def _sphere_centre(y: np.ndarray, prior: np.ndarray, noise: np.ndarray | None = 
 
 
 def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low, pick=None, chosen=None,
-                     sigma=0.0, rot_cov=None):
+                     sigma=0.0, rot_cov=None, base_at=None):
     """Joint centres used as fit points (sphere fit of the limb's markers in the other limb's
     frame; the midpoint prior for joints that hardly moved, ``low`` bool[J]), then the limbs'
     rigid fits redone with those centres as extra points."""
@@ -948,6 +949,26 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
     ref2 = np.concatenate([ref[pl], np.where(vmask[..., None], mine, np.nan)], axis=1)
     w2 = np.concatenate([w0[pl], vmask.astype(float)], axis=1)
     fit2 = fit_rigid(ref2, cur2, w2)
+    moved = np.array([any((int(l), int(j)) in own for j in jpts[l][jpts[l] >= 0]) for l in pl], dtype=bool)
+    if base_at is not None and moved.any():
+        # The limb's own body (its markers and its own point) placed where the base frame's markers
+        # and joint put it, as the other limbs' bodies are: the limbs' relative rotations (a hinge
+        # axis in the base frame) then start from the base frame, not from a tilted body.
+        base, b0 = base_at
+        r0, t0 = fit2.rotation[b0], fit2.translation[b0]                           # [P,3,3], [P,3]
+        ok = moved & fit2.valid[b0]
+        placed = np.einsum("pij,pkj->pki", r0, ref2) + t0[:, None]
+        ref2 = np.where(ok[:, None, None], placed, ref2)
+        for i in np.flatnonzero(ok):
+            l = int(pl[i])
+            has = idx[l] >= 0
+            ref[l, has] = ref2[i, : idx.shape[1]][has]
+            base[idx[l][has]] = ref[l, has]
+            c0[l] = r0[i] @ c0[l] + t0[i]
+            for kk, j in enumerate(jpts[l]):
+                if j >= 0 and (l, int(j)) in own:
+                    own[(l, int(j))] = ref2[i, idx.shape[1] + kk]
+        fit2 = fit_rigid(ref2, cur2, w2)
     merged = {k: getattr(fit, k).copy() for k in fit.__dataclass_fields__}
     for k in merged:
         if k != "n_visible":
