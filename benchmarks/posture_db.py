@@ -20,8 +20,21 @@ with its spread. This database is one performer's 37 s (460-830 postures after d
 held-out block's turns, kick or walk back have few near neighbours, so a wrong pick among far ones
 weighs much against the full-space error (Eq 6 is relative to it); Shum & Ho's matched against a
 large library of the same kinds of motion. Re-ranking the 8 nearest at 7 dimensions in the full
-space (printed beside, for comparison; not what the live completion does) brings it under 3 %
-in 14 of 16 folds (median 0.05 % / 1.34 %).
+space (printed beside; what the live completion does since issue 27: ``PostureDB.rerank``, the
+kernels ``nearest_m`` / ``best_full``) brings it under 3 % in 14 of 16 folds (median 0.05 % /
+1.34 %); Figure 5's columns stay the paper's reduced search alone.
+Our measure is the paper's (Eq 5: the sum over the 20 joints' 60 coordinates of the squared
+distance between query and match, in the full space; Eq 6: the r-dimension matches' summed e_r over
+the full-space matches' summed e_60, minus one; both postures normalised for root and heading).
+What differs is what it is relative to: e_60, the full-space match's own error, is set by how
+near the database's nearest posture is. Shum & Ho matched live Kinect postures against ~300
+postures (filtered from ~1500) of other performers' optical captures; ours match one performer
+against 460-830 of his own. The last section measures both candidate causes over the same folds:
+noise on the queries (Kinect-like, 10-30 mm) leaves the figure at 4.4-5.4 %; a sparser database
+lowers it (every 4th frame: ~300 postures, 2.7 % median; every 16th: 1.5 %) while the absolute
+match error grows (the full-space match 15 -> 28 mm RMS a joint): Eq 6 under 3 % is what a database
+of Shum & Ho's size gives here, and it says the reduced search loses little against a far
+neighbour, not that the match is near.
 Run: .venv/bin/python benchmarks/posture_db.py [--png PATH]
 """
 from __future__ import annotations
@@ -140,6 +153,83 @@ def splits(ch, cmu) -> None:
               f"max {rows[:, -1].max():.2f}")
 
 
+NOISE_MM = (0.0, 10.0, 20.0, 30.0)
+
+
+def paper_conditions(ch, cmu) -> None:
+    """Eq 6 at 7 dimensions over the same folds as the query's conditions move towards Shum & Ho's:
+    their queries were live Kinect postures (noisy by centimetres) matched against other
+    performers' optical captures; ours are one noise-free performer matched against itself. Eq 6
+    divides by the full-space match's own error e_60, so how near the nearest posture is decides
+    the percentage as much as the reduced search does: printed beside it, per query, as the RMS
+    joint distance sqrt(e_60 / J) (mm)."""
+    rate = 120.0
+    sess = synthetic_targets(1.0, 37.5)
+    n = len(sess.positions)
+    edges = np.linspace(0, n, N_FOLDS + 1).astype(int)
+    gap = int(GAP_S * rate)
+    J = len(ch.joint_names)
+    print_context("0 (the performer) and 1 (np.random.default_rng: N(0, sigma) on every query joint coordinate)",
+                  "as in the fixed splits", f"the same {N_FOLDS} folds; queries noised by sigma per coordinate before "
+                  "normalising", section="paper's conditions")
+    for label, extra in (("synthetic only", None), ("with CMU 131_01", cmu)):
+        if label != "synthetic only" and extra is None:
+            continue
+        print(f"{label}: query noise sigma mm | Eq 6 at 7 dimensions over the folds: median, min, max % | "
+              "full-space match error sqrt(e_60 / J) per query, median mm")
+        dbs = []
+        for a, b in zip(edges[:-1], edges[1:]):
+            keep = np.ones(n, dtype=bool)
+            keep[max(a - gap, 0): b + gap] = False
+            pos, rot = [sess.positions[keep]], [sess.local_rotations[keep]]
+            if extra is not None:
+                pos.append(extra[0])
+                rot.append(extra[1])
+            dbs.append(PostureDB.build(ch.joint_names, ch.parents, np.concatenate(pos), np.concatenate(rot), k=7,
+                                       min_ssd=0.005))
+        for sigma in NOISE_MM:
+            rng = np.random.default_rng(1)
+            pct, near = [], []
+            for db, (a, b) in zip(dbs, zip(edges[:-1], edges[1:])):
+                q = sess.positions[a:b] + rng.normal(0.0, sigma / 1000.0, sess.positions[a:b].shape)
+                qn = normalise(db.frame, q)[0].reshape(b - a, -1)
+                full = db.positions.reshape(len(db), -1)
+                e = {}
+                for r in (7, db.components.shape[0]):
+                    db.set_k(int(r))
+                    e[r] = ((qn - full[db.nearest(db.project(qn))]) ** 2).sum(1)
+                top = db.components.shape[0]
+                pct.append(100.0 * (e[7].sum() - e[top].sum()) / e[top].sum())
+                near.append(np.sqrt(e[top] / J))
+            pct = np.array(pct)
+            print(f"  {sigma:5.0f} | {np.median(pct):6.2f} {pct.min():6.2f} {pct.max():6.2f} | "
+                  f"{1000 * np.median(np.concatenate(near)):6.1f}")
+    print("database size (synthetic only, noise-free queries): every k-th frame of each fold's database | "
+          "postures kept (median) | Eq 6 at 7: median, min, max % | sqrt(e / J) median mm: full space, 7 dimensions")
+    for step in (16, 8, 4, 2, 1):
+        pct, near, near7, size = [], [], [], []
+        for a, b in zip(edges[:-1], edges[1:]):
+            keep = np.ones(n, dtype=bool)
+            keep[max(a - gap, 0): b + gap] = False
+            sel = np.flatnonzero(keep)[::step]
+            db = PostureDB.build(ch.joint_names, ch.parents, sess.positions[sel], sess.local_rotations[sel], k=7,
+                                 min_ssd=0.005)
+            qn = normalise(db.frame, sess.positions[a:b])[0].reshape(b - a, -1)
+            full = db.positions.reshape(len(db), -1)
+            e = {}
+            for r in (7, db.components.shape[0]):
+                db.set_k(int(r))
+                e[r] = ((qn - full[db.nearest(db.project(qn))]) ** 2).sum(1)
+            top = db.components.shape[0]
+            pct.append(100.0 * (e[7].sum() - e[top].sum()) / e[top].sum())
+            near.append(np.sqrt(e[top] / J))
+            near7.append(np.sqrt(e[7] / J))
+            size.append(len(db))
+        pct = np.array(pct)
+        print(f"  every {step:2d} | {int(np.median(size)):5d} | {np.median(pct):6.2f} {pct.min():6.2f} {pct.max():6.2f} | "
+              f"{1000 * np.median(np.concatenate(near)):6.1f} {1000 * np.median(np.concatenate(near7)):6.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--png", default=str(ROOT / "artifacts" / "posture_db_figure5.png"))
@@ -208,6 +298,7 @@ def main() -> None:
           f"(target <= 0.05 ms; the faster is chosen at load); load average {os.getloadavg()[0]:.1f}")
     print(f"  in-run baseline, the earlier three-operation brute force: {t2:.4f} ms (one matmul: x{t2 / tb:.2f})")
     splits(ch, cmu)
+    paper_conditions(ch, cmu)
     try:
         import matplotlib
         matplotlib.use("Agg")

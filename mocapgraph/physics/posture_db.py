@@ -134,6 +134,7 @@ class PostureDB:
     sources: tuple[str, ...] = ()
     search: str = "brute"        # "brute" or "kdtree" (numpy path)
     search_compiled: str = "brute"   # the same choice for the compiled path (complete_into)
+    rerank: int = 8              # the nearest this many in the reduced space, re-ranked in the full one
     _tree: cKDTree | None = field(default=None, repr=False)
     _reduced: np.ndarray | None = field(default=None, repr=False)
 
@@ -189,7 +190,8 @@ class PostureDB:
                                     np.zeros(len(self._reduced)),
                                     np.ascontiguousarray(self.positions, dtype=np.float64),
                                     np.ascontiguousarray(self.rotations, dtype=np.float64), np.zeros(self.k),
-                                    np.zeros(4)))
+                                    np.zeros(4), np.zeros(max(1, min(int(self.rerank), len(self._reduced))),
+                                                          dtype=np.int64)))
 
     @property
     def kernel_arrays(self) -> tuple:
@@ -263,7 +265,10 @@ class PostureDB:
         if not pk.query(pos, self._k):
             filled[:] = False
             return -1
-        idx = int(self._tree.query(self._k[10], k=1)[1])   # q, the query's reduced coordinates
+        cands = self._k[12]
+        got = self._tree.query(self._k[10], k=cands.shape[0])[1]   # q, the query's reduced coordinates
+        cands[:] = np.atleast_1d(got)
+        idx = int(pk.best_full(pos, self._k, cands.shape[0]))
         pk.fill(idx, self._k, pos, rot, filled)
         return idx
 

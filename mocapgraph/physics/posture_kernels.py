@@ -37,6 +37,7 @@ class DBArrays(NamedTuple):
     db_rot: np.ndarray     # [N, J, 4] wxyz local rotations (the root's without heading)
     q: np.ndarray          # [k] scratch: the query's reduced coordinates
     info: np.ndarray       # [4] scratch: the query's (yaw rad, origin xyz m)
+    cands: np.ndarray      # [m] int64 scratch: the m nearest in the reduced space, re-ranked in full
 
 
 class Skeleton(NamedTuple):
@@ -54,7 +55,7 @@ def query(pos, dba) -> bool:
     the root (else the first complete left/right pair's midpoint), heading from the first complete
     pair turned to zero, missing coordinates taking ``mean`` [3J] (``dba``: :class:`DBArrays`).
     ``info`` [4] gets (yaw rad, origin xyz m). False when no pair is complete (no heading)."""
-    pair_l, pair_r, root, mean, basis, _, _, _, _, _, q, info = dba
+    pair_l, pair_r, root, mean, basis, _, _, _, _, _, q, info, _ = dba
     found = -1
     for p in range(pair_l.shape[0]):
         l, r = pair_l[p], pair_r[p]
@@ -114,11 +115,68 @@ def nearest(q, reduced_t, sqnorm, dist) -> int:
 
 
 @kernel
+def nearest_m(q, reduced_t, sqnorm, dist, cands) -> int:
+    """The ``m = len(cands)`` postures nearest to ``q`` [k] in the reduced space, nearest first
+    (first of equals), into ``cands``; returns how many (m, or N when fewer). One pass over the
+    distances (as :func:`nearest`'s) keeping the m best in order; ``dist`` is scratch."""
+    N = reduced_t.shape[1]
+    for n in range(N):
+        dist[n] = sqnorm[n]
+    for a in range(q.shape[0]):
+        w = -2.0 * q[a]
+        for n in range(N):
+            dist[n] += w * reduced_t[a, n]
+    m = min(cands.shape[0], N)
+    count = 0
+    for n in range(N):
+        d = dist[n]
+        if count == m and not d < dist[cands[m - 1]]:
+            continue
+        at = count if count < m else m - 1
+        while at > 0 and d < dist[cands[at - 1]]:   # after its equals: first of equals stays first
+            if at < m:
+                cands[at] = cands[at - 1]
+            at -= 1
+        cands[at] = n
+        if count < m:
+            count += 1
+    return count
+
+
+@kernel
+def best_full(pos, dba, count) -> int:
+    """Of the first ``count`` candidates (``cands``), the posture nearest to the query ``pos`` [J, 3]
+    in the full space over its known joints (normalised by ``info`` from :func:`query`: the sum of
+    squared differences, Shum & Ho's Eq 5 on what is seen); first of equals, so the reduced
+    space's nearest wins a tie."""
+    db_pos, info, cands = dba[8], dba[11], dba[12]
+    yaw, ox, oy, oz = info[0], info[1], info[2], info[3]
+    c, s = math.cos(-yaw), math.sin(-yaw)
+    best = np.inf
+    at = cands[0]
+    for t in range(count):
+        n = cands[t]
+        d = 0.0
+        for j in range(pos.shape[0]):
+            dx, dy, dz = pos[j, 0] - ox, pos[j, 1] - oy, pos[j, 2] - oz
+            if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)):
+                continue
+            e0 = (dx * c + dy * -s) - db_pos[n, j, 0]
+            e1 = (dx * s + dy * c) - db_pos[n, j, 1]
+            e2 = dz - db_pos[n, j, 2]
+            d += e0 * e0 + e1 * e1 + e2 * e2
+        if d < best:
+            best = d
+            at = n
+    return at
+
+
+@kernel
 def fill(index, dba, pos, rot, filled) -> None:
     """Missing rows (non-finite) of ``pos`` [J, 3] and ``rot`` [J, 4] taken, in place, from database
     posture ``index`` put at the query's origin and heading (``info`` from :func:`query`); the
     root's rotation gets the heading back. ``filled`` [J] marks the rows taken."""
-    _, _, root, _, _, _, _, _, db_pos, db_rot, _, info = dba
+    _, _, root, _, _, _, _, _, db_pos, db_rot, _, info, _ = dba
     yaw, ox, oy, oz = info[0], info[1], info[2], info[3]
     c, s = math.cos(yaw), math.sin(yaw)
     hc, hs = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
@@ -141,12 +199,14 @@ def fill(index, dba, pos, rot, filled) -> None:
 
 @kernel
 def complete_brute(pos, rot, dba, filled) -> int:
-    """:func:`query`, :func:`nearest` and :func:`fill` in one call (the brute-force search):
-    the match index, or -1 when the query cannot be normalised (nothing filled)."""
+    """:func:`query`, :func:`nearest_m`, :func:`best_full` and :func:`fill` in one call (the
+    brute-force search, its m nearest re-ranked in the full space): the match index, or -1 when the
+    query cannot be normalised (nothing filled)."""
     if not query(pos, dba):
         filled[:] = False
         return -1
-    idx = nearest(dba[10], dba[5], dba[6], dba[7])   # q, reduced_t, sqnorm, dist
+    count = nearest_m(dba[10], dba[5], dba[6], dba[7], dba[12])   # q, reduced_t, sqnorm, dist, cands
+    idx = best_full(pos, dba, count)
     fill(idx, dba, pos, rot, filled)
     return idx
 
@@ -264,7 +324,8 @@ def warm() -> None:
     pl, pr = np.array([1], dtype=np.int64), np.array([2], dtype=np.int64)
     filled = np.zeros(J, dtype=np.bool_)
     dba = tuple(DBArrays(pl, pr, 0, np.zeros(3 * J), np.ones((k, 3 * J)), np.zeros((k, N)), np.zeros(N), np.zeros(N),
-                         np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), np.zeros(k), np.zeros(4)))
+                         np.zeros((N, J, 3)), np.tile([1.0, 0, 0, 0], (N, J, 1)), np.zeros(k), np.zeros(4),
+                         np.zeros(2, dtype=np.int64)))
     complete_brute(pos, rot, dba, filled)
     skel = tuple(Skeleton(0, np.arange(J, dtype=np.int64), np.array([-1, 0, 0], dtype=np.int64),
                           np.tile([1.0, 0, 0, 0], (J, 1))))
@@ -273,6 +334,7 @@ def warm() -> None:
     # the entry points called directly too (the k-d tree path, the search timing)
     nearest(dba[10], dba[5], dba[6], dba[7])
     if query(pos, dba):
+        best_full(pos, dba, nearest_m(dba[10], dba[5], dba[6], dba[7], dba[12]))
         fill(0, dba, pos, rot, filled)
     p2, r2 = np.zeros((J, 3)), np.zeros((J, 4))
     clean(pos, rot, np.full(J, 2, dtype=np.int8), True, p2, r2)

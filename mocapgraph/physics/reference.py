@@ -239,7 +239,20 @@ def match(db: PostureDB, positions: np.ndarray) -> tuple[int, float, np.ndarray,
     norm, yaw, origin = normalise_one(db.frame, positions)
     if norm is None:
         return -1, 0.0, np.zeros(3), False
-    return int(db.nearest(db.project(norm.reshape(1, -1)))[0]), yaw, origin, True
+    return rerank(db, norm), yaw, origin, True
+
+
+def rerank(db: PostureDB, norm: np.ndarray) -> int:
+    """The numpy reference of the search with re-ranking: the ``db.rerank`` postures nearest to a
+    normalised posture [J, 3] (NaN rows missing) in the reduced space (nearest first, first of
+    equals), the one nearest in the full space over its known joints (first of equals)."""
+    red = db.project(norm.reshape(1, -1))[0]
+    d = db._sqnorm - 2.0 * (db._reduced @ red)
+    m = max(1, min(int(db.rerank), len(d)))
+    cands = np.argsort(d, kind="stable")[:m]
+    known = np.isfinite(norm).all(1)
+    full = ((norm[known][None] - db.positions[cands][:, known]) ** 2).sum((1, 2))
+    return int(cands[int(np.argmin(full))])
 
 def posture_world(db: PostureDB, index: int, yaw: float, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Database posture ``index`` put at ``origin`` with heading ``yaw``: positions, local rotations."""

@@ -10,6 +10,7 @@ shoulder-elbow-wrist plane rule of the calibration holds, as for an anatomical h
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,3 +158,43 @@ def random_jig(rng: np.random.Generator, n_markers: int | tuple[int, int] = 3,
     for s in range(1, S):
         base[s] = base[s - 1] @ rel[s]
     return Jig(np.asarray(bones, dtype=float), local, hinge, base, coll)
+
+
+def true_model(model, base_markers: np.ndarray, base_joints: np.ndarray, noise: float):
+    """A calibrated ActorModel with a jig's true geometry in its place (base markers [M,3] and
+    joints [J,3] of the base pose: frame 0 of a trial) and every limb's RMS at the true marker
+    noise (m): the global fit is then the maximum-likelihood fit, the floor of a per-frame fit."""
+    idx = np.asarray(model.limb_markers)
+    cen = np.array([base_markers[r[r >= 0]].mean(0) for r in idx])
+    return dataclasses.replace(model, base_markers=base_markers.copy(), limb_centroid=cen,
+                               joint_base=base_joints.copy(), offsets=base_joints[:, None] - cen[model.joint_limbs],
+                               limb_rms=np.full(len(idx), float(noise)))
+
+
+def issue_arm(seed: int, collinear: int | None = None) -> list[np.ndarray]:
+    """Per-frame joint errors (m) of the global fit on one of issue 27's arms (1 mm noise,
+    calibrated on a 1440-frame 70-degree gym): [held poses [5,J], a fresh 240-frame 60-degree
+    trial [240,J]] by the calibrated model, then the same by the true model at maximum-likelihood
+    weights (every marker 1 / (1 mm)^2)."""
+    import warnings
+
+    from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, calibrate
+    from mocapgraph.kinematics.skeleton import SkeletonDefinition
+    from mocapgraph.kinematics.solving.solver import FrameSolver
+
+    rng = np.random.default_rng(seed)
+    jig = random_jig(rng, collinear=collinear)
+    definition = SkeletonDefinition.from_layout_dict(jig.layout(), "random_jig")
+    clean, joints = jig.forward(jig.rom_trial(rng, 1440, 70.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)
+        model = calibrate(definition, clean + rng.normal(scale=0.001, size=clean.shape), rate_hz=120.0)
+    pose_m, pose_j = jig.forward(jig.test_poses(rng, 5), origin=np.array([0.3, -0.1, 1.2]))
+    pose_m = pose_m + rng.normal(scale=0.001, size=pose_m.shape)
+    c2, j2 = jig.forward(jig.rom_trial(rng, 240, 60.0))
+    c2 = c2 + rng.normal(scale=0.001, size=c2.shape)
+    out = []
+    for m in (model, true_model(model, clean[0], joints[0], 0.001)):
+        for x, j in ((pose_m, pose_j), (c2, j2)):
+            out.append(np.linalg.norm(FrameSolver(m, max_gap_s=0, fit="global").solve(x).joints - j, axis=-1))
+    return out

@@ -219,3 +219,18 @@ def test_apply_wrenches_kernel_moves_the_model_as_mj_applyFT(clip):
     w.data.qfrc_applied[:] = qfrc
     mujoco.mj_forward(w.model, w.data)
     np.testing.assert_allclose(qacc_kernel, w.data.qacc, rtol=1e-9, atol=1e-7)
+
+
+def test_nearest_m_keeps_the_m_nearest_in_order_first_of_equals():
+    # The re-ranked search's candidates (issue 27): the kernel's one pass against a stable sort,
+    # on exact values with many ties (integers, halves: no rounding in either).
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        N, m = int(rng.integers(1, 40)), int(rng.integers(1, 10))
+        red = rng.integers(-3, 4, size=(3, N)).astype(float)
+        q = rng.integers(-2, 3, size=3) * 0.5
+        cands = np.zeros(m, np.int64)
+        count = pk.nearest_m(q, red, (red * red).sum(0), np.zeros(N), cands)
+        ref = np.argsort((red * red).sum(0) - 2 * q @ red, kind="stable")[:m]
+        assert count == len(ref)
+        np.testing.assert_array_equal(cands[:count], ref)

@@ -149,3 +149,20 @@ def test_lean_world_orientations_equal_the_characters_forward_kinematics(walk):
     q = world_orientations(walk.local_rotations[40], ch.rest_rotations, ch.parents, ch._levels)
     q *= np.where(q[:, :1] < 0, -1.0, 1.0)
     np.testing.assert_allclose(q, fk * np.where(fk[:, :1] < 0, -1.0, 1.0), atol=1e-12)
+
+
+def test_re_ranked_search_finds_the_full_space_nearest_more_often(db, walk):
+    # Issue 27 (Shum & Ho's Eq 6 at 7 dimensions): the 8 nearest in the reduced space re-ranked in
+    # the full space, as the live completion searches, against the reduced search alone.
+    from mocapgraph.physics.reference import rerank
+
+    qn = normalise(db.frame, walk.positions[::4])[0]
+    full = db.positions.reshape(len(db), -1)
+    flat = qn.reshape(len(qn), -1)
+    e = lambda idx: ((flat - full[idx]) ** 2).sum(1)
+    e_full = e(np.argmin(((flat[:, None] - full[None]) ** 2).sum(-1), axis=1))
+    e_7 = e(db.nearest(db.project(flat)))
+    e_re = e(np.array([rerank(db, p) for p in qn]))
+    pct7, pct_re = (100 * (x.sum() - e_full.sum()) / e_full.sum() for x in (e_7, e_re))
+    print(f"\nEq 6 at 7 dimensions over {len(qn)} walk queries: reduced search {pct7:.2f} %, re-ranked {pct_re:.2f} %")
+    assert (e_re <= e_7 + 1e-12).all() and pct_re < pct7

@@ -307,7 +307,8 @@ def calibrate(
         raise CalibrationError(f"{source}: unknown centre method {bad[0]!r} (known: {', '.join(METHODS)})")
     n_static = int(parts[0][1]) if parts else markers.shape[0]
     idx, seen, lost_note = _drop_lost_markers(definition, idx, markers, source)
-    base = markers[_base_frame(seen, labels, base_frame, rate_hz, max_base_search_s, source)]
+    b0 = _base_frame(seen, labels, base_frame, rate_hz, max_base_search_s, source)
+    base = markers[b0]
     ref = gather_limb_markers(base, idx)                      # [L,K,3]
     c0 = np.nanmean(ref, axis=1)                              # [L,3]
     w0 = (idx >= 0).astype(float)
@@ -342,7 +343,7 @@ def calibrate(
                            max_uncertainty_mm / 1000.0 if white else np.inf)
     fit, quality, offsets, joint_base, axes = _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low,
                                                        picker, cands, huber_k, irls_iterations, source, auto,
-                                                       sigma if np.isfinite(sigma) else 0.0, white)
+                                                       sigma if np.isfinite(sigma) else 0.0, white, (base, b0))
     warns, static_only = _notes(definition, markers, parts, n_static, quality, cands, source,
                                 min_rom_deg, max_uncertainty_mm if white else None)
     model = _actor_model(definition, idx, base, fit, c0, offsets, joint_base, axes, quality, markers, rate_hz,
@@ -431,7 +432,7 @@ def _auto_joint_points(definition: Any, jpts: np.ndarray, rot_sd: np.ndarray,
 
 
 def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker, cands, huber_k,
-             irls_iterations, source, auto, sigma, white):
+             irls_iterations, source, auto, sigma, white, base_at=None):
     """Every joint's centre, its method, standard error and reliability: the functional fits
     (points limbs first), then the picker's choice per joint and the hinges placed on their axes.
     Returns (fit, JointQuality, offsets [J,2,3], joint_base [J,3], axes [J,3])."""
@@ -440,10 +441,11 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
     J = len(jl)
     hinge = np.asarray(definition.joint_hinge, dtype=bool)
     point_centre: dict[int, tuple] = {}
+    own: dict[tuple[int, int], np.ndarray] = {}
     if (jpts >= 0).any():
-        fit, point_centre = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low,
+        fit, point_centre, own = _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low,
                                              picker.pick, picker.chosen, sigma,
-                                             cluster_rotation_cov(ref, w0, sigma) if white else None)
+                                             cluster_rotation_cov(ref, w0, sigma) if white else None, base_at)
     rot_cov = cluster_rotation_cov(ref, w0, sigma) if white else None
     if rot_cov is not None:
         rot_cov[(jpts >= 0).any(1)] = 0.0  # limbs fitted through joint points: not their own clusters' noise
@@ -454,6 +456,10 @@ def _centres(definition, markers, idx, ref, w0, fit, jpts, c0, rom, low, picker,
         methods[j] = "prior" if low[j] else "sphere"
         resid[j], cov[j] = rms_j, cov_j
     joint_base = 0.5 * ((c0[la] + offsets[:, 0]) + (c0[lb] + offsets[:, 1]))
+    for (l, j), point in own.items():
+        # The points limb's own view of its joint (see _own_point); the base pose keeps the joint
+        # where the limb that found it holds it (the rules placing its neighbours read it there).
+        offsets[j, int(lb[j] == l)] = point - c0[l]
     functional_hinge = picker.settle(joint_base, offsets, methods, resid, point_centre, hinge, c0, la, lb, fit, cov)
     before = joint_base.copy()
     _place_hinge_centres(definition, joint_base, offsets, axes, functional_hinge, methods, cands, fit, picker.chosen,
@@ -884,7 +890,7 @@ def _sphere_centre(y: np.ndarray, prior: np.ndarray, noise: np.ndarray | None = 
 
 
 def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, low, pick=None, chosen=None,
-                     sigma=0.0, rot_cov=None):
+                     sigma=0.0, rot_cov=None, base_at=None):
     """Joint centres used as fit points (sphere fit of the limb's markers in the other limb's
     frame; the midpoint prior for joints that hardly moved, ``low`` bool[J]), then the limbs'
     rigid fits redone with those centres as extra points."""
@@ -892,6 +898,7 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
     names = definition.joint_names
     pl = np.flatnonzero((jpts >= 0).any(1))
     centre: dict[int, tuple[np.ndarray, float]] = {}
+    own: dict[tuple[int, int], np.ndarray] = {}
     for l in pl:
         for j in jpts[l][jpts[l] >= 0]:
             m = jl[j, 0] if jl[j, 1] == l else jl[j, 1]
@@ -923,24 +930,76 @@ def _fit_point_limbs(definition, markers, idx, ref, w0, fit, jpts, c0, source, l
                 if got is not None:
                     centre[int(j)] = (got.point, got.spread, got.cov)
                 chosen[int(j)] = centre[int(j)][0]
+            if noise is not None and (idx[l] >= 0).sum() >= MIN_MARKERS:
+                # (a cluster of two has no mean shape: its one base frame's distance is as wrong
+                # as the joint's place, and the centre stays as the other limb holds it)
+                own[(int(l), int(j))] = _own_point(ref[l], y, centre[int(j)][0], noise)
     vmask = jpts[pl] >= 0
     js = np.where(vmask, jpts[pl], 0)
     other = np.where(jl[js, 1] == pl[:, None], jl[js, 0], jl[js, 1])
-    cref = np.zeros(js.shape + (3,))
+    cref = np.zeros(js.shape + (3,))   # the centre where the other limb holds it ...
+    mine = np.zeros(js.shape + (3,))   # ... and where this limb's own markers put it
     for (i, k), j in np.ndenumerate(js):
         if vmask[i, k]:
             cref[i, k] = centre[int(j)][0]
+            mine[i, k] = own.get((int(pl[i]), int(j)), cref[i, k])
     cref = np.where(vmask[..., None], cref, np.nan)
     seen = np.einsum("tpkij,pkj->tpki", fit.rotation[:, other], cref) + fit.translation[:, other]
     cur2 = np.concatenate([gather_limb_markers(markers, idx[pl]), seen], axis=2)
-    ref2 = np.concatenate([ref[pl], cref], axis=1)
+    ref2 = np.concatenate([ref[pl], np.where(vmask[..., None], mine, np.nan)], axis=1)
     w2 = np.concatenate([w0[pl], vmask.astype(float)], axis=1)
     fit2 = fit_rigid(ref2, cur2, w2)
+    moved = np.array([any((int(l), int(j)) in own for j in jpts[l][jpts[l] >= 0]) for l in pl], dtype=bool)
+    if base_at is not None and moved.any():
+        # The limb's own body (its markers and its own point) placed where the base frame's markers
+        # and joint put it, as the other limbs' bodies are: the limbs' relative rotations (a hinge
+        # axis in the base frame) then start from the base frame, not from a tilted body.
+        base, b0 = base_at
+        r0, t0 = fit2.rotation[b0], fit2.translation[b0]                           # [P,3,3], [P,3]
+        ok = moved & fit2.valid[b0]
+        placed = np.einsum("pij,pkj->pki", r0, ref2) + t0[:, None]
+        ref2 = np.where(ok[:, None, None], placed, ref2)
+        for i in np.flatnonzero(ok):
+            l = int(pl[i])
+            has = idx[l] >= 0
+            ref[l, has] = ref2[i, : idx.shape[1]][has]
+            base[idx[l][has]] = ref[l, has]
+            c0[l] = r0[i] @ c0[l] + t0[i]
+            for kk, j in enumerate(jpts[l]):
+                if j >= 0 and (l, int(j)) in own:
+                    own[(l, int(j))] = ref2[i, idx.shape[1] + kk]
+        fit2 = fit_rigid(ref2, cur2, w2)
     merged = {k: getattr(fit, k).copy() for k in fit.__dataclass_fields__}
     for k in merged:
         if k != "n_visible":
             merged[k][:, pl] = getattr(fit2, k)
-    return type(fit)(**merged), centre
+    return type(fit)(**merged), centre, own
+
+
+def _own_point(ref: np.ndarray, y: np.ndarray, c: np.ndarray, noise: np.ndarray, iterations: int = 8) -> np.ndarray:
+    """A joint centre in the base frame of the limb whose markers (ref [K,3], NaN padded) found it
+    as points: the point at each marker's distance from the centre c over the gym (y [F,K,3] the
+    markers in the other limb's frame, noise [F,K,3,3] their covariance: E|y - c|^2 = r^2 + tr).
+
+    The two limbs' base frames are each placed by one noisy frame; c, carried over unchanged,
+    would sit millimetres (the other limb's tilt times its lever arm) from where this limb's own
+    markers put it, and a rigid fit of the limb through it would be a wrong body. Directions the
+    distances leave open (a line-like cluster's spin) stay at c."""
+    ok = np.isfinite(ref).all(-1)
+    d2 = ((y - c) ** 2).sum(-1) - np.trace(noise, axis1=-2, axis2=-1)          # [F,K]
+    fin = np.isfinite(d2)
+    r = np.sqrt(np.maximum(np.where(fin, d2, 0.0).sum(0) / np.maximum(fin.sum(0), 1), 0.0))
+    ok &= fin.any(0)
+    p, r = ref[ok], r[ok]
+    w = np.asarray(c, dtype=float).copy()
+    mu = 1e-3   # a weak pull to c: only the directions the distances leave open follow it
+    for _ in range(iterations):
+        v = w - p
+        n = np.maximum(np.linalg.norm(v, axis=-1), 1e-9)
+        jac = np.vstack([v / n[:, None], np.sqrt(mu) * np.eye(3)])
+        res = np.concatenate([n - r, np.sqrt(mu) * (w - c)])
+        w = w - np.linalg.lstsq(jac, res, rcond=None)[0]
+    return w
 
 
 def _bone_lengths(model: ActorModel, markers: np.ndarray) -> np.ndarray:

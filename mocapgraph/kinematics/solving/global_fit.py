@@ -59,6 +59,14 @@ class GlobalFit:
         L = idx.shape[0]
         self.L = L
         sig = np.where(np.isfinite(model.limb_rms), model.limb_rms, 0.0)
+        # A limb fitted through joint points (a two-marker or line-like cluster): its calibrated
+        # RMS is mostly the points' error (the other limb's tilt times its lever arm), which the
+        # joint terms here model; its own markers are as noisy as the capture's other markers.
+        jp = np.asarray(model.limb_joint_points)
+        pts = (jp >= 0).any(1) if jp.size else np.zeros(L, dtype=bool)
+        own = ~pts & (sig > 0)
+        if pts.any() and own.any():
+            sig = np.where(pts, np.minimum(sig, np.median(sig[own])), sig)
         self._wm = (idx >= 0) / np.maximum(sig, o.marker_sigma_min)[:, None] ** 2    # [L,K]
         jl = np.asarray(model.joint_limbs)
         ok = (jl >= 0).all(1)

@@ -200,7 +200,9 @@ class FrameSolver:
         # from the proximal limb, column J + j the one from the distal limb.
         mine_is_distal = jl[js, 1] == self._pl[:, None]
         self._vcol = np.where(mine_is_distal, js, J + js)
-        vref = np.where(self._vmask[..., None], model.joint_base[js], np.nan)
+        # ... and sits where the limb itself holds the joint (its centroid plus its own offset).
+        mine = model.limb_centroid[self._pl][:, None] + np.asarray(model.offsets)[js, mine_is_distal.astype(int)]
+        vref = np.where(self._vmask[..., None], mine, np.nan)
         self._ref2 = np.concatenate([self._ref[self._pl], vref], axis=1)
         self._w2 = np.concatenate([self._w0[self._pl], self._vmask.astype(float)], axis=1)
 

@@ -16,7 +16,7 @@ from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, cali
 from mocapgraph.kinematics.model import ActorModel, load_model, save_model
 from mocapgraph.kinematics.skeleton import SkeletonDefinition
 from mocapgraph.kinematics.solving.solver import FrameSolver
-from mocapgraph.testing.random_jig import random_jig
+from mocapgraph.testing.random_jig import issue_arm, random_jig
 
 NOISE = 0.001
 
@@ -70,9 +70,10 @@ def test_near_collinear_cluster_is_solved_from_its_markers_as_points(collinear):
               f"SE mm {np.round(1000 * q.centre_se, 2)} methods {q.method}; poses mean {1000 * e.mean():.2f} max {1000 * e.max():.2f} mm")
         assert (np.linalg.norm(err, axis=-1) <= 0.002).all()
         assert q.reliable.all() and (res.joint_quality == 2).all()
-        # Issue 27 asks mean <= 1.5 mm: met on 801 (1.32) and 802 (1.29), NOT on 803 (2.11 mm),
-        # whose forearm cluster is itself weak (rotation sd over 5 deg); measured max 2.9-4.0 mm.
-        assert e.mean() <= (0.0015 if seed != 803 else 0.0025) and e.max() <= 0.005
+        # Issue 27 asks mean <= 1.5 mm, max <= 5 mm: measured 1.29 / 1.25 / 1.47 mm, max 1.9-2.8 mm
+        # (803 gave 2.04 mm while the hand's model held the wrist where the forearm's base frame
+        # put it, 3.6-4.9 mm short of the hand markers' own distances; see calibrate._own_point).
+        assert e.mean() <= 0.0015 and e.max() <= 0.005
         # The joints next to the line-like cluster were found from its markers as points, and say so.
         near = [j for j in range(model.n_joints) if collinear in model.joint_limbs[j]]
         assert all(q.from_points[j] and "cannot fix its orientation" in q.inputs[j]["points"] for j in near)
@@ -173,3 +174,19 @@ def test_a_marker_lost_for_the_whole_trial_leaves_its_limb_fitted_through_its_jo
     e = np.linalg.norm(res.joints - pose_j, axis=-1)
     print(f"poses (global fit): mean {1000 * e.mean():.2f} max {1000 * e.max():.2f} mm")
     assert (res.joint_quality == 2).all() and e.max() <= 0.005
+
+
+@pytest.mark.parametrize("collinear", [None, 3])
+def test_issue_arm_global_fit_meets_the_target_at_the_maximum_likelihood_floor(collinear):
+    # Issue 27's arm on seeds no code was tuned on (6100-6101; benchmarks/accuracy.py runs
+    # 6000-6019): per-frame error mean <= 1.5 mm, max <= 5 mm on the held poses and on a fresh
+    # 240-frame trial, and on the trial within 5 % of the same frames fitted by the TRUE geometry
+    # at maximum-likelihood weights (what any per-frame fit can reach with this noise). Before
+    # the joint-point fix, a line-like hand's arm was 70 % over that floor (2.11 vs 1.25 mm).
+    for seed in (6100, 6101):
+        poses, trial, _, floor = issue_arm(seed, collinear)
+        print(f"\nseed {seed} collinear {collinear}: poses {1e3 * poses.mean():.2f}/{1e3 * poses.max():.2f} mm, "
+              f"trial {1e3 * trial.mean():.2f}/{1e3 * trial.max():.2f} mm, ML floor {1e3 * floor.mean():.2f} mm")
+        assert poses.mean() <= 0.0015 and poses.max() <= 0.005
+        assert trial.mean() <= 0.0015 and trial.max() <= 0.005
+        assert trial.mean() <= 1.05 * floor.mean() + 2e-5
