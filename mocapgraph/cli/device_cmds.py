@@ -80,13 +80,14 @@ def _delay_range(text: str) -> tuple[float, float]:
 
 
 def cmd_qtm(args: argparse.Namespace) -> int:
+    from ..bag.errors import BagError
     from ..formats import FormatError
     from ..kinematics.layout import LayoutError
     from ..testing.qtm_server import ActorQTMSource, QTMSimServer, TrialQTMSource
 
     try:
         if args.file:
-            src = TrialQTMSource(args.file, args.axis_up)
+            src = TrialQTMSource(args.file, args.axis_up, args.topic or None)
         else:
             src = ActorQTMSource(args.layout, args.rate, args.seed, args.noise_mm, args.bodies, args.axis_up,
                                  occlude_every=args.occlude_every)
@@ -94,7 +95,7 @@ def cmd_qtm(args: argparse.Namespace) -> int:
                            bad_every=args.bad_every, restart_every_s=args.restart_every,
                            restart_down_s=args.restart_down, start_frame=args.start_frame,
                            delay_ms=_delay_range(args.delay_ms), drift_ppm=args.drift_ppm)
-    except (LayoutError, FormatError, ValueError) as exc:
+    except (LayoutError, FormatError, BagError, ValueError) as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:
         raise UserError(f"cannot listen on tcp {args.host}:{args.port}: {exc.strerror or exc}") from None
@@ -118,20 +119,26 @@ def _host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
 
 
 def cmd_natnet(args: argparse.Namespace) -> int:
+    from ..bag.errors import BagError
+    from ..formats import FormatError
     from ..testing.natnet_server import ActorStream, Faults, simulate
 
     try:
         version = tuple(int(x) for x in args.natnet.split("."))[:2]
         stream = ActorStream(args.layout, args.rate, args.bodies, seed=args.seed,
-                             dropout_rate_hz=args.dropout_hz, noise_mm=args.noise_mm, device=args.device)
-    except (ValueError, OSError) as exc:
+                             dropout_rate_hz=args.dropout_hz, noise_mm=args.noise_mm, device=args.device,
+                             source=args.file, topic=args.topic, bone_dropout_every=args.bone_dropout_every)
+        faults = Faults(args.loss, args.restart_after, args.restart_gap, args.seed, delay_ms=(0.0, args.delay_ms),
+                        drift_ppm=args.drift_ppm)
+    except (ValueError, OSError, FormatError, BagError) as exc:
         raise UserError(f"natnet simulator: {exc}") from None
-    faults = Faults(args.loss, args.restart_after, args.restart_gap, args.seed)
     mode = f"multicast {args.multicast_group}:{args.data_port}" if args.multicast_group else "unicast"
 
     def ready(server) -> None:
         print(f"NatNet {args.natnet} server (Motive simulator) on {args.host}:{server.command_port}, {mode}, "
-              f"{len(stream.labels)} markers + {stream.n_bodies} rigid bodies at {args.rate:g} Hz", flush=True)
+              f"{len(stream.labels)} markers + {stream.n_bodies} rigid bodies + a skeleton of "
+              f"{len(stream.bone_names)} bones at {stream.rate_hz:g} Hz"
+              + (f" from {args.file}" if args.file else ""), flush=True)
 
     try:
         n = simulate(stream, version, args.host, args.port, args.multicast_group, args.data_port, args.count,
@@ -173,7 +180,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser("device", help="simulated marker devices for trying lab graphs without hardware")
     ds = d.add_subparsers(dest="device_command", required=True)
-    sim = ds.add_parser("simulate", help="send a synthetic performer as a serial, UDP, LSL or NatNet device")
+    sim = ds.add_parser("simulate", help="send a synthetic performer (or a recording) as a serial, UDP, LSL, "
+                                         "QTM or NatNet device")
     ss = sim.add_subparsers(dest="transport", required=True)
 
     def common(p: argparse.ArgumentParser, device: str) -> None:
@@ -217,7 +225,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     qtm.add_argument("--start-frame", type=int, default=0, help="first frame of the actor's session")
     qtm.add_argument("--delay-ms", default="0,0", help="each frame held back a random LO,HI milliseconds")
     qtm.add_argument("--drift-ppm", type=float, default=0.0, help="QTM's clock runs this many ppm fast")
-    qtm.add_argument("--file", default="", help="stream this C3D or TRC's markers instead of the synthetic actor")
+    qtm.add_argument("--file", default="", help="stream this C3D, TRC or bag's markers instead of the synthetic actor")
+    qtm.add_argument("--topic", default="", help="the bag's MarkerFrame topic ('' = its only one)")
     qtm.add_argument("--layout", default="plug_in_gait", help="marker layout worn by the performer")
     qtm.add_argument("--rate", type=float, default=120.0, help="frames per second")
     qtm.add_argument("--seed", type=int, default=0)
@@ -235,6 +244,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     nat.add_argument("--loss", type=float, default=0.0, help="fraction of frames never sent (seeded)")
     nat.add_argument("--restart-after", type=int, default=0, help="restart the server after N frames (0 = never)")
     nat.add_argument("--restart-gap", type=float, default=2.0, help="seconds the restarted server is gone")
+    nat.add_argument("--file", default="", help="stream this C3D, TRC or bag's markers instead of the synthetic actor")
+    nat.add_argument("--topic", default="", help="the bag's MarkerFrame topic ('' = its only one)")
+    nat.add_argument("--bone-dropout-every", type=int, default=0, help="one skeleton bone untracked every Nth frame")
     nat.add_argument("--wait", type=float, default=0.0,
                      help="wait up to this many seconds for a reader to connect before streaming (0 = stream at once)")
     common(nat, "")

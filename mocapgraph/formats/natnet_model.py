@@ -16,6 +16,10 @@ Pure, vectorised per frame. A :class:`NatNetModel` is built once per NAT_MODELDE
   model id 0 (Motive 2+ sends its unlabelled markers there; 3.x leaves the legacy section empty).
 - **Rigid bodies**: in description order; a body missing from the frame or whose tracking-valid
   bit is clear is NaN (position, orientation, error) with quality 0.
+- **Skeletons**: a skeleton's bones in description order (:class:`SkeletonBones`); a bone's id in
+  a frame is ``skeleton id << 16 | bone id`` (Motive) or the bare bone id (only its low 16 bits
+  are matched); a bone missing from the frame or untracked is NaN with valid False. Bone poses are
+  taken as sent (Motive's "Skeleton Coordinates: Global", its default).
 - **Unknown ids**: a labelled marker whose model id is not 0 and not described, or a rigid body
   id not described, sets ``unknown`` so the reader asks for the model definitions again.
 
@@ -139,6 +143,54 @@ class NatNetModel:
         valid = np.zeros(r, bool)
         valid[rows] = True
         return Bodies(pos, quat, err, valid, bool((~found).any()))
+
+
+@dataclass
+class SkeletonBones:
+    """One skeleton asset of the model definitions: bone names, ids, parent indices, offsets."""
+
+    name: str
+    id: int
+    names: list[str]
+    ids: np.ndarray          # int64[B], the bones' ids (1-based in Motive)
+    parents: np.ndarray      # int32[B], parent bone index, -1 for the root
+    offsets: np.ndarray      # float64[B, 3], m, from the parent bone, NatNet axes
+
+
+def skeleton_bones(defs: nn.ModelDefs, name: str = "") -> SkeletonBones | None:
+    """The skeleton ``name`` ('' = the first one that has bones), or None."""
+    for sname, (sid, bones) in defs.skeletons.items():
+        if (name and sname == name) or (not name and bones):
+            ids = np.asarray([b.id for b in bones], np.int64)
+            by_id = {b.id: i for i, b in enumerate(bones)}
+            parents = np.asarray([by_id.get(b.parent_id, -1) for b in bones], np.int32)
+            offsets = np.asarray([b.offset for b in bones], np.float64).reshape(-1, 3)
+            return SkeletonBones(sname, sid, [b.name for b in bones], ids, parents, offsets)
+    return None
+
+
+def bone_poses(f: nn.Frame, sk: SkeletonBones) -> Bodies:
+    """The frame's poses of skeleton ``sk``'s bones in description order (module doc); all NaN when
+    the frame does not carry that skeleton."""
+    b = len(sk.ids)
+    pos = np.full((b, 3), np.nan)
+    quat = np.full((b, 4), np.nan)
+    err = np.full(b, np.nan, np.float32)
+    valid = np.zeros(b, bool)
+    rb = f.skeletons.get(sk.id)
+    if rb is None or b == 0:
+        return Bodies(pos, quat, err, valid, False)
+    order = np.argsort(sk.ids, kind="stable")
+    table = sk.ids[order]
+    at = np.minimum(np.searchsorted(table, rb["id"].astype(np.int64) & 0xFFFF), b - 1)
+    found = table[at] == (rb["id"].astype(np.int64) & 0xFFFF)
+    ok = found & ((rb["params"] & nn.RIGID_BODY_TRACKING_VALID) != 0)
+    rows = order[at[ok]]
+    pos[rows] = rb["pos"][ok]
+    quat[rows] = rb["quat_xyzw"][ok][:, [3, 0, 1, 2]]
+    err[rows] = rb["error"][ok]
+    valid[rows] = True
+    return Bodies(pos, quat, err, valid, bool((~found).any()))
 
 
 def _unprefixed(marker: str, asset: str) -> str:
