@@ -136,8 +136,9 @@ def cmd_natnet(args: argparse.Namespace) -> int:
 
     def ready(server) -> None:
         print(f"NatNet {args.natnet} server (Motive simulator) on {args.host}:{server.command_port}, {mode}, "
-              f"{len(stream.labels)} markers + {stream.n_bodies} rigid bodies + a skeleton of "
-              f"{len(stream.bone_names)} bones at {stream.rate_hz:g} Hz"
+              f"{len(stream.labels)} markers + {stream.n_bodies} rigid bodies"
+              + (f" + a skeleton of {len(stream.bone_names)} bones" if stream.bone_names else "")
+              + f" at {stream.rate_hz:g} Hz"
               + (f" from {args.file}" if args.file else ""), flush=True)
 
     try:

@@ -70,6 +70,10 @@ class RecordedMarkers:
 
     def __init__(self, path: str | Path, topic: str | None = None) -> None:
         p = Path(path)
+        if p.suffix.lower() not in (".c3d", ".trc", ".mcap"):
+            from ..formats import FormatError
+
+            raise FormatError(p, "not a marker recording (expected .c3d, .trc or a bag, .mcap)")
         if p.suffix.lower() == ".mcap":
             from ..bag.convert import bag_to_marker_trial
             from ..bag.reader import BagReader
