@@ -110,7 +110,7 @@ class ActorStream:
     skeleton asset's labelled markers (and marker set), its limbs as that skeleton's bones (global
     poses; bone ``k`` of ``bone_dropout_every`` N > 0 untracked on frames k with k % N == 0, as
     Motive sends it: zeros, tracking-valid bit clear), its first ``n_bodies`` limbs as rigid bodies,
-    ``n_unlabelled`` stray markers. A recording (``source`` a C3D, TRC or bag path, ``topic`` a
+    ``n_unlabelled`` stray markers (``skeleton`` False: the asset without bones). A recording (``source`` a C3D, TRC or bag path, ``topic`` a
     bag's MarkerFrame topic): its labelled markers and residuals at its own rate, its frames
     looping; a skeleton asset without bones owns them, and there are no rigid bodies."""
 
@@ -126,6 +126,7 @@ class ActorStream:
     source: str = ""
     topic: str = ""
     bone_dropout_every: int = 0
+    skeleton: bool = True
     dev: DeviceConfig = field(init=False)
 
     def __post_init__(self) -> None:
@@ -145,8 +146,8 @@ class ActorStream:
         limbs = list(self.actor_source.limb_names)
         self.n_bodies = min(self.n_bodies, len(limbs))
         self.body_names = limbs[: self.n_bodies]
-        self.bone_names = limbs
-        self.bone_parent = self.actor_source.limb_parent
+        self.bone_names = limbs if self.skeleton else []
+        self.bone_parent = self.actor_source.limb_parent if self.skeleton else np.zeros(0, np.int64)
 
     def bone_offsets(self) -> np.ndarray:
         """Each bone's origin less its parent's (its own for a root) in the session's first frame, world m."""
@@ -177,8 +178,8 @@ class ActorStream:
     def bones(self, a: int, b: int):
         """Ground truth of the skeleton's bones in frames a..b-1: (origins [T,L,3] m world, wxyz
         [T,L,4] world, tracked bool [T,L]); empty for a recording."""
-        if self.recording is not None:
-            t = b - a
+        if self.recording is not None or not self.bone_names:
+            t = min(b - a, self.n_frames - a % self.n_frames)
             return np.zeros((t, 0, 3)), np.zeros((t, 0, 4)), np.zeros((t, 0), bool)
         src = self.actor_source
         cap = src.window(a, b)
