@@ -157,13 +157,18 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     try:
         info, defs, frames = capture_packets(args.file)
-    except (PcapngError, ValueError, OSError) as exc:
+    except ValueError as exc:
+        if isinstance(exc, PcapngError):
+            raise UserError(str(exc)) from None
+        return _replay_qtm(args, str(exc))
+    except OSError as exc:
         raise UserError(str(exc)) from None
+    port = 1510 if args.port is None else args.port
     targets = [_host_port(t) for t in args.to]
     try:
-        server = NatNetServer(info, defs, args.host, args.port, targets=targets)
+        server = NatNetServer(info, defs, args.host, port, targets=targets)
     except OSError as exc:
-        raise UserError(f"replay: cannot serve on {args.host}:{args.port}: {exc.strerror or exc}") from None
+        raise UserError(f"replay: cannot serve on {args.host}:{port}: {exc.strerror or exc}") from None
     span = frames[-1][0] - frames[0][0]
     print(f"replaying {len(frames)} NatNet frames ({span:.1f} s) from {args.file} x{args.speed:g}; command "
           f"channel on {args.host}:{server.command_port}", flush=True)
@@ -175,6 +180,33 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise UserError(f"replay: no reader connected to {args.host}:{server.command_port} in {args.wait:g} s")
     n = paced_send(server, iter(frames), args.speed)
     server.close()
+    print(f"sent {n} frames", file=sys.stderr)
+    return 0
+
+
+def _replay_qtm(args: argparse.Namespace, not_natnet: str) -> int:
+    """``device replay`` of a capture holding a QTM RT session (TCP) rather than NatNet."""
+    from ..testing.qtm_replay import QTM_PORT, QTMReplayServer, capture_qtm
+
+    try:
+        cap = capture_qtm(args.file)
+    except (ValueError, OSError) as exc:
+        raise UserError(f"{not_natnet}; {exc}") from None
+    if args.to:
+        raise UserError("replay: --to sends NatNet datagrams; a QTM session is served over TCP to a reader that "
+                        "connects (qtm_reader port:=...)")
+    port = QTM_PORT if args.port is None else args.port
+    try:
+        server = QTMReplayServer(cap, args.host, port, args.speed)
+    except OSError as exc:
+        raise UserError(f"replay: cannot listen on tcp {args.host}:{port}: {exc.strerror or exc}") from None
+    span = cap.frames[-1][0] - cap.frames[0][0]
+    print(f"replaying {len(cap.frames)} QTM frames ({span:.1f} s) from {args.file} x{args.speed:g}; QTM RT on tcp "
+          f"{args.host}:{server.port} (launch with host:={args.host} port:={server.port})", flush=True)
+    n = server.serve(timeout_s=args.wait + (span / args.speed if args.speed > 0 else 0.0) + 5.0)
+    server.close()
+    if not n:
+        raise UserError(f"replay: no reader streamed from tcp {args.host}:{server.port} in {args.wait:g} s")
     print(f"sent {n} frames", file=sys.stderr)
     return 0
 
@@ -254,10 +286,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="wait up to this many seconds for a reader to connect before streaming (0 = stream at once)")
     common(nat, "")
     nat.set_defaults(func=cmd_natnet)
-    rep = ds.add_parser("replay", help="replay a NatNet pcapng capture to a reader at its original timing")
-    rep.add_argument("file", help="a .pcapng capture of a NatNet session")
+    rep = ds.add_parser("replay", help="replay a NatNet (UDP) or QTM RT (TCP) pcapng capture to a reader at its "
+                                       "original timing")
+    rep.add_argument("file", help="a .pcapng capture of a NatNet or QTM RT session")
     rep.add_argument("--host", default="127.0.0.1", help="address to serve the command channel on")
-    rep.add_argument("--port", type=int, default=1510, help="command port readers connect to (0 = any)")
+    rep.add_argument("--port", type=int, default=None,
+                     help="port readers connect to: NatNet's command port (1510), QTM's (22223); 0 = any")
     rep.add_argument("--to", action="append", default=[], metavar="HOST:PORT",
                      help="also send every packet here, without waiting for a reader to connect")
     rep.add_argument("--speed", type=float, default=1.0, help="2 = twice as fast, 0 = as fast as possible")

@@ -49,7 +49,8 @@ EXAMPLES: dict[str, list[tuple[str, str]]] = {
                                ("--file walk.c3d --delay-ms 20 --drift-ppm 100", "a C3D's markers, 0-20 ms late, "
                                                                                 "Motive's clock 100 ppm fast")],
     "device replay": [("../shared/data/natnet/traffic.pcapng", "a captured Motive session to a natnet_reader"),
-                      ("traffic.pcapng --speed 2 --to 127.0.0.1:1511", "twice as fast, straight to an address")],
+                      ("traffic.pcapng --speed 2 --to 127.0.0.1:1511", "twice as fast, straight to an address"),
+                      ("qtm_session.pcapng --port 22223", "a captured QTM RT session (TCP) to a qtm_reader")],
     # parts in other branches (used once they are merged)
     "retarget": [("131_01.bvh --character standard_20 -o out.bvh", "a BVH onto a character"),
                  ("walk.c3d --model model.json --character standard_20 -o out.mcap", "an optical trial")],
