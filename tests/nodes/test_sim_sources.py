@@ -192,10 +192,10 @@ def test_natnet_capture_stamps_within_1ms_with_random_delay_and_drift(run_node) 
     stream = ActorStream("plug_in_gait", rate_hz=240.0, n_bodies=0, n_unlabelled=0)
     faults = Faults(delay_ms=(0.0, 20.0), drift_ppm=100.0, seed=3)
     n = natnet_reader(run_node, port)
-    t = serve(stream, (4, 1), port, 240 * 5, start=1000, faults=faults)
+    t = serve(stream, (4, 1), port, 240 * 4, start=1000, faults=faults)
     t.join(20)
     recs = n.wait_for(lambda: n.records("markers") if n.records("markers") and
-                      n.records("markers")[-1].msg.frame_number >= 1000 + 240 * 5 - 30 else None,
+                      n.records("markers")[-1].msg.frame_number >= 1000 + 240 * 4 - 30 else None,
                       what="the last frames")
     truth = dict(faults.captured)
     k = np.array([r.msg.frame_number for r in recs])
@@ -209,7 +209,7 @@ def test_natnet_capture_stamps_within_1ms_with_random_delay_and_drift(run_node) 
     assert late.sum() > 240                                      # enough frames to judge
     # A stamp is the capture time plus the least transport delay seen so far (ClockSync's line under
     # the fastest frames; a one-way delay below that is invisible to any stamp), plus, until its
-    # minima span 6 s and the drift is estimated, up to 100 ppm x 5 s = 0.5 ms of drift: never
+    # minima span 6 s and the drift is estimated, up to 100 ppm x 4 s = 0.4 ms of drift: never
     # before the capture; never 1 ms later than the frame before (a frame's own 0-20 ms delay
     # never shows); and no later than the least delay this test's own subscriber had seen by then
     # (it receives after the reader) plus that drift. On an idle machine that least delay is a few
