@@ -128,7 +128,7 @@ def cmd_natnet(args: argparse.Namespace) -> int:
         stream = ActorStream(args.layout, args.rate, args.bodies, seed=args.seed,
                              dropout_rate_hz=args.dropout_hz, noise_mm=args.noise_mm, device=args.device,
                              source=args.file, topic=args.topic, bone_dropout_every=args.bone_dropout_every,
-                             skeleton=not args.no_skeleton)
+                             skeleton=not args.no_skeleton, skeleton_local=args.skeleton_local)
         faults = Faults(args.loss, args.restart_after, args.restart_gap, args.seed, delay_ms=(0.0, args.delay_ms),
                         drift_ppm=args.drift_ppm)
     except (ValueError, OSError, FormatError, BagError) as exc:
@@ -282,6 +282,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     nat.add_argument("--topic", default="", help="the bag's MarkerFrame topic ('' = its only one)")
     nat.add_argument("--bone-dropout-every", type=int, default=0, help="one skeleton bone untracked every Nth frame")
     nat.add_argument("--no-skeleton", action="store_true", help="the actor's skeleton asset without bones")
+    nat.add_argument("--skeleton-local", action="store_true",
+                     help="bones relative to their parent (Motive's 'Local' skeleton coordinates)")
     nat.add_argument("--wait", type=float, default=0.0,
                      help="wait up to this many seconds for a reader to connect before streaming (0 = stream at once)")
     common(nat, "")

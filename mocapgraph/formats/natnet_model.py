@@ -18,8 +18,9 @@ Pure, vectorised per frame. A :class:`NatNetModel` is built once per NAT_MODELDE
   bit is clear is NaN (position, orientation, error) with quality 0.
 - **Skeletons**: a skeleton's bones in description order (:class:`SkeletonBones`); a bone's id in
   a frame is ``skeleton id << 16 | bone id`` (Motive) or the bare bone id (only its low 16 bits
-  are matched); a bone missing from the frame or untracked is NaN with valid False. Bone poses are
-  taken as sent (Motive's "Skeleton Coordinates: Global", its default).
+  are matched); a bone missing from the frame or untracked is NaN with valid False. Bone poses
+  come global, or (Motive's "Local" skeleton coordinates) relative to the parent bone, composed
+  into global poses by :func:`local_to_global` (one vectorised step per depth of the hierarchy).
 - **Unknown ids**: a labelled marker whose model id is not 0 and not described, or a rigid body
   id not described, sets ``unknown`` so the reader asks for the model definitions again.
 
@@ -155,6 +156,7 @@ class SkeletonBones:
     ids: np.ndarray          # int64[B], the bones' ids (1-based in Motive)
     parents: np.ndarray      # int32[B], parent bone index, -1 for the root
     offsets: np.ndarray      # float64[B, 3], m, from the parent bone, NatNet axes
+    levels: list[np.ndarray]  # bone indices by depth in the hierarchy, roots first
 
 
 def skeleton_bones(defs: nn.ModelDefs, name: str = "") -> SkeletonBones | None:
@@ -165,8 +167,38 @@ def skeleton_bones(defs: nn.ModelDefs, name: str = "") -> SkeletonBones | None:
             by_id = {b.id: i for i, b in enumerate(bones)}
             parents = np.asarray([by_id.get(b.parent_id, -1) for b in bones], np.int32)
             offsets = np.asarray([b.offset for b in bones], np.float64).reshape(-1, 3)
-            return SkeletonBones(sname, sid, [b.name for b in bones], ids, parents, offsets)
+            return SkeletonBones(sname, sid, [b.name for b in bones], ids, parents, offsets, depth_levels(parents))
     return None
+
+
+def depth_levels(parents: np.ndarray) -> list[np.ndarray]:
+    """Indices of a hierarchy's nodes by depth (roots first; a node whose parent chain loops or
+    leaves the hierarchy counts as a root)."""
+    p = np.asarray(parents, np.int64)
+    n = len(p)
+    pc = np.clip(p, 0, max(n - 1, 0))
+    depth = np.zeros(n, np.int64)
+    known = (p < 0) | (p >= n)
+    for _ in range(n):                          # once per definition, not per frame
+        ready = ~known & known[pc]
+        if not ready.any():
+            break
+        depth[ready] = depth[pc[ready]] + 1
+        known |= ready
+    return [np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1)] if n else []
+
+
+def local_to_global(pos: np.ndarray, quat_wxyz: np.ndarray, parents: np.ndarray,
+                    levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Bone poses relative to their parent bone -> global (NaN where a bone or an ancestor is NaN)."""
+    from ..kinematics.quaternion import quat_multiply, quat_rotate
+
+    gp, gq = pos.copy(), quat_wxyz.copy()
+    for lv in levels[1:]:
+        par = parents[lv]
+        gq[lv] = quat_multiply(gq[par], quat_wxyz[lv])
+        gp[lv] = gp[par] + quat_rotate(gq[par], pos[lv])
+    return gp, gq
 
 
 def bone_poses(f: nn.Frame, sk: SkeletonBones) -> Bodies:

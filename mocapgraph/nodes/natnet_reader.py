@@ -17,8 +17,8 @@ from ..bus import Output, Param
 from ..formats import natnet as nn
 from ..formats.device_file import DeviceConfig, device_or_default
 from ..bus.diagnostics import ClockRecord, device_clock
-from ..formats.natnet_model import (NatNetModel, SkeletonBones, bone_poses, device_time_ns, rotation_quat,
-                                    skeleton_bones, unlabelled)
+from ..formats.natnet_model import (NatNetModel, SkeletonBones, bone_poses, device_time_ns, local_to_global,
+                                    rotation_quat, skeleton_bones, unlabelled)
 from ..kinematics.quaternion import quat_multiply
 from ..messages import MarkerFrame, RigidBodyFrame, RigidBodyLayout, SkeletonInfo, SkeletonPose
 from ..messages.clock_sync import ClockSync
@@ -70,6 +70,8 @@ class NatNetReader(MarkerSourceNode):
                            "one Motive skeleton, skeleton_info order; NaN with state 0 where not tracked")
     skeleton_info = Output("skeleton_info", SkeletonInfo, "latched: bone names, parents and offsets of that skeleton")
     skeleton = Param("", "which Motive skeleton to publish on skeleton_pose ('' = the first with bones)")
+    skeleton_coordinates = Param("global", "Motive's streaming setting for skeletons: bones 'global', or 'local' "
+                                           "(relative to the parent bone: composed here)", choices=["global", "local"])
     server = Param("127.0.0.1", "address of the NatNet server (Motive); '' = discover one by broadcast")
     command_port = Param(1510, "the server's command port", minimum=1, maximum=65535)
     data_port = Param(1511, "the server's data port (multicast frames)", minimum=1, maximum=65535)
@@ -316,7 +318,8 @@ class NatNetReader(MarkerSourceNode):
             bodies.positions), orientations=quat_multiply(self._dev_q, bodies.quat_wxyz), error=bodies.error,
             quality=np.where(bodies.valid, 2, 0).astype(np.int8)), capture_ns=capture_ns)
         if self.bones is not None:
-            self.skeleton_pose.publish(_skeleton_pose(f, self.bones, dev, self._dev_q), capture_ns=capture_ns)
+            self.skeleton_pose.publish(_skeleton_pose(f, self.bones, dev, self._dev_q, self.skeleton_coordinates),
+                                       capture_ns=capture_ns)
         self.last_timecode = f.timecode_text() if f.timecode else self.last_timecode
         self.counts["frames"] += 1
 
@@ -355,13 +358,19 @@ def _skeleton_info(b: SkeletonBones, dev: DeviceConfig) -> SkeletonInfo:
                         units_note=f"NatNet metres, bone poses as streamed (global), xyzw -> wxyz; {dev.describe()}")
 
 
-def _skeleton_pose(f: nn.Frame, b: SkeletonBones, dev: DeviceConfig, dev_q: np.ndarray) -> SkeletonPose:
-    """One frame's bones of skeleton ``b`` in world axes; untracked bones NaN with state 0."""
+def _skeleton_pose(f: nn.Frame, b: SkeletonBones, dev: DeviceConfig, dev_q: np.ndarray,
+                   coordinates: str = "global") -> SkeletonPose:
+    """One frame's bones of skeleton ``b`` in world axes (``coordinates`` 'local': composed from
+    parent-relative poses first); untracked bones, and with 'local' bones under one, NaN with state 0."""
     bones = bone_poses(f, b)
+    pos, quat = bones.positions, bones.quat_wxyz
+    if coordinates == "local":
+        pos, quat = local_to_global(pos, quat, b.parents, b.levels)
+    ok = bones.valid & np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
     return SkeletonPose(source_id=b.name, frame_number=f.frame_number,
-                        joint_positions=dev.points_to_world(bones.positions),
-                        joint_orientations=quat_multiply(dev_q, bones.quat_wxyz),
-                        tracking_state=np.where(bones.valid, 2, 0).astype(np.int8))
+                        joint_positions=dev.points_to_world(np.where(ok[:, None], pos, np.nan)),
+                        joint_orientations=quat_multiply(dev_q, np.where(ok[:, None], quat, np.nan)),
+                        tracking_state=np.where(ok, 2, 0).astype(np.int8))
 
 
 def _smoothed_rate(rate: float, last_ts: float, ts: float) -> float:

@@ -110,7 +110,8 @@ class ActorStream:
     skeleton asset's labelled markers (and marker set), its limbs as that skeleton's bones (global
     poses; bone ``k`` of ``bone_dropout_every`` N > 0 untracked on frames k with k % N == 0, as
     Motive sends it: zeros, tracking-valid bit clear), its first ``n_bodies`` limbs as rigid bodies,
-    ``n_unlabelled`` stray markers (``skeleton`` False: the asset without bones). A recording (``source`` a C3D, TRC or bag path, ``topic`` a
+    ``n_unlabelled`` stray markers (``skeleton`` False: the asset without bones; ``skeleton_local``:
+    bones relative to their parent, Motive's "Local" skeleton coordinates). A recording (``source`` a C3D, TRC or bag path, ``topic`` a
     bag's MarkerFrame topic): its labelled markers and residuals at its own rate, its frames
     looping; a skeleton asset without bones owns them, and there are no rigid bodies."""
 
@@ -127,6 +128,7 @@ class ActorStream:
     topic: str = ""
     bone_dropout_every: int = 0
     skeleton: bool = True
+    skeleton_local: bool = False
     dev: DeviceConfig = field(init=False)
 
     def __post_init__(self) -> None:
@@ -206,19 +208,36 @@ class ActorStream:
             res = self.recording.markers(a, a + n)[1] if self.recording is not None else \
                 np.full(markers.shape[:2], 0.0002)
             spos, squat, sok = self.bones(a, a + n)
+            if self.skeleton_local:
+                spos, squat = self._local(spos, squat)
             for i in range(markers.shape[0]):
                 yield self._frame(a + i, markers[i], res[i], (bpos[i], bquat[i]), (spos[i], squat[i], sok[i]), r_dev)
             k += markers.shape[0]
 
-    def _poses(self, ids: np.ndarray, pos: np.ndarray, quat_wxyz: np.ndarray, ok: np.ndarray, r_dev) -> np.ndarray:
-        """RIGID_BODY rows in device axes (untracked: zeros, tracking-valid bit clear, as Motive sends)."""
+    def _local(self, pos: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bone poses [T, L] relative to the parent bone (roots unchanged)."""
+        from ..kinematics.quaternion import quat_conjugate, quat_multiply, quat_rotate
+
+        par = np.maximum(self.bone_parent, 0)
+        child = (self.bone_parent >= 0)[None, :, None]
+        inv = quat_conjugate(quat[:, par])
+        return (np.where(child, quat_rotate(inv, pos - pos[:, par]), pos),
+                np.where(child, quat_multiply(inv, quat), quat))
+
+    def _poses(self, ids: np.ndarray, pos: np.ndarray, quat_wxyz: np.ndarray, ok: np.ndarray, r_dev,
+               in_device: np.ndarray | None = None) -> np.ndarray:
+        """RIGID_BODY rows in device axes (``in_device`` False: rows kept as they are, parent-relative
+        bones; untracked: zeros, tracking-valid bit clear, as Motive sends)."""
         from scipy.spatial.transform import Rotation
 
         rb = np.zeros(len(ids), nn.RIGID_BODY)
         rb["id"] = ids
         if len(ids):
-            rb["pos"] = np.where(ok[:, None], self.dev.points_from_world(pos), 0.0)
+            keep = np.zeros(len(ids), bool) if in_device is None else ~in_device
+            p = np.where(keep[:, None], pos, self.dev.points_from_world(pos))
+            rb["pos"] = np.where(ok[:, None], p, 0.0)
             q = (r_dev * Rotation.from_quat(quat_wxyz, scalar_first=True)).as_quat()  # x, y, z, w
+            q = np.where(keep[:, None], np.asarray(quat_wxyz)[:, [1, 2, 3, 0]], q)
             rb["quat_xyzw"] = np.where(ok[:, None], q, 0.0)
         rb["params"] = np.where(ok, nn.RIGID_BODY_TRACKING_VALID, 0)
         return rb
@@ -242,7 +261,8 @@ class ActorStream:
         rb["error"] = 0.0003 + 0.0001 * np.arange(self.n_bodies)
         skeletons = {}
         if self.bone_names:
-            skeletons[ACTOR_ID] = self._poses((ACTOR_ID << 16) | np.arange(1, len(self.bone_names) + 1), *bone, r_dev)
+            skeletons[ACTOR_ID] = self._poses((ACTOR_ID << 16) | np.arange(1, len(self.bone_names) + 1), *bone, r_dev,
+                                              (self.bone_parent < 0) if self.skeleton_local else None)
         t = number / self.rate_hz
         mid = int(round(t * CLOCK_HZ))
         tc = (int(t // 3600) << 24) | (int(t // 60 % 60) << 16) | (int(t % 60) << 8) | int(number % self.rate_hz)

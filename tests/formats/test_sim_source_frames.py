@@ -82,3 +82,35 @@ def test_natnet_frames_carry_the_actors_bones_on_a_drifting_clock() -> None:
         q = w.as_quat(scalar_first=True)
         q *= np.sign(q[:, :1]) * np.sign(quat[k][ok[k]][:, :1])
         np.testing.assert_allclose(q, quat[k][ok[k]], atol=2e-6)
+
+
+@pytest.mark.parametrize("coordinates", ["global", "local"])
+def test_reader_skeleton_pose_from_global_and_parent_relative_bones(coordinates) -> None:
+    """The reader's per-frame skeleton step (``_skeleton_pose``) on the simulator's bytes, with Motive
+    streaming bones global or relative to their parent: the actor's bones in world axes, lost bones
+    (and with 'local', the bones under them) NaN with state 0."""
+    from mocapgraph.formats.device_file import device_or_default
+    from mocapgraph.formats.natnet_model import rotation_quat, skeleton_bones
+    from mocapgraph.nodes.natnet_reader import _skeleton_pose
+
+    stream = ActorStream("plug_in_gait", rate_hz=120.0, n_bodies=0, bone_dropout_every=4,
+                         skeleton_local=coordinates == "local")
+    b = skeleton_bones(nn.decode_model_defs(ne.model_defs(stream.model_defs(), (4, 2)), (4, 2)))
+    dev = device_or_default("", "y")
+    pos, quat, ok = stream.bones(120, 128)              # frame 120 loses the root, 124 bone 4
+    assert (~ok[0]).sum() == 1 and not ok[0, 0] and (~ok[4]).sum() == 1
+    if coordinates == "local":                               # a lost bone hides the bones under it
+        for _ in range(len(b.levels)):
+            ok[:, 1:] &= np.where(stream.bone_parent[1:] >= 0, ok[:, np.maximum(stream.bone_parent[1:], 0)], True)
+    for k, f in enumerate(stream.frames(120, 8)):
+        sp = _skeleton_pose(nn.decode_frame(ne.frame(f, (4, 2)), (4, 2)), b, dev, rotation_quat(dev.rotation),
+                            coordinates)
+        assert np.array_equal(sp.tracking_state, np.where(ok[k], 2, 0))
+        assert np.isnan(sp.joint_positions[~ok[k]]).all()
+        if not ok[k].any():                                   # 'local' and the root lost: nothing to check
+            assert coordinates == "local" and k == 0
+            continue
+        np.testing.assert_allclose(sp.joint_positions[ok[k]], pos[k][ok[k]], atol=5e-6)
+        q = sp.joint_orientations[ok[k]]
+        q *= np.sign(q[:, :1]) * np.sign(quat[k][ok[k]][:, :1])
+        np.testing.assert_allclose(q, quat[k][ok[k]], atol=5e-6)
