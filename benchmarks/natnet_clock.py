@@ -9,6 +9,9 @@ simulator's schedule, ``Faults.captured``) is the error. Printed per span of the
 min / median / max, ms, and the share of frames within 1 ms; and after 2 s overall. A stamp can be
 no better than the fastest path from simulator to reader (one-way delay below it is invisible), so
 the error's floor is that path: a few tenths of a ms on an idle machine, more on a loaded one.
+The simulator's own lateness is printed too: on a machine so busy that this process stalls for
+over 0.5 s, frames leave that late for over a second, which ClockSync takes for the device's clock
+having stood still (a reset, docs/clock.md): stamps are off by the stall until it recovers.
 """
 from __future__ import annotations
 
@@ -63,7 +66,8 @@ def run(seconds: float, rate: float, drift_ppm: float, delay_ms: float) -> None:
     err = np.array([(stamps[k] - truth[k]) / 1e6 for k in ks])
     t = (ks - START) / rate
     print(f"drift {drift_ppm:+.0f} ppm, delay 0-{delay_ms:g} ms, {rate:g} Hz, {seconds:g} s: {len(ks)} of {n} frames "
-          f"published (frames overtaken on the way are dropped by the reader)")
+          f"published (frames overtaken on the way are dropped by the reader); the simulator itself sent "
+          f"{faults.late_over_500ms} frames over 0.5 s late (worst {faults.late_ms_max:.0f} ms: this process stalled)")
     edges = np.linspace(0, seconds, 7)
     for a, b in zip(edges[:-1], edges[1:]):
         e = err[(t >= a) & (t < b)]

@@ -373,9 +373,19 @@ class Faults:
     delay_ms: tuple[float, float] = (0.0, 0.0)
     drift_ppm: float = 0.0
     captured: deque = field(default_factory=lambda: deque(maxlen=100_000))
+    #: how late the simulator itself sent frames (after their slot and injected delay), ms: the
+    #: worst, and how many over 0.5 s (a busy machine stalling this thread; a reader sees a stall)
+    late_ms_max: float = 0.0
+    late_over_500ms: int = 0
 
     def __post_init__(self) -> None:
         self.link = LinkFaults(self.delay_ms, self.drift_ppm, self.seed)
+
+    def sent_late(self, due: float, now: float) -> None:
+        """Note a frame sent at ``now`` that was due at ``due`` (monotonic s)."""
+        late = (now - due) * 1000.0
+        self.late_ms_max = max(self.late_ms_max, late)
+        self.late_over_500ms += late > 500.0
 
     def on_device_clock(self, f: nn.Frame) -> nn.Frame:
         """``f`` with its clock fields read off a server clock running ``drift_ppm`` fast."""
@@ -428,13 +438,14 @@ def simulate(stream: ActorStream, version: nn.Version, host: str = "127.0.0.1", 
         time.sleep(faults.restart_gap_s)
 
 
-def _pass_time(server: NatNetServer, held: DelayLine, until: float) -> None:
+def _pass_time(server: NatNetServer, held: DelayLine, until: float, faults: Faults) -> None:
     """Answer the command channel and send held-back packets as they fall due, until ``until``."""
     while True:
         server.serve()
         now = time.monotonic()
-        for packet in held.pop_due(now):
+        for due, packet in held.pop_due(now):
             server.send(packet)
+            faults.sent_late(due, now)
         if now >= until:
             return
         time.sleep(max(0.0, min(until - now, held.next_due - now, 0.002)))
@@ -449,13 +460,15 @@ def _timed(server: NatNetServer, items: Iterator[tuple[int, bytes]], rate_hz: fl
     held = DelayLine()
     for k, (number, packet) in enumerate(items):
         due = t0 + k / rate_hz
-        _pass_time(server, held, due)
+        _pass_time(server, held, due, faults)
         if packet:
             faults.captured.append((number, wall0 + round((due - t0) * 1e9) - SYSTEM_LATENCY_NS))
             if faults.link.delays:
-                held.push(due + faults.link.hold_s(), packet)
+                hold = due + faults.link.hold_s()
+                held.push(hold, (hold, packet))
             else:
                 server.send(packet)
+                faults.sent_late(due, time.monotonic())
         yield packet
     while len(held):
-        _pass_time(server, held, held.next_due)
+        _pass_time(server, held, held.next_due, faults)

@@ -217,6 +217,7 @@ def test_natnet_capture_stamps_on_the_fastest_path_despite_random_delay_and_drif
     # the first frame's delay, fails this.
     e = err_ms[late]
     floor = np.minimum.accumulate(arrival_ms)[late]
-    why = (np.percentile(e, [0, 50, 100]), arrival_ms.min(), status(n)["clock"])
+    why = (np.percentile(e, [0, 50, 100]), arrival_ms.min(), status(n)["clock"],
+           f"simulator sent frames up to {faults.late_ms_max:.0f} ms late")   # a stall over 0.5 s: a reset
     assert e.min() > -0.2 and np.diff(e).max() < 1.0, why
     assert (e <= floor + 0.6).all(), why
