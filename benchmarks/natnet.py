@@ -132,7 +132,7 @@ def live(label: str, proc: subprocess.Popen, sub: zmq.Socket, send, n: int, rate
 
 def live_section(seconds: float) -> None:
     rate, n = 240.0, int(seconds * 240)
-    stream = ActorStream("kiip_full_body", rate_hz=rate, n_bodies=5, n_unlabelled=0, seed=0)
+    stream = ActorStream("kiip_full_body", rate_hz=rate, n_bodies=5, n_unlabelled=0, seed=0, skeleton=False)
     print_context(0, "synthetic actor kiip_full_body seed 0 (62 markers, 5 rigid bodies)",
                   f"frames 0..{n - 1} at 240 Hz over loopback", section="live")
     print(f"{'reader (240 Hz)':<34}{'frames':>16}{'gaps':>6}{'p50 ms':>9}{'p99 ms':>9}{'max ms':>9}")
@@ -170,7 +170,8 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=5.0)
     args = ap.parse_args()
     n = args.frames
-    stream = ActorStream("qualisys", rate_hz=240.0, n_bodies=5, n_unlabelled=5, dropout_rate_hz=0.2, seed=0)
+    stream = ActorStream("qualisys", rate_hz=240.0, n_bodies=5, n_unlabelled=5, dropout_rate_hz=0.2, seed=0,
+                         skeleton=False)
     print_context(0, "synthetic actor qualisys seed 0 (55 labelled + 5 unlabelled markers, 5 rigid bodies, "
                   "occlusions 0.2/marker/s)", f"frames 0..{n - 1} at 240 Hz, best of 3 passes", section="cost")
     frames = list(stream.frames(0, n))

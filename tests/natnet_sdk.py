@@ -42,6 +42,8 @@ def sdk_values(m) -> dict:
         "other": [_f(p) for p in m.legacy_other_markers.marker_pos_list],
         "bodies": [(b.id_num, _f(b.pos), _f(b.rot), float(b.error), bool(b.tracking_valid))
                    for b in m.rigid_body_data.rigid_body_list],
+        "skeletons": {str(k.id_num): [(b.id_num, _f(b.pos), _f(b.rot), float(b.error), bool(b.tracking_valid))
+                                      for b in k.rigid_body_list] for k in m.skeleton_data.skeleton_list},
         "labelled": [(lm.id_num, _f(lm.pos), float(lm.size), int(lm.param), float(lm.residual) / 1000.0)
                      for lm in m.labeled_marker_data.labeled_marker_list],
         "suffix": (s.timecode, s.timecode_sub, float(s.timestamp), s.stamp_camera_mid_exposure, s.stamp_data_received,
@@ -59,6 +61,9 @@ def our_frame(packet: bytes, version: nn.Version) -> dict:
         "other": f.other_markers.astype(float).tolist(),
         "bodies": [(int(b["id"]), _f(b["pos"]), _f(b["quat_xyzw"]), float(b["error"]), bool(v))
                    for b, v in zip(rb, f.rigid_body_valid)],
+        "skeletons": {str(sid): [(int(b["id"]), _f(b["pos"]), _f(b["quat_xyzw"]), float(b["error"]),
+                                  bool(b["params"] & nn.RIGID_BODY_TRACKING_VALID)) for b in bones]
+                      for sid, bones in f.skeletons.items()},
         "labelled": [(int(m["id"]), _f(m["pos"]), float(m["size"]), int(m["params"]), float(m["residual"]))
                      for m in lm],
         "suffix": (f.timecode, f.timecode_sub, f.timestamp, f.mid_exposure_ticks, f.data_received_ticks,

@@ -80,13 +80,14 @@ def _delay_range(text: str) -> tuple[float, float]:
 
 
 def cmd_qtm(args: argparse.Namespace) -> int:
+    from ..bag.errors import BagError
     from ..formats import FormatError
     from ..kinematics.layout import LayoutError
     from ..testing.qtm_server import ActorQTMSource, QTMSimServer, TrialQTMSource
 
     try:
         if args.file:
-            src = TrialQTMSource(args.file, args.axis_up)
+            src = TrialQTMSource(args.file, args.axis_up, args.topic or None)
         else:
             src = ActorQTMSource(args.layout, args.rate, args.seed, args.noise_mm, args.bodies, args.axis_up,
                                  occlude_every=args.occlude_every)
@@ -94,7 +95,7 @@ def cmd_qtm(args: argparse.Namespace) -> int:
                            bad_every=args.bad_every, restart_every_s=args.restart_every,
                            restart_down_s=args.restart_down, start_frame=args.start_frame,
                            delay_ms=_delay_range(args.delay_ms), drift_ppm=args.drift_ppm)
-    except (LayoutError, FormatError, ValueError) as exc:
+    except (LayoutError, FormatError, BagError, ValueError) as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:
         raise UserError(f"cannot listen on tcp {args.host}:{args.port}: {exc.strerror or exc}") from None
@@ -118,20 +119,28 @@ def _host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
 
 
 def cmd_natnet(args: argparse.Namespace) -> int:
+    from ..bag.errors import BagError
+    from ..formats import FormatError
     from ..testing.natnet_server import ActorStream, Faults, simulate
 
     try:
         version = tuple(int(x) for x in args.natnet.split("."))[:2]
         stream = ActorStream(args.layout, args.rate, args.bodies, seed=args.seed,
-                             dropout_rate_hz=args.dropout_hz, noise_mm=args.noise_mm, device=args.device)
-    except (ValueError, OSError) as exc:
+                             dropout_rate_hz=args.dropout_hz, noise_mm=args.noise_mm, device=args.device,
+                             source=args.file, topic=args.topic, bone_dropout_every=args.bone_dropout_every,
+                             skeleton=not args.no_skeleton, skeleton_local=args.skeleton_local)
+        faults = Faults(args.loss, args.restart_after, args.restart_gap, args.seed, delay_ms=(0.0, args.delay_ms),
+                        drift_ppm=args.drift_ppm)
+    except (ValueError, OSError, FormatError, BagError) as exc:
         raise UserError(f"natnet simulator: {exc}") from None
-    faults = Faults(args.loss, args.restart_after, args.restart_gap, args.seed)
     mode = f"multicast {args.multicast_group}:{args.data_port}" if args.multicast_group else "unicast"
 
     def ready(server) -> None:
         print(f"NatNet {args.natnet} server (Motive simulator) on {args.host}:{server.command_port}, {mode}, "
-              f"{len(stream.labels)} markers + {stream.n_bodies} rigid bodies at {args.rate:g} Hz", flush=True)
+              f"{len(stream.labels)} markers + {stream.n_bodies} rigid bodies"
+              + (f" + a skeleton of {len(stream.bone_names)} bones" if stream.bone_names else "")
+              + f" at {stream.rate_hz:g} Hz"
+              + (f" from {args.file}" if args.file else ""), flush=True)
 
     try:
         n = simulate(stream, version, args.host, args.port, args.multicast_group, args.data_port, args.count,
@@ -148,13 +157,18 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     try:
         info, defs, frames = capture_packets(args.file)
-    except (PcapngError, ValueError, OSError) as exc:
+    except ValueError as exc:
+        if isinstance(exc, PcapngError):
+            raise UserError(str(exc)) from None
+        return _replay_qtm(args, str(exc))
+    except OSError as exc:
         raise UserError(str(exc)) from None
+    port = 1510 if args.port is None else args.port
     targets = [_host_port(t) for t in args.to]
     try:
-        server = NatNetServer(info, defs, args.host, args.port, targets=targets)
+        server = NatNetServer(info, defs, args.host, port, targets=targets)
     except OSError as exc:
-        raise UserError(f"replay: cannot serve on {args.host}:{args.port}: {exc.strerror or exc}") from None
+        raise UserError(f"replay: cannot serve on {args.host}:{port}: {exc.strerror or exc}") from None
     span = frames[-1][0] - frames[0][0]
     print(f"replaying {len(frames)} NatNet frames ({span:.1f} s) from {args.file} x{args.speed:g}; command "
           f"channel on {args.host}:{server.command_port}", flush=True)
@@ -170,10 +184,38 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def _replay_qtm(args: argparse.Namespace, not_natnet: str) -> int:
+    """``device replay`` of a capture holding a QTM RT session (TCP) rather than NatNet."""
+    from ..testing.qtm_replay import QTM_PORT, QTMReplayServer, capture_qtm
+
+    try:
+        cap = capture_qtm(args.file)
+    except (ValueError, OSError) as exc:
+        raise UserError(f"{not_natnet}; {exc}") from None
+    if args.to:
+        raise UserError("replay: --to sends NatNet datagrams; a QTM session is served over TCP to a reader that "
+                        "connects (qtm_reader port:=...)")
+    port = QTM_PORT if args.port is None else args.port
+    try:
+        server = QTMReplayServer(cap, args.host, port, args.speed)
+    except OSError as exc:
+        raise UserError(f"replay: cannot listen on tcp {args.host}:{port}: {exc.strerror or exc}") from None
+    span = cap.frames[-1][0] - cap.frames[0][0]
+    print(f"replaying {len(cap.frames)} QTM frames ({span:.1f} s) from {args.file} x{args.speed:g}; QTM RT on tcp "
+          f"{args.host}:{server.port} (launch with host:={args.host} port:={server.port})", flush=True)
+    n = server.serve(timeout_s=args.wait + (span / args.speed if args.speed > 0 else 0.0) + 5.0)
+    server.close()
+    if not n:
+        raise UserError(f"replay: no reader streamed from tcp {args.host}:{server.port} in {args.wait:g} s")
+    print(f"sent {n} frames", file=sys.stderr)
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser("device", help="simulated marker devices for trying lab graphs without hardware")
     ds = d.add_subparsers(dest="device_command", required=True)
-    sim = ds.add_parser("simulate", help="send a synthetic performer as a serial, UDP, LSL or NatNet device")
+    sim = ds.add_parser("simulate", help="send a synthetic performer (or a recording) as a serial, UDP, LSL, "
+                                         "QTM or NatNet device")
     ss = sim.add_subparsers(dest="transport", required=True)
 
     def common(p: argparse.ArgumentParser, device: str) -> None:
@@ -217,7 +259,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     qtm.add_argument("--start-frame", type=int, default=0, help="first frame of the actor's session")
     qtm.add_argument("--delay-ms", default="0,0", help="each frame held back a random LO,HI milliseconds")
     qtm.add_argument("--drift-ppm", type=float, default=0.0, help="QTM's clock runs this many ppm fast")
-    qtm.add_argument("--file", default="", help="stream this C3D or TRC's markers instead of the synthetic actor")
+    qtm.add_argument("--file", default="", help="stream this C3D, TRC or bag's markers instead of the synthetic actor")
+    qtm.add_argument("--topic", default="", help="the bag's MarkerFrame topic ('' = its only one)")
     qtm.add_argument("--layout", default="plug_in_gait", help="marker layout worn by the performer")
     qtm.add_argument("--rate", type=float, default=120.0, help="frames per second")
     qtm.add_argument("--seed", type=int, default=0)
@@ -235,14 +278,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     nat.add_argument("--loss", type=float, default=0.0, help="fraction of frames never sent (seeded)")
     nat.add_argument("--restart-after", type=int, default=0, help="restart the server after N frames (0 = never)")
     nat.add_argument("--restart-gap", type=float, default=2.0, help="seconds the restarted server is gone")
+    nat.add_argument("--file", default="", help="stream this C3D, TRC or bag's markers instead of the synthetic actor")
+    nat.add_argument("--topic", default="", help="the bag's MarkerFrame topic ('' = its only one)")
+    nat.add_argument("--bone-dropout-every", type=int, default=0, help="one skeleton bone untracked every Nth frame")
+    nat.add_argument("--no-skeleton", action="store_true", help="the actor's skeleton asset without bones")
+    nat.add_argument("--skeleton-local", action="store_true",
+                     help="bones relative to their parent (Motive's 'Local' skeleton coordinates)")
     nat.add_argument("--wait", type=float, default=0.0,
                      help="wait up to this many seconds for a reader to connect before streaming (0 = stream at once)")
     common(nat, "")
     nat.set_defaults(func=cmd_natnet)
-    rep = ds.add_parser("replay", help="replay a NatNet pcapng capture to a reader at its original timing")
-    rep.add_argument("file", help="a .pcapng capture of a NatNet session")
+    rep = ds.add_parser("replay", help="replay a NatNet (UDP) or QTM RT (TCP) pcapng capture to a reader at its "
+                                       "original timing")
+    rep.add_argument("file", help="a .pcapng capture of a NatNet or QTM RT session")
     rep.add_argument("--host", default="127.0.0.1", help="address to serve the command channel on")
-    rep.add_argument("--port", type=int, default=1510, help="command port readers connect to (0 = any)")
+    rep.add_argument("--port", type=int, default=None,
+                     help="port readers connect to: NatNet's command port (1510), QTM's (22223); 0 = any")
     rep.add_argument("--to", action="append", default=[], metavar="HOST:PORT",
                      help="also send every packet here, without waiting for a reader to connect")
     rep.add_argument("--speed", type=float, default=1.0, help="2 = twice as fast, 0 = as fast as possible")

@@ -42,11 +42,15 @@ EXAMPLES: dict[str, list[tuple[str, str]]] = {
     "device simulate udp": [("--to 127.0.0.1:9870", "datagrams to a udp_reader")],
     "device simulate lsl": [("--name mocap_sim --rate 240", "an LSL outlet for the lsl_reader")],
     "device simulate qtm": [("--port 22223 --rate 240", "a QTM RT server for the qtm_reader (lab_qtm.yaml)"),
-                            ("--restart-every 30 --loss 0.05", "QTM restarting every 30 s, 5 % of frames skipped")],
+                            ("--restart-every 30 --loss 0.05", "QTM restarting every 30 s, 5 % of frames skipped"),
+                            ("--file session.mcap", "a recorded bag's markers instead of the synthetic actor")],
     "device simulate natnet": [("--natnet 4.1 --rate 240", "a Motive NatNet server for lab_natnet.yaml"),
-                               ("--natnet 3.0 --loss 0.05 --restart-after 1200", "with 5 % loss and one restart")],
+                               ("--natnet 3.0 --loss 0.05 --restart-after 1200", "with 5 % loss and one restart"),
+                               ("--file walk.c3d --delay-ms 20 --drift-ppm 100", "a C3D's markers, 0-20 ms late, "
+                                                                                "Motive's clock 100 ppm fast")],
     "device replay": [("../shared/data/natnet/traffic.pcapng", "a captured Motive session to a natnet_reader"),
-                      ("traffic.pcapng --speed 2 --to 127.0.0.1:1511", "twice as fast, straight to an address")],
+                      ("traffic.pcapng --speed 2 --to 127.0.0.1:1511", "twice as fast, straight to an address"),
+                      ("qtm_session.pcapng --port 22223", "a captured QTM RT session (TCP) to a qtm_reader")],
     # parts in other branches (used once they are merged)
     "retarget": [("131_01.bvh --character standard_20 -o out.bvh", "a BVH onto a character"),
                  ("walk.c3d --model model.json --character standard_20 -o out.mcap", "an optical trial")],

@@ -16,6 +16,11 @@ Pure, vectorised per frame. A :class:`NatNetModel` is built once per NAT_MODELDE
   model id 0 (Motive 2+ sends its unlabelled markers there; 3.x leaves the legacy section empty).
 - **Rigid bodies**: in description order; a body missing from the frame or whose tracking-valid
   bit is clear is NaN (position, orientation, error) with quality 0.
+- **Skeletons**: a skeleton's bones in description order (:class:`SkeletonBones`); a bone's id in
+  a frame is ``skeleton id << 16 | bone id`` (Motive) or the bare bone id (only its low 16 bits
+  are matched); a bone missing from the frame or untracked is NaN with valid False. Bone poses
+  come global, or (Motive's "Local" skeleton coordinates) relative to the parent bone, composed
+  into global poses by :func:`local_to_global` (one vectorised step per depth of the hierarchy).
 - **Unknown ids**: a labelled marker whose model id is not 0 and not described, or a rigid body
   id not described, sets ``unknown`` so the reader asks for the model definitions again.
 
@@ -139,6 +144,85 @@ class NatNetModel:
         valid = np.zeros(r, bool)
         valid[rows] = True
         return Bodies(pos, quat, err, valid, bool((~found).any()))
+
+
+@dataclass
+class SkeletonBones:
+    """One skeleton asset of the model definitions: bone names, ids, parent indices, offsets."""
+
+    name: str
+    id: int
+    names: list[str]
+    ids: np.ndarray          # int64[B], the bones' ids (1-based in Motive)
+    parents: np.ndarray      # int32[B], parent bone index, -1 for the root
+    offsets: np.ndarray      # float64[B, 3], m, from the parent bone, NatNet axes
+    levels: list[np.ndarray]  # bone indices by depth in the hierarchy, roots first
+
+
+def skeleton_bones(defs: nn.ModelDefs, name: str = "") -> SkeletonBones | None:
+    """The skeleton ``name`` ('' = the first one that has bones), or None."""
+    for sname, (sid, bones) in defs.skeletons.items():
+        if (name and sname == name) or (not name and bones):
+            ids = np.asarray([b.id for b in bones], np.int64)
+            by_id = {b.id: i for i, b in enumerate(bones)}
+            parents = np.asarray([by_id.get(b.parent_id, -1) for b in bones], np.int32)
+            offsets = np.asarray([b.offset for b in bones], np.float64).reshape(-1, 3)
+            return SkeletonBones(sname, sid, [b.name for b in bones], ids, parents, offsets, depth_levels(parents))
+    return None
+
+
+def depth_levels(parents: np.ndarray) -> list[np.ndarray]:
+    """Indices of a hierarchy's nodes by depth (roots first; a node whose parent chain loops or
+    leaves the hierarchy counts as a root)."""
+    p = np.asarray(parents, np.int64)
+    n = len(p)
+    pc = np.clip(p, 0, max(n - 1, 0))
+    depth = np.zeros(n, np.int64)
+    known = (p < 0) | (p >= n)
+    for _ in range(n):                          # once per definition, not per frame
+        ready = ~known & known[pc]
+        if not ready.any():
+            break
+        depth[ready] = depth[pc[ready]] + 1
+        known |= ready
+    return [np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1)] if n else []
+
+
+def local_to_global(pos: np.ndarray, quat_wxyz: np.ndarray, parents: np.ndarray,
+                    levels: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Bone poses relative to their parent bone -> global (NaN where a bone or an ancestor is NaN)."""
+    from ..kinematics.quaternion import quat_multiply, quat_rotate
+
+    gp, gq = pos.copy(), quat_wxyz.copy()
+    for lv in levels[1:]:
+        par = parents[lv]
+        gq[lv] = quat_multiply(gq[par], quat_wxyz[lv])
+        gp[lv] = gp[par] + quat_rotate(gq[par], pos[lv])
+    return gp, gq
+
+
+def bone_poses(f: nn.Frame, sk: SkeletonBones) -> Bodies:
+    """The frame's poses of skeleton ``sk``'s bones in description order (module doc); all NaN when
+    the frame does not carry that skeleton."""
+    b = len(sk.ids)
+    pos = np.full((b, 3), np.nan)
+    quat = np.full((b, 4), np.nan)
+    err = np.full(b, np.nan, np.float32)
+    valid = np.zeros(b, bool)
+    rb = f.skeletons.get(sk.id)
+    if rb is None or b == 0:
+        return Bodies(pos, quat, err, valid, False)
+    order = np.argsort(sk.ids, kind="stable")
+    table = sk.ids[order]
+    at = np.minimum(np.searchsorted(table, rb["id"].astype(np.int64) & 0xFFFF), b - 1)
+    found = table[at] == (rb["id"].astype(np.int64) & 0xFFFF)
+    ok = found & ((rb["params"] & nn.RIGID_BODY_TRACKING_VALID) != 0)
+    rows = order[at[ok]]
+    pos[rows] = rb["pos"][ok]
+    quat[rows] = rb["quat_xyzw"][ok][:, [3, 0, 1, 2]]
+    err[rows] = rb["error"][ok]
+    valid[rows] = True
+    return Bodies(pos, quat, err, valid, bool((~found).any()))
 
 
 def _unprefixed(marker: str, asset: str) -> str:

@@ -18,12 +18,17 @@ due. What a NatNet client does (OptiTrack's NatNet SDK, PacketClient):
 - **Reconnect**: no frame for ``silence_s`` while streaming means the server went away (Motive
   closed, restarted, the cable): one reconnect, counted and logged once, and connecting starts
   over until frames flow again.
+- **Arrival times**: each datagram's arrival is the kernel's receive time (``SO_TIMESTAMPNS`` on
+  Linux x86-64 / ARM), so a reader held up by a busy machine does not pass its own lag on to the
+  clock estimate as network delay; elsewhere (or a stamp not believable) the time it is read.
 """
 from __future__ import annotations
 
 import logging
+import platform
 import socket
 import struct
+import sys
 import time
 from dataclasses import dataclass
 
@@ -34,6 +39,32 @@ RECV_BYTES = 65536
 MAX_PER_TURN = 512
 #: NatNet version we announce in NAT_CONNECT (servers stream their own; 4.x servers accept it)
 CLIENT_VERSION = (4, 1, 0, 0)
+#: SO_TIMESTAMPNS (= SCM_TIMESTAMPNS) where Linux's generic socket options apply; Python names it not
+SO_TIMESTAMPNS = 35 if sys.platform == "linux" and platform.machine() in ("x86_64", "aarch64", "armv7l") else 0
+ANC_BYTES = 64
+
+
+def kernel_stamps(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp every datagram ``sock`` receives; whether it will."""
+    if not SO_TIMESTAMPNS:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def arrival_ns(ancdata: list, now_ns: int) -> int:
+    """The kernel's receive time out of a datagram's ancillary data; ``now_ns`` (the time it was
+    read) when there is none or it is not believable (after now, or over 10 s before)."""
+    for level, kind, data in ancdata:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= 16:
+            sec, nsec = struct.unpack_from("qq", data)
+            t = sec * 1_000_000_000 + nsec
+            if now_ns - 10_000_000_000 < t <= now_ns:
+                return t
+    return now_ns
 
 
 @dataclass
@@ -73,6 +104,7 @@ class NatNetLink:
         self._next_keepalive = 0.0
         self._last_warn = -1e9
         self.last_frame = 0.0
+        self._stamped: dict[socket.socket, bool] = {}
 
     @property
     def where(self) -> str:
@@ -87,6 +119,7 @@ class NatNetLink:
         self.cmd.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
         self.cmd.bind((c.interface, 0))
         self.cmd.setblocking(False)
+        self._stamped = {self.cmd: kernel_stamps(self.cmd)}
         if c.multicast_group:
             d = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self.data = d
@@ -97,6 +130,7 @@ class NatNetLink:
             d.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP,
                          socket.inet_aton(c.multicast_group) + socket.inet_aton(iface))
             d.setblocking(False)
+            self._stamped[d] = kernel_stamps(d)
 
     def sockets(self) -> list[socket.socket]:
         return [s for s in (self.cmd, self.data) if s is not None]
@@ -114,15 +148,20 @@ class NatNetLink:
     def receive(self, sock: socket.socket) -> list[tuple[bytes, tuple[str, int], int]]:
         """Every datagram waiting on ``sock`` (at most MAX_PER_TURN): (bytes, sender, arrival ns)."""
         out = []
+        stamped = self._stamped.get(sock, False)
         for _ in range(MAX_PER_TURN):
             try:
-                data, addr = sock.recvfrom(RECV_BYTES)
+                if stamped:
+                    data, anc, _flags, addr = sock.recvmsg(RECV_BYTES, ANC_BYTES)
+                else:
+                    data, addr = sock.recvfrom(RECV_BYTES)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError as exc:  # ICMP port unreachable from a server that is not there
                 self.log.debug("natnet %s: %s", self.where, exc)
                 break
-            out.append((data, addr, time.time_ns()))
+            now = time.time_ns()
+            out.append((data, addr, arrival_ns(anc, now) if stamped else now))
         return out
 
     def _send(self, packet: bytes, to: tuple[str, int] | None = None) -> None:

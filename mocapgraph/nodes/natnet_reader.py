@@ -17,9 +17,10 @@ from ..bus import Output, Param
 from ..formats import natnet as nn
 from ..formats.device_file import DeviceConfig, device_or_default
 from ..bus.diagnostics import ClockRecord, device_clock
-from ..formats.natnet_model import NatNetModel, device_time_ns, rotation_quat, unlabelled
+from ..formats.natnet_model import (NatNetModel, SkeletonBones, bone_poses, device_time_ns, local_to_global,
+                                    rotation_quat, skeleton_bones, unlabelled)
 from ..kinematics.quaternion import quat_multiply
-from ..messages import MarkerFrame, RigidBodyFrame, RigidBodyLayout
+from ..messages import MarkerFrame, RigidBodyFrame, RigidBodyLayout, SkeletonInfo, SkeletonPose
 from ..messages.clock_sync import ClockSync
 from ..net.natnet_link import LinkConfig, NatNetLink
 from .marker_source import UP_AXIS_CHOICES, LayoutMap, MarkerSourceNode, check_device_param
@@ -53,6 +54,9 @@ class NatNetReader(MarkerSourceNode):
     ``silence_s``, or frame numbers starting over, is one reconnect (logged, counted), never loss.
     Malformed, truncated, oversized and wrong-version packets are counted by reason and skipped.
     Capture stamps: arrival minus the latency the server reports (mid-exposure to transmit).
+    A skeleton asset's bones publish on ``skeleton_pose`` (latched ``skeleton_info``: bone names,
+    parents, offsets), untracked bones NaN with tracking state 0; the last SMPTE timecode is in
+    the status (``timecode``).
     Axes: Motive streams Y up (``up_axis: y``); a device file's ``to_world`` may say otherwise.
     """
 
@@ -62,6 +66,12 @@ class NatNetReader(MarkerSourceNode):
     rigid_bodies = Output("rigid_bodies", RigidBodyFrame, "rigid body poses in rigid_body_layout order: m, wxyz, "
                           "world; NaN with quality 0 where not tracked")
     rigid_body_layout = Output("rigid_body_layout", RigidBodyLayout, "latched: rigid body names, NatNet ids, parents")
+    skeleton_pose = Output("skeleton_pose", SkeletonPose, "bone origins (m, world) and orientations (wxyz, world) of "
+                           "one Motive skeleton, skeleton_info order; NaN with state 0 where not tracked")
+    skeleton_info = Output("skeleton_info", SkeletonInfo, "latched: bone names, parents and offsets of that skeleton")
+    skeleton = Param("", "which Motive skeleton to publish on skeleton_pose ('' = the first with bones)")
+    skeleton_coordinates = Param("global", "Motive's streaming setting for skeletons: bones 'global', or 'local' "
+                                           "(relative to the parent bone: composed here)", choices=["global", "local"])
     server = Param("127.0.0.1", "address of the NatNet server (Motive); '' = discover one by broadcast")
     command_port = Param(1510, "the server's command port", minimum=1, maximum=65535)
     data_port = Param(1511, "the server's data port (multicast frames)", minimum=1, maximum=65535)
@@ -112,6 +122,8 @@ class NatNetReader(MarkerSourceNode):
         self.clock = ClockSync()   # the server's clock onto ours (offset and drift, restarts re-seeded)
         self.app = ""
         self.model: NatNetModel | None = None
+        self.bones: SkeletonBones | None = None
+        self.last_timecode = ""
         self._rate = 0.0
         self._server_rate = False
         self._last_number: int | None = None
@@ -208,7 +220,7 @@ class NatNetReader(MarkerSourceNode):
         self.link.need_defs = False
         old = self.model
         if old is not None and old.labels == model.labels and old.body_names == model.body_names \
-                and np.array_equal(old.body_ids, model.body_ids):
+                and np.array_equal(old.body_ids, model.body_ids) and _same_bones(self.bones, model, self.skeleton):
             self.model = model
             return
         try:
@@ -231,6 +243,12 @@ class NatNetReader(MarkerSourceNode):
         self.rigid_body_layout.publish(RigidBodyLayout(
             names=model.body_names, ids=model.body_ids.astype(np.int32), parent=model.body_parents,
             units_note=f"NatNet metres, quaternions xyzw -> wxyz; {self.dev.describe()}", source=source))
+        self.bones = skeleton_bones(model.defs, self.skeleton)     # the skeleton to publish, if any
+        if self.bones is not None:
+            self.skeleton_info.publish(_skeleton_info(self.bones, self.dev))
+        elif self.skeleton:
+            self.warn_limited("skeleton", "natnet %s: no skeleton %r (Motive has %s)", self.link.where,
+                              self.skeleton, ", ".join(model.defs.skeletons) or "none")
 
     def _frame(self, data: bytes, arrival_ns: int) -> None:
         if self.unsupported:
@@ -251,7 +269,9 @@ class NatNetReader(MarkerSourceNode):
             return
         if f.models_changed:
             self.link.request_model_defs()
-        self._measure_rate(f.timestamp)
+        if not self._server_rate:       # the rate from Motive's timestamps, until the server tells it
+            self._rate = _smoothed_rate(self._rate, self._last_ts, f.timestamp)
+        self._last_ts = f.timestamp
         self.counts["skipped_items"] += f.skipped_items
         device_ns, latency_ns = device_time_ns(f, self.clock_hz)
         self._publish(f, self.clock.update(device_ns, arrival_ns, latency_ns))
@@ -279,13 +299,6 @@ class NatNetReader(MarkerSourceNode):
                              "reconnect %d", self.link.where, n, last, self.link.reconnects)
         return True
 
-    def _measure_rate(self, ts: float) -> None:
-        """Frame rate from Motive's frame timestamps, while the server has not told it."""
-        if not self._server_rate and self._last_ts and ts > self._last_ts:
-            inst = 1.0 / (ts - self._last_ts)
-            self._rate = inst if not self._rate else 0.95 * self._rate + 0.05 * inst
-        self._last_ts = ts
-
     def _publish(self, f: nn.Frame, capture_ns: int) -> None:
         model, dev = self.model, self.dev
         lab = model.labelled(f)
@@ -304,13 +317,17 @@ class NatNetReader(MarkerSourceNode):
         self.rigid_bodies.publish(RigidBodyFrame(frame_number=f.frame_number, positions=dev.points_to_world(
             bodies.positions), orientations=quat_multiply(self._dev_q, bodies.quat_wxyz), error=bodies.error,
             quality=np.where(bodies.valid, 2, 0).astype(np.int8)), capture_ns=capture_ns)
+        if self.bones is not None:
+            self.skeleton_pose.publish(_skeleton_pose(f, self.bones, dev, self._dev_q, self.skeleton_coordinates),
+                                       capture_ns=capture_ns)
+        self.last_timecode = f.timecode_text() if f.timecode else self.last_timecode
         self.counts["frames"] += 1
 
     # ----- reporting -------------------------------------------------------------------------
     def status_data(self) -> dict[str, Any]:
         d: dict[str, Any] = dict(self.counts)
         d.update(rejected=dict(self.rejected), rejected_total=sum(self.rejected.values()),
-                 reconnects=self.link.reconnects, server=self.link.where, app=self.app,
+                 reconnects=self.link.reconnects, server=self.link.where, app=self.app, timecode=self.last_timecode,
                  natnet_version=".".join(map(str, self.version)) if self.version else "",
                  rate_hz=self.rate_hz or self._rate, connect_requests=self.link.connect_sent,
                  clock=self.clock.stats().as_dict(),
@@ -324,3 +341,41 @@ class NatNetReader(MarkerSourceNode):
         return [{"topic": f"natnet:{self.link.where}", "sender": self.app or "?", "rate_hz": self.rate_hz or self._rate,
                  "received": self.counts["frames"], "gaps": self.counts["gaps"],
                  "rejected": sum(self.rejected.values())}]
+
+
+def _same_bones(bones: SkeletonBones | None, model: NatNetModel, name: str) -> bool:
+    """Whether the model definitions' skeleton to publish is the one already latched."""
+    new = skeleton_bones(model.defs, name)
+    if bones is None or new is None:
+        return bones is new
+    return bones.names == new.names and np.array_equal(bones.ids, new.ids) and bones.id == new.id
+
+
+def _skeleton_info(b: SkeletonBones, dev: DeviceConfig) -> SkeletonInfo:
+    """A skeleton's latched description, bone offsets turned to world axes."""
+    return SkeletonInfo(source=f"natnet skeleton {b.name}", joint_names=b.names, joint_parent=b.parents,
+                        rest_offsets=b.offsets @ dev.rotation.T,
+                        units_note=f"NatNet metres, bone poses as streamed (global), xyzw -> wxyz; {dev.describe()}")
+
+
+def _skeleton_pose(f: nn.Frame, b: SkeletonBones, dev: DeviceConfig, dev_q: np.ndarray,
+                   coordinates: str = "global") -> SkeletonPose:
+    """One frame's bones of skeleton ``b`` in world axes (``coordinates`` 'local': composed from
+    parent-relative poses first); untracked bones, and with 'local' bones under one, NaN with state 0."""
+    bones = bone_poses(f, b)
+    pos, quat = bones.positions, bones.quat_wxyz
+    if coordinates == "local":
+        pos, quat = local_to_global(pos, quat, b.parents, b.levels)
+    ok = bones.valid & np.isfinite(pos).all(axis=1) & np.isfinite(quat).all(axis=1)
+    return SkeletonPose(source_id=b.name, frame_number=f.frame_number,
+                        joint_positions=dev.points_to_world(np.where(ok[:, None], pos, np.nan)),
+                        joint_orientations=quat_multiply(dev_q, np.where(ok[:, None], quat, np.nan)),
+                        tracking_state=np.where(ok, 2, 0).astype(np.int8))
+
+
+def _smoothed_rate(rate: float, last_ts: float, ts: float) -> float:
+    """The frame rate estimate ``rate`` updated by one frame's timestamp (s) after ``last_ts``."""
+    if not last_ts or ts <= last_ts:
+        return rate
+    inst = 1.0 / (ts - last_ts)
+    return inst if not rate else 0.95 * rate + 0.05 * inst

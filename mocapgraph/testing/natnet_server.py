@@ -4,16 +4,19 @@
 NAT_SERVERINFO, NAT_REQUEST_MODELDEF with NAT_MODELDEF, the ``FrameRate`` request with a float,
 keep-alives and disconnects noted) and sends frames unicast to every client that connected, to a
 multicast group, and to any extra addresses. It holds packets as bytes, so the same server
-replays a capture's own server info, model definitions and frames (:func:`replay`) or serves
-the synthetic actor (:class:`ActorStream`, encoded by :mod:`mocapgraph.formats.natnet_encode`
-for NatNet 3.0, 4.0, 4.1 or 4.2) with injected loss and restarts (:func:`simulate`).
+replays a capture's own server info, model definitions and frames (``device replay``) or serves
+a source (:class:`ActorStream`: the synthetic actor with its skeleton, or a C3D, TRC or bag's
+markers; encoded by :mod:`mocapgraph.formats.natnet_encode` for NatNet 3.0, 4.0, 4.1 or 4.2)
+with injected loss, restarts, delay and clock drift (:func:`simulate`). Sources and the delay and
+drift injector are shared with the QTM simulator (:mod:`mocapgraph.testing.sim_sources`).
 """
 from __future__ import annotations
 
 import socket
 import struct
 import time
-from dataclasses import dataclass, field
+from collections import deque
+from dataclasses import dataclass, field, replace
 from typing import Callable, Iterator
 
 import numpy as np
@@ -21,6 +24,7 @@ import numpy as np
 from ..formats import natnet as nn
 from ..formats import natnet_encode as ne
 from ..formats.device_file import DeviceConfig, device_or_default
+from .sim_sources import ActorSource, DelayLine, LinkFaults, RecordedMarkers, is_recording
 
 NAT_DISCOVERY = 14
 ACTOR_ID = 1          # the skeleton id the actor's labelled markers carry as their model id
@@ -99,11 +103,17 @@ class NatNetServer:
         self.cmd.close()
 
 
-# ----- the synthetic actor as Motive would stream it ----------------------------------------
+# ----- a marker or skeleton source as Motive would stream it -----------------------------------
 @dataclass
 class ActorStream:
-    """The synthetic actor as NatNet frames: its markers as a skeleton asset's labelled markers (and
-    marker set), its first ``n_bodies`` limbs as rigid bodies, ``n_unlabelled`` stray markers."""
+    """A source as NatNet frames. The synthetic actor (``source`` '' or 'actor'): its markers as a
+    skeleton asset's labelled markers (and marker set), its limbs as that skeleton's bones (global
+    poses; bone ``k`` of ``bone_dropout_every`` N > 0 untracked on frames k with k % N == 0, as
+    Motive sends it: zeros, tracking-valid bit clear), its first ``n_bodies`` limbs as rigid bodies,
+    ``n_unlabelled`` stray markers (``skeleton`` False: the asset without bones; ``skeleton_local``:
+    bones relative to their parent, Motive's "Local" skeleton coordinates). A recording (``source`` a C3D, TRC or bag path, ``topic`` a
+    bag's MarkerFrame topic): its labelled markers and residuals at its own rate, its frames
+    looping; a skeleton asset without bones owns them, and there are no rigid bodies."""
 
     layout: str = "plug_in_gait"
     rate_hz: float = 120.0
@@ -114,23 +124,46 @@ class ActorStream:
     noise_mm: float = 0.0
     device: str = ""
     up_axis: str = "y"
+    source: str = ""
+    topic: str = ""
+    bone_dropout_every: int = 0
+    skeleton: bool = True
+    skeleton_local: bool = False
     dev: DeviceConfig = field(init=False)
 
     def __post_init__(self) -> None:
-        from ..kinematics.synthetic.actor import CaptureOptions, SyntheticActor
-
-        self.actor = SyntheticActor(self.layout, rate=self.rate_hz, seed=self.seed,
-                                    options=CaptureOptions(noise_mm=self.noise_mm,
-                                                           dropout_rate_hz=self.dropout_rate_hz))
         self.dev = device_or_default(self.device, self.up_axis)
-        self.labels = list(self.actor.skeleton.marker_labels)
-        limbs = list(self.actor.skeleton.limb_names)
+        self.recording: RecordedMarkers | None = None
+        if is_recording(self.source):
+            self.recording = RecordedMarkers(self.source, self.topic or None)
+            self.rate_hz, self.labels, self.n_bodies = self.recording.rate_hz, list(self.recording.labels), 0
+            self.body_names, self.bone_names = [], []
+            self.bone_parent = np.zeros(0, np.int64)
+            self.n_frames = self.recording.n_frames
+            return
+        self.actor_source = ActorSource(self.layout, self.rate_hz, self.seed, self.noise_mm, self.dropout_rate_hz)
+        self.actor = self.actor_source.actor
+        self.n_frames = self.actor.n_frames
+        self.labels = list(self.actor_source.labels)
+        limbs = list(self.actor_source.limb_names)
         self.n_bodies = min(self.n_bodies, len(limbs))
         self.body_names = limbs[: self.n_bodies]
+        self.bone_names = limbs if self.skeleton else []
+        self.bone_parent = self.actor_source.limb_parent if self.skeleton else np.zeros(0, np.int64)
+
+    def bone_offsets(self) -> np.ndarray:
+        """Each bone's origin less its parent's (its own for a root) in the session's first frame, world m."""
+        o = self.bones(0, 1)[0][0]
+        par = self.bone_parent
+        return np.where((par >= 0)[:, None], o - o[np.maximum(par, 0)], o)
 
     def model_defs(self) -> nn.ModelDefs:
         defs = nn.ModelDefs(marker_sets={"Actor": list(self.labels), "all": [f"Actor_{m}" for m in self.labels]})
-        defs.skeletons["Actor"] = (ACTOR_ID, [])
+        off = self.dev.points_from_world(self.bone_offsets()) - self.dev.points_from_world(np.zeros(3)) \
+            if self.bone_names else np.zeros((0, 3))
+        bones = [nn.RigidBodyDef(name, k + 1, int(self.bone_parent[k]) + 1, off[k].astype(np.float32))
+                 for k, name in enumerate(self.bone_names)]
+        defs.skeletons["Actor"] = (ACTOR_ID, bones)
         for k, name in enumerate(self.body_names):
             defs.rigid_bodies.append(nn.RigidBodyDef(name, FIRST_BODY_ID + k, -1, np.zeros(3, np.float32)))
         return defs
@@ -138,9 +171,28 @@ class ActorStream:
     def world(self, a: int, b: int):
         """Ground truth of session frames a..b-1: (markers [T,M,3] NaN where hidden, body positions
         [T,R,3], body wxyz [T,R,4]) in the world frame."""
-        n = self.actor.n_frames
-        cap = self.actor.capture(a % n, min(a % n + (b - a), n))
+        if self.recording is not None:
+            m = self.recording.markers(a, b)[0]
+            return m, np.zeros((len(m), 0, 3)), np.zeros((len(m), 0, 4))
+        cap = self.actor_source.window(a, b)
         return cap.markers, cap.limb_centroids[:, : self.n_bodies], cap.limb_quat[:, : self.n_bodies]
+
+    def bones(self, a: int, b: int):
+        """Ground truth of the skeleton's bones in frames a..b-1: (origins [T,L,3] m world, wxyz
+        [T,L,4] world, tracked bool [T,L]); empty for a recording."""
+        if self.recording is not None or not self.bone_names:
+            t = min(b - a, self.n_frames - a % self.n_frames)
+            return np.zeros((t, 0, 3)), np.zeros((t, 0, 4)), np.zeros((t, 0), bool)
+        src = self.actor_source
+        cap = src.window(a, b)
+        pos = src.segment_origins(cap.joint_centres, cap.limb_centroids)
+        t, n = pos.shape[:2]
+        ok = np.ones((t, n), bool)
+        if self.bone_dropout_every:
+            k = np.arange(a, a + t)
+            hit = k % self.bone_dropout_every == 0
+            ok[np.flatnonzero(hit), (k % n)[hit]] = False
+        return pos, cap.limb_quat, ok
 
     def frames(self, start: int = 0, count: int = 0, chunk: int = 120) -> Iterator[nn.Frame]:
         """NatNet frames numbered from ``start`` (device axes; 0 = endless)."""
@@ -151,15 +203,46 @@ class ActorStream:
         while not count or k < count:
             a = start + k
             n = chunk if not count else min(chunk, count - k)
-            n = min(n, self.actor.n_frames - a % self.actor.n_frames)
+            n = min(n, self.n_frames - a % self.n_frames)
             markers, bpos, bquat = self.world(a, a + n)
+            res = self.recording.markers(a, a + n)[1] if self.recording is not None else \
+                np.full(markers.shape[:2], 0.0002)
+            spos, squat, sok = self.bones(a, a + n)
+            if self.skeleton_local:
+                spos, squat = self._local(spos, squat)
             for i in range(markers.shape[0]):
-                yield self._frame(a + i, markers[i], bpos[i], bquat[i], r_dev)
+                yield self._frame(a + i, markers[i], res[i], (bpos[i], bquat[i]), (spos[i], squat[i], sok[i]), r_dev)
             k += markers.shape[0]
 
-    def _frame(self, number: int, markers: np.ndarray, bpos: np.ndarray, bquat: np.ndarray, r_dev) -> nn.Frame:
+    def _local(self, pos: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bone poses [T, L] relative to the parent bone (roots unchanged)."""
+        from ..kinematics.quaternion import quat_conjugate, quat_multiply, quat_rotate
+
+        par = np.maximum(self.bone_parent, 0)
+        child = (self.bone_parent >= 0)[None, :, None]
+        inv = quat_conjugate(quat[:, par])
+        return (np.where(child, quat_rotate(inv, pos - pos[:, par]), pos),
+                np.where(child, quat_multiply(inv, quat), quat))
+
+    def _poses(self, ids: np.ndarray, pos: np.ndarray, quat_wxyz: np.ndarray, ok: np.ndarray, r_dev,
+               in_device: np.ndarray | None = None) -> np.ndarray:
+        """RIGID_BODY rows in device axes (``in_device`` False: rows kept as they are, parent-relative
+        bones; untracked: zeros, tracking-valid bit clear, as Motive sends)."""
         from scipy.spatial.transform import Rotation
 
+        rb = np.zeros(len(ids), nn.RIGID_BODY)
+        rb["id"] = ids
+        if len(ids):
+            keep = np.zeros(len(ids), bool) if in_device is None else ~in_device
+            p = np.where(keep[:, None], pos, self.dev.points_from_world(pos))
+            rb["pos"] = np.where(ok[:, None], p, 0.0)
+            q = (r_dev * Rotation.from_quat(quat_wxyz, scalar_first=True)).as_quat()  # x, y, z, w
+            q = np.where(keep[:, None], np.asarray(quat_wxyz)[:, [1, 2, 3, 0]], q)
+            rb["quat_xyzw"] = np.where(ok[:, None], q, 0.0)
+        rb["params"] = np.where(ok, nn.RIGID_BODY_TRACKING_VALID, 0)
+        return rb
+
+    def _frame(self, number: int, markers: np.ndarray, residual: np.ndarray, body, bone, r_dev) -> nn.Frame:
         m = len(self.labels)
         seen = ~np.isnan(markers).any(axis=1)
         dev_m = np.where(seen[:, None], self.dev.points_from_world(np.nan_to_num(markers)), 0.0).astype(np.float32)
@@ -168,22 +251,22 @@ class ActorStream:
         lm["pos"][:m] = dev_m
         lm["size"] = 0.014
         lm["params"][:m] = np.where(seen, nn.MARKER_PC_SOLVED | nn.MARKER_HAS_MODEL, nn.MARKER_OCCLUDED)
-        lm["residual"] = 0.0002
+        lm["residual"][:m] = np.where(seen, residual, 0.0)
+        lm["residual"][m:] = 0.0002
         stray = np.float32(0.5) + np.arange(self.n_unlabelled * 3, dtype=np.float32).reshape(-1, 3) * 0.1
         lm["id"][m:] = 50000 + np.arange(self.n_unlabelled)
         lm["pos"][m:] = stray + np.float32(number % 100) * 0.001
         lm["params"][m:] = nn.MARKER_UNLABELLED | nn.MARKER_PC_SOLVED
-        rb = np.zeros(self.n_bodies, nn.RIGID_BODY)
-        rb["id"] = FIRST_BODY_ID + np.arange(self.n_bodies)
-        rb["pos"] = self.dev.points_from_world(bpos)
-        q = (r_dev * Rotation.from_quat(bquat, scalar_first=True)).as_quat()  # x, y, z, w
-        rb["quat_xyzw"] = q
+        rb = self._poses(FIRST_BODY_ID + np.arange(self.n_bodies), *body, np.ones(self.n_bodies, bool), r_dev)
         rb["error"] = 0.0003 + 0.0001 * np.arange(self.n_bodies)
-        rb["params"] = nn.RIGID_BODY_TRACKING_VALID
+        skeletons = {}
+        if self.bone_names:
+            skeletons[ACTOR_ID] = self._poses((ACTOR_ID << 16) | np.arange(1, len(self.bone_names) + 1), *bone, r_dev,
+                                              (self.bone_parent < 0) if self.skeleton_local else None)
         t = number / self.rate_hz
         mid = int(round(t * CLOCK_HZ))
         tc = (int(t // 3600) << 24) | (int(t // 60 % 60) << 16) | (int(t % 60) << 8) | int(number % self.rate_hz)
-        return nn.Frame(number, {"Actor": dev_m, "all": dev_m}, np.zeros((0, 3), np.float32), rb, {}, lm,
+        return nn.Frame(number, {"Actor": dev_m, "all": dev_m}, np.zeros((0, 3), np.float32), rb, skeletons, lm,
                         tc, 0, t, mid, mid + CLOCK_HZ // 500, mid + 3 * CLOCK_HZ // 1000,
                         int(t), int((t % 1) * 2**32) & 0xFFFFFFFF, 0, 0)
 
@@ -268,16 +351,49 @@ def wait_until_ready(server: NatNetServer, timeout_s: float) -> bool:
 
 
 # ----- the simulator ------------------------------------------------------------------------
+#: mid-exposure to transmit in the simulator's frames (ActorStream._frame): 3 ms
+SYSTEM_LATENCY_NS = 3_000_000
+
+
 @dataclass
 class Faults:
     """What the simulator breaks: a fraction of frames never sent (seeded), a restart (the server
-    gone for ``restart_gap_s`` after ``restart_after`` frames, its frame numbers starting over)."""
+    gone for ``restart_gap_s`` after ``restart_after`` frames, its frame numbers starting over),
+    each frame held back a random ``delay_ms`` (lo, hi) on its way (datagrams may overtake each
+    other) and the server's clock running ``drift_ppm`` fast (the injector the QTM simulator uses,
+    :class:`~mocapgraph.testing.sim_sources.LinkFaults`). ``captured`` logs (frame number, its true
+    mid-exposure time on this machine's wall clock, ns) of every frame sent: what a reader's
+    capture stamps should equal."""
 
     loss: float = 0.0
     restart_after: int = 0
     restart_gap_s: float = 2.0
     seed: int = 0
     dropped: list[int] = field(default_factory=list)
+    delay_ms: tuple[float, float] = (0.0, 0.0)
+    drift_ppm: float = 0.0
+    captured: deque = field(default_factory=lambda: deque(maxlen=100_000))
+    #: how late the simulator itself sent frames (after their slot and injected delay), ms: the
+    #: worst, and how many over 0.5 s (a busy machine stalling this thread; a reader sees a stall)
+    late_ms_max: float = 0.0
+    late_over_500ms: int = 0
+
+    def __post_init__(self) -> None:
+        self.link = LinkFaults(self.delay_ms, self.drift_ppm, self.seed)
+
+    def sent_late(self, due: float, now: float) -> None:
+        """Note a frame sent at ``now`` that was due at ``due`` (monotonic s)."""
+        late = (now - due) * 1000.0
+        self.late_ms_max = max(self.late_ms_max, late)
+        self.late_over_500ms += late > 500.0
+
+    def on_device_clock(self, f: nn.Frame) -> nn.Frame:
+        """``f`` with its clock fields read off a server clock running ``drift_ppm`` fast."""
+        if not self.drift_ppm:
+            return f
+        d = self.link.device_s
+        return replace(f, timestamp=d(f.timestamp), mid_exposure_ticks=round(d(f.mid_exposure_ticks)),
+                       data_received_ticks=round(d(f.data_received_ticks)), transmit_ticks=round(d(f.transmit_ticks)))
 
 
 def simulate(stream: ActorStream, version: nn.Version, host: str = "127.0.0.1", command_port: int = 1510,
@@ -305,15 +421,15 @@ def simulate(stream: ActorStream, version: nn.Version, host: str = "127.0.0.1", 
             todo = min(todo, faults.restart_after) if todo else faults.restart_after
         frames = stream.frames(number, todo)
 
-        def packets() -> Iterator[tuple[float, bytes]]:
+        def packets() -> Iterator[tuple[int, bytes]]:
             for f in frames:
                 if faults.loss and rng.random() < faults.loss:
                     faults.dropped.append(f.frame_number)
-                    yield f.timestamp, b""
+                    yield f.frame_number, b""
                     continue
-                yield f.timestamp, ne.frame(f, version)
+                yield f.frame_number, ne.frame(faults.on_device_clock(f), version)
 
-        for t, packet in _timed(server, packets(), stream.rate_hz):
+        for packet in _timed(server, packets(), stream.rate_hz, faults):
             sent += bool(packet)
         server.close()
         if not faults.restart_after or (count and sent + len(faults.dropped) >= count):
@@ -322,17 +438,37 @@ def simulate(stream: ActorStream, version: nn.Version, host: str = "127.0.0.1", 
         time.sleep(faults.restart_gap_s)
 
 
-def _timed(server: NatNetServer, items: Iterator[tuple[float, bytes]], rate_hz: float) -> Iterator[tuple[float, bytes]]:
-    """Send packets one frame period apart (b"" = a dropped frame: its slot passes unsent)."""
-    t0 = time.monotonic()
-    for k, (t, packet) in enumerate(items):
-        due = t0 + k / rate_hz
-        while True:
-            server.serve()
-            wait = due - time.monotonic()
-            if wait <= 0:
-                break
-            time.sleep(min(wait, 0.002))
-        if packet:
+def _pass_time(server: NatNetServer, held: DelayLine, until: float, faults: Faults) -> None:
+    """Answer the command channel and send held-back packets as they fall due, until ``until``."""
+    while True:
+        server.serve()
+        now = time.monotonic()
+        for due, packet in held.pop_due(now):
             server.send(packet)
-        yield t, packet
+            faults.sent_late(due, now)
+        if now >= until:
+            return
+        time.sleep(max(0.0, min(until - now, held.next_due - now, 0.002)))
+
+
+def _timed(server: NatNetServer, items: Iterator[tuple[int, bytes]], rate_hz: float,
+           faults: Faults) -> Iterator[bytes]:
+    """Send (frame number, packet) one frame period apart (b"" = a dropped frame: its slot passes
+    unsent), each after its injected delay; a frame's slot is its transmit time, so its true
+    mid-exposure is the system latency before (logged in ``faults.captured``)."""
+    t0, wall0 = time.monotonic(), time.time_ns()
+    held = DelayLine()
+    for k, (number, packet) in enumerate(items):
+        due = t0 + k / rate_hz
+        _pass_time(server, held, due, faults)
+        if packet:
+            faults.captured.append((number, wall0 + round((due - t0) * 1e9) - SYSTEM_LATENCY_NS))
+            if faults.link.delays:
+                hold = due + faults.link.hold_s()
+                held.push(hold, (hold, packet))
+            else:
+                server.send(packet)
+                faults.sent_late(due, time.monotonic())
+        yield packet
+    while len(held):
+        _pass_time(server, held, held.next_due, faults)

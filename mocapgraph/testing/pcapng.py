@@ -1,8 +1,9 @@
-"""Reads the UDP datagrams (with capture times and addresses) out of a pcapng capture file.
+"""Reads the UDP datagrams and TCP segments (with capture times and addresses) out of a pcapng capture file.
 
-Small on purpose: enough for replaying captured device traffic in tests (NatNet), not a general
-packet library. Handles little- and big-endian sections, Ethernet (with 802.1Q tags), Linux
-cooked (SLL) and raw-IP links, IPv4 only, unfragmented UDP; anything else is skipped.
+Small on purpose: enough for replaying captured device traffic in tests (NatNet over UDP, QTM over
+TCP), not a general packet library. Handles little- and big-endian sections, Ethernet (with 802.1Q
+tags), Linux cooked (SLL) and raw-IP links, IPv4 only, unfragmented UDP and TCP; anything else is
+skipped. :func:`write_ip` writes IPv4 packets as a raw-IP capture (tests build captures with it).
 """
 from __future__ import annotations
 
@@ -74,11 +75,12 @@ def _resolution(options: bytes, endian: str) -> float:
     return 1e-6
 
 
-def read_udp(path: str | Path) -> list[Datagram]:
-    """Every whole IPv4 UDP datagram of the capture, in file order. PcapngError on a broken file."""
+def _ip_packets(path: str | Path):
+    """(capture time ns, IPv4 packet bytes) of every IPv4 packet of the capture, in file order."""
     data = Path(path).read_bytes()
     name = Path(path).name
-    out: list[Datagram] = []
+    if not data.startswith(struct.pack("<I", SHB)):
+        raise PcapngError(f"{name}: not a pcapng file (no section header block)")
     endian = "<"
     links: list[tuple[int, float]] = []
     off = 0
@@ -103,11 +105,59 @@ def read_udp(path: str | Path) -> list[Datagram]:
             if iface < len(links) and 20 + caplen <= len(body):
                 link, res = links[iface]
                 ip = _ip_from_link(link, body[20: 20 + caplen])
-                udp = _udp_from_ip(ip) if ip is not None else None
-                if udp is not None:
-                    t = ((ts_hi << 32) | ts_lo) * res
-                    out.append(Datagram(int(round(t * 1e9)), udp[0], udp[1], udp[2]))
+                if ip is not None:
+                    yield int(round(((ts_hi << 32) | ts_lo) * res * 1e9)), ip
         off += blen
-    if off == 0 or not data.startswith(struct.pack("<I", SHB)):
-        raise PcapngError(f"{name}: not a pcapng file (no section header block)")
+
+
+def read_udp(path: str | Path) -> list[Datagram]:
+    """Every whole IPv4 UDP datagram of the capture, in file order. PcapngError on a broken file."""
+    out: list[Datagram] = []
+    for t, ip in _ip_packets(path):
+        udp = _udp_from_ip(ip)
+        if udp is not None:
+            out.append(Datagram(t, udp[0], udp[1], udp[2]))
     return out
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One captured TCP segment: capture time (ns), addresses, sequence number, flags, payload."""
+
+    time_ns: int
+    src: tuple[str, int]
+    dst: tuple[str, int]
+    seq: int
+    flags: int
+    payload: bytes
+
+
+def read_tcp(path: str | Path) -> list[Segment]:
+    """Every unfragmented IPv4 TCP segment of the capture, in file order. PcapngError on a broken file."""
+    out: list[Segment] = []
+    for t, pkt in _ip_packets(path):
+        if len(pkt) < 20 or pkt[0] >> 4 != 4 or pkt[9] != 6 or struct.unpack_from(">H", pkt, 6)[0] & 0x3FFF:
+            continue
+        ihl = (pkt[0] & 15) * 4
+        total = struct.unpack_from(">H", pkt, 2)[0] or len(pkt)
+        if len(pkt) < ihl + 20:
+            continue
+        sport, dport, seq = struct.unpack_from(">HHI", pkt, ihl)
+        thl = (pkt[ihl + 12] >> 4) * 4
+        out.append(Segment(t, (_ip(pkt[12:16]), sport), (_ip(pkt[16:20]), dport), seq, pkt[ihl + 13],
+                           pkt[ihl + thl: min(total, len(pkt))]))
+    return out
+
+
+def write_ip(path: str | Path, packets: list[tuple[int, bytes]]) -> None:
+    """(capture time ns, IPv4 packet) pairs as a pcapng file (one raw-IPv4 interface, ns stamps)."""
+    def block(btype: int, body: bytes) -> bytes:
+        body += b"\0" * (-len(body) % 4)
+        n = len(body) + 12
+        return struct.pack("<II", btype, n) + body + struct.pack("<I", n)
+
+    out = block(SHB, struct.pack("<IHHq", 0x1A2B3C4D, 1, 0, -1))
+    out += block(IDB, struct.pack("<HHI", LINK_IPV4, 0, 0) + struct.pack("<HHB3x", 9, 1, 9) + b"\0" * 4)
+    for t, ip in packets:
+        out += block(EPB, struct.pack("<IIIII", 0, t >> 32, t & 0xFFFFFFFF, len(ip), len(ip)) + ip)
+    Path(path).write_bytes(out)

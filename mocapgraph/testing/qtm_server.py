@@ -12,7 +12,9 @@ Skeleton, Skeleton:Global and Timecode (SMPTE and camera time).
 What it sends is exactly what a reader should reconstruct (:class:`ActorQTMSource`): the actor's
 markers in millimetres in QTM's axes (``axis_up``: ``+Z`` as QTM's default, or another axis), its
 first ``n_bodies`` limbs as 6DOF bodies, its limbs as one skeleton, a few unlabelled strays; or
-the labelled markers of a C3D or TRC file (:class:`TrialQTMSource`).
+the labelled markers of a C3D or TRC file or of a bag mocapgraph recorded (:class:`TrialQTMSource`);
+sources and the delay and drift injector are shared with the NatNet simulator
+(:mod:`mocapgraph.testing.sim_sources`).
 Faults on demand: frames lost (``loss``, frame numbers jump as when QTM skips), each frame held
 back by a random ``delay_ms`` (lo, hi) (TCP keeps the order), QTM's clock running ``drift_ppm``
 fast, a malformed data packet every ``bad_every`` frames, a measurement of ``frames`` frames followed by "no more
@@ -21,7 +23,6 @@ the port closed for ``restart_down_s``, frame numbers starting over).
 """
 from __future__ import annotations
 
-import heapq
 import selectors
 import socket
 import threading
@@ -34,7 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from ..formats import qtm_rt as q
 from ..formats.device_file import DeviceConfig
-from ..kinematics.synthetic.actor import CaptureOptions, SyntheticActor
+from .sim_sources import ActorSource, DelayLine, LinkFaults, RecordedMarkers
 
 SUPPORTED_VERSIONS = tuple(f"1.{m}" for m in range(19, 27))
 QTM_VERSION_TEXT = "QTM Version is 2024.2 (build 0) (mocapgraph simulator)"
@@ -70,23 +71,19 @@ class ActorQTMSource:
     def __init__(self, layout: str = "plug_in_gait", rate_hz: float = 120.0, seed: int = 0,
                  noise_mm: float = 0.0, n_bodies: int = 5, axis_up: str = "+Z", n_unlabelled: int = 2,
                  occlude_every: int = 0) -> None:
-        self.actor = SyntheticActor(layout, rate=rate_hz, seed=seed, options=CaptureOptions(noise_mm=noise_mm))
-        sk = self.actor.skeleton
-        self.rate_hz = float(rate_hz)
-        self.labels = list(sk.marker_labels)
-        self.limb_names = list(sk.limb_names)
+        self.src = ActorSource(layout, rate_hz, seed, noise_mm)
+        self.actor = self.src.actor
+        self.rate_hz = self.src.rate_hz
+        self.labels = self.src.labels
+        self.limb_names = self.src.limb_names
         self.n_bodies = min(int(n_bodies), len(self.limb_names))
         self.body_names = self.limb_names[:self.n_bodies]
-        self.limb_parent = np.asarray(sk.limb_parent, dtype=np.int64)
-        # segment origin: the joint a limb hangs from (its centroid for a root limb)
-        self.origin_joint = np.full(len(self.limb_names), -1, np.int64)
-        for j, (_p, c) in enumerate(np.asarray(sk.joint_limbs)):
-            self.origin_joint[c] = j
+        self.limb_parent = self.src.limb_parent
+        self.origin_joint = self.src.origin_joint   # segment origin: the joint a limb hangs from
         self.axis_up = axis_up
         self.dev = DeviceConfig().with_up_axis(axis_up)
         self.n_unlabelled = int(n_unlabelled)
         self.occlude_every = int(occlude_every)
-        self._chunk: tuple[int, object] | None = None
         f0 = self.frame(0)
         self.body_points = [np.zeros((3, 3)) + np.eye(3) * 40.0 for _ in self.body_names]
         self.skeleton_def = q.SkeletonDef("actor", self.limb_names, list(range(1, len(self.limb_names) + 1)),
@@ -95,12 +92,6 @@ class ActorQTMSource:
     @property
     def n_frames(self) -> int:
         return self.actor.n_frames
-
-    def _capture(self, k: int):
-        a = (k // 120) * 120
-        if self._chunk is None or self._chunk[0] != a:
-            self._chunk = (a, self.actor.capture(a, min(a + 120, self.actor.n_frames)))
-        return self._chunk[1], k - a
 
     def to_qtm_points(self, world_m: np.ndarray) -> np.ndarray:
         return (self.dev.points_from_world(world_m) * 1000.0).astype(np.float32)
@@ -115,12 +106,11 @@ class ActorQTMSource:
         pre = getattr(self, "_pre", None)
         if pre and k in pre:
             return pre[k]
-        cap, i = self._capture(k % self.actor.n_frames)
+        cap, i = self.src.capture_at(k)
         markers = self.to_qtm_points(cap.markers[i])
         R = Rotation.from_quat(cap.limb_quat[i], scalar_first=True).as_matrix()     # world, per limb
         Rq = np.einsum("ba,lbc->lac", self.dev.rotation, R)                           # QTM axes
-        origins = np.where(self.origin_joint[:, None] >= 0,
-                           cap.joint_centres[i][np.maximum(self.origin_joint, 0)], cap.limb_centroids[i])
+        origins = self.src.segment_origins(cap.joint_centres[i], cap.limb_centroids[i])
         o = self.to_qtm_points(origins).astype(np.float64)
         B = self.n_bodies
         body_pos = self.to_qtm_points(cap.limb_centroids[i][:B])
@@ -156,22 +146,23 @@ class ActorQTMSource:
 
 
 class TrialQTMSource:
-    """A marker file (C3D, TRC) as QTM would stream it: its labels and trajectories in millimetres,
-    QTM axes ``axis_up`` (the file's own up axis made world Z first, as the readers do); no 6DOF
-    bodies, no skeleton, no unlabelled markers. Frame ``k`` is the file's frame ``k`` (looping)."""
+    """A marker recording (C3D, TRC, or a bag's MarkerFrame ``topic``: see
+    :class:`~mocapgraph.testing.sim_sources.RecordedMarkers`) as QTM would stream it: its labels and
+    trajectories in millimetres, QTM axes ``axis_up`` (a file's own up axis made world Z first, as
+    the readers do); no 6DOF bodies, no skeleton, no unlabelled markers. Frame ``k`` is the
+    recording's frame ``k`` (looping)."""
 
-    def __init__(self, path: str, axis_up: str = "+Z") -> None:
-        from ..formats.sources import read_marker_file
-
-        trial = read_marker_file(path)
-        self.trial = trial
-        self.rate_hz = float(trial.rate_hz)
-        self.labels = list(trial.labels)
+    def __init__(self, path: str, axis_up: str = "+Z", topic: str | None = None) -> None:
+        rec = RecordedMarkers(path, topic)
+        self.recording = rec
+        self.trial = rec.trial
+        self.rate_hz = rec.rate_hz
+        self.labels = list(rec.labels)
         self.body_names: list[str] = []
         self.axis_up = axis_up
         self.dev = DeviceConfig().with_up_axis(axis_up)
-        self.mm = (self.dev.points_from_world(trial.positions) * 1000.0).astype(np.float32)
-        self.res = (trial.residuals * 1000.0).astype(np.float32)
+        self.mm = (self.dev.points_from_world(rec.positions) * 1000.0).astype(np.float32)
+        self.res = (rec.residuals * 1000.0).astype(np.float32)
         none = q.Skeleton(np.zeros(0, np.int32), np.zeros((0, 3), np.float32), np.zeros((0, 4), np.float32))
         self._empty = dict(unlabelled=np.zeros((0, 3), np.float32), unlabelled_ids=np.zeros(0, np.int32),
                            body_pos=np.zeros((0, 3), np.float32), body_rot=np.zeros((0, 9), np.float32),
@@ -226,7 +217,7 @@ class _Client:
     divisor: int = 0                  # 0 = not streaming
     udp_to: tuple | None = None
     outbuf: bytearray = field(default_factory=bytearray)
-    later: deque = field(default_factory=deque)    # (due, packet): delayed frames, in order (TCP keeps order)
+    later: DelayLine = field(default_factory=lambda: DelayLine(keep_order=True))   # delayed frames (TCP keeps order)
 
 
 class _Commands:
@@ -347,14 +338,13 @@ class QTMSimServer(_Commands):
         self.bad_sent = 0
         self.lost_log: deque[int] = deque(maxlen=100_000)    # frame numbers lost / sent malformed
         self.bad_log: deque[int] = deque(maxlen=100_000)
-        self.delay_ms = (float(delay_ms[0]), float(delay_ms[1]))
-        self.drift_ppm = float(drift_ppm)
+        self.link = LinkFaults(delay_ms, drift_ppm, seed)     # the injector the NatNet simulator uses too
+        self.delay_ms, self.drift_ppm = self.link.delay_ms, self.link.drift_ppm
         #: (frame number, true capture time on this machine's wall clock, ns): the frame's place in
         #: the measurement's schedule, before any send delay (what a reader's stamps should equal)
         self.capture_log: deque[tuple[int, int]] = deque(maxlen=100_000)
         self.send_log: deque[tuple[int, int]] = deque(maxlen=100_000)   # (frame, wall ns) as it was sent
-        self._udp_later: list[tuple[float, int, bytes, tuple]] = []     # heap: (due, seq, packet, address)
-        self._seq = 0
+        self._udp_later = DelayLine()                                   # (packet, address) datagrams
         self._mono0, self._wall0 = time.monotonic(), time.time_ns()
         self._epoch = self._mono0          # monotonic time of the measurement's first frame
         self.restarts = 0
@@ -442,7 +432,7 @@ class QTMSimServer(_Commands):
     def _stamp_us(self, k: int) -> int:
         """QTM's time stamp of frame ``k``: µs since the measurement began, by QTM's clock (which
         runs ``drift_ppm`` fast against ours)."""
-        return round((k - self.start_frame) * 1e6 / self.rate_hz * (1.0 + self.drift_ppm * 1e-6))
+        return round(self.link.device_s((k - self.start_frame) / self.rate_hz) * 1e6)
 
     def _due(self, k: int) -> float:
         """Monotonic time frame ``k`` is captured (the measurement's schedule)."""
@@ -450,8 +440,7 @@ class QTMSimServer(_Commands):
 
     def _deliver(self, c: _Client, pkt: bytes) -> None:
         """Send a frame now, or after the injected delay (TCP: never before an earlier frame)."""
-        lo, hi = self.delay_ms
-        if hi <= 0:
+        if not self.link.delays:
             if c.udp_to is not None:
                 try:
                     self.udp.sendto(pkt, c.udp_to)
@@ -460,31 +449,26 @@ class QTMSimServer(_Commands):
             else:
                 self._send(c, pkt)
             return
-        due = time.monotonic() + float(self.rng.uniform(lo, hi)) / 1000.0
+        due = time.monotonic() + self.link.hold_s()
         if c.udp_to is not None:
-            self._seq += 1
-            heapq.heappush(self._udp_later, (due, self._seq, pkt, c.udp_to))
+            self._udp_later.push(due, (pkt, c.udp_to))
         else:
-            c.later.append((max(due, c.later[-1][0]) if c.later else due, pkt))
+            c.later.push(due, pkt)
 
     def _release(self) -> float:
         """Send the delayed frames now due; returns when the next one is (inf: none)."""
         now = time.monotonic()
         nxt = float("inf")
         for c in list(self.clients.values()):
-            while c.later and c.later[0][0] <= now:
-                self._send(c, c.later.popleft()[1])
-            if c.later:
-                nxt = min(nxt, c.later[0][0])
-        while self._udp_later and self._udp_later[0][0] <= now:
-            _due, _seq, pkt, to = heapq.heappop(self._udp_later)
+            for pkt in c.later.pop_due(now):
+                self._send(c, pkt)
+            nxt = min(nxt, c.later.next_due)
+        for pkt, to in self._udp_later.pop_due(now):
             try:
                 self.udp.sendto(pkt, to)
             except OSError:
                 pass
-        if self._udp_later:
-            nxt = min(nxt, self._udp_later[0][0])
-        return nxt
+        return min(nxt, self._udp_later.next_due)
 
     def _tick(self) -> None:
         """Frame ``frame_k`` is due: send it to every streaming client (unless lost)."""

@@ -42,6 +42,7 @@ def spec_frame(version: nn.Version) -> tuple[bytes, dict]:
     f32 = lambda *v: [float(np.float32(x)) for x in v]  # noqa: E731
     want = {"frame": 7001, "sets": {"Set": [[1.5, 2.5, 3.5], [4.5, 5.5, 6.5]]}, "other": [[7.25, 8.25, 9.25]],
             "bodies": [(42, f32(0.125, 0.25, 0.375), f32(0.1, 0.2, 0.3, 0.9), f32(0.0005)[0], True)],
+            "skeletons": {"5": [((5 << 16) | 1, f32(1.125, 1.25, 1.375), f32(0.5, 0.5, 0.5, 0.5), f32(0.0015)[0], False)]},
             "labelled": [((42 << 16) | 3, [-1.0, -2.0, -3.0], f32(0.015)[0], 0x22, f32(0.0007)[0])],
             "suffix": (0x01020304, 5, 12.5, 1000, 2000, 3000, *((1700000000, 0x80000001) if sized else (0, 0)), 3)}
     return struct.pack("<HH", nn.NAT_FRAMEOFDATA, len(body)) + body, want  # the count covers the end tag
@@ -129,6 +130,7 @@ def test_simulator_frames_decode_to_their_source_values(version) -> None:
         assert g.frame_number == f.frame_number and g.timestamp == f.timestamp
         assert np.array_equal(g.labelled_markers, f.labelled_markers)
         assert np.array_equal(g.rigid_bodies, f.rigid_bodies)
+        assert g.skeletons.keys() == f.skeletons.keys() == {1} and np.array_equal(g.skeletons[1], f.skeletons[1])
         assert np.array_equal(g.marker_sets["Actor"], f.marker_sets["Actor"])
         assert (g.mid_exposure_ticks, g.data_received_ticks, g.transmit_ticks) == \
             (f.mid_exposure_ticks, f.data_received_ticks, f.transmit_ticks)
