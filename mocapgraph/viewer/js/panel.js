@@ -46,7 +46,7 @@ export class Panel {
       this.send("player", "seek", { position_s: Number(seek.value) }, this.playerTarget, "Seek");
     });
     for (const [id, key] of [["show-markers", "markers"], ["show-bones", "bones"], ["show-labels", "labels"], ["show-axes", "axes"],
-                             ["show-characters", "characters"]]) {
+                             ["show-characters", "characters"], ["show-avatars", "avatars"], ["show-bodies-beside", "bodiesBeside"]]) {
       $(id).addEventListener("change", (e) => { this.scene.show[key] = e.target.checked; });
     }
     $("show-video").addEventListener("change", (e) => { this.video.enabled = e.target.checked; });

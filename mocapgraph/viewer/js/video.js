@@ -1,5 +1,5 @@
 // The video panel at the back of the stage: a local file chosen by the user plays on a plane,
-// uploaded as a WebGL texture whenever the video has a new frame.
+// uploaded as the stage's (three.js) texture whenever the video has a new frame.
 
 const PANEL_X = -3.4;   // m: the plane stands behind the performers as seen from the front
 const PANEL_WIDTH = 4.4; // m
