@@ -57,7 +57,6 @@ export class Avatars {
     }
     if (Number.isFinite(r[0] + r[1] + r[2])) a.bones[a.rootIndex].position.set(r[1], r[2], r[0]);
     a.material.color.setRGB(AVATAR_COLOUR[0] * dim, AVATAR_COLOUR[1] * dim, AVATAR_COLOUR[2] * dim);
-    a.pose = s;   // the frame the avatar shows (tests project its joints)
     a.used = true;
     return true;
   }

@@ -62,6 +62,7 @@ export class SceneBuilder {
     this.hidden = new Set(); // stream keys switched off in the panel
     this.show = { markers: true, bones: true, labels: true, axes: true, characters: true, avatars: true, bodiesBeside: false };
     this.avatars = null;     // avatar.js Avatars: characters drawn as skinned meshes (else as bones)
+    this.poses = {};         // stream key -> the CharacterPose record drawn last (tests project its joints)
     this.referenceTopics = new Set(); // drawn as a thin neutral ghost (ground truth), not by quality
   }
 
@@ -205,6 +206,7 @@ export class SceneBuilder {
     const tint = CHARACTER[hash(s.fields.character || s.key) % CHARACTER.length];
     // the skinned avatar when its mesh is loaded (the avatar toggle off: bones); same counts either way
     rec.avatar = !!(this.show.avatars && this.avatars && info && this.avatars.drive(s, info, dim));
+    this.poses[s.key] = s;
     const counts = [0, 0, 0];
     let top = null;
     for (let i = 0; i < n; i++) {

@@ -125,6 +125,8 @@ export class Stage {
   // An image, canvas or video as the video panel's picture (a new texture when its source or size changes).
   uploadTexture(source) {
     const w = source.videoWidth || source.width, h = source.videoHeight || source.height;
+    // three sizes a texture by the element's width/height: a video's are 0 unless set
+    if (source.videoWidth && (source.width !== w || source.height !== h)) { source.width = w; source.height = h; }
     const t = this.texture;
     if (!t || t.image !== source || t.userData.w !== w || t.userData.h !== h) {
       if (t) t.dispose();
