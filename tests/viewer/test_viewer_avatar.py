@@ -158,3 +158,55 @@ def test_without_threejs_the_page_says_to_run_the_setup_script(open_page, tmp_pa
         assert "scripts/setup.sh" in text and "three.js" in text and "\n" not in text
     finally:
         server.stop()
+
+
+# the page's own Avatars (avatar.js) posing a character's GLB from one CharacterPose-shaped record;
+# returns the skin's bone world positions (three.js's skeleton, in our axes via the avatar's group)
+DRIVE_JS = """async ([infoKey, q, root, J]) => {
+    const v = window.mocapgraphViewer;
+    const info = {key: infoKey, seq: 1, publish_ms: 1, fields: {character: "twisted"}};
+    const s = {key: "test|twisted", arrays: {local_rotations: {data: Float32Array.from(q), shape: [J, 4]},
+                                             root_position: {data: Float32Array.from(root), shape: [3]}}};
+    for (let i = 0; i < 300 && !v.avatars.drive(s, info, 1); i++) await new Promise((r) => setTimeout(r, 50));
+    const a = v.avatars.items.get("test|twisted");
+    if (a.state !== "ready") return {error: v.avatars.errors};
+    a.group.updateMatrixWorld(true);
+    return {bones: a.bones.map((b) => b.getWorldPosition(b.position.clone()).toArray())};
+}"""
+
+
+def test_avatar_bones_follow_the_pose_with_turned_rest_orientations(open_page):
+    """A character whose rest orientations are not identities (as a glTF/VRM rig's): the avatar's bones,
+    posed by the page from local rotations and a root position, sit on our forward kinematics."""
+    from scipy.spatial.transform import Rotation
+
+    from mocapgraph.formats.character_file import load_character
+    from mocapgraph.messages import CharacterInfo, Envelope
+    from mocapgraph.retarget.character import Character
+    from mocapgraph.viewer.server import LatestStore, ViewerServer
+
+    base = load_character("standard_20")
+    rng = np.random.default_rng(7)
+    rest = Rotation.from_rotvec(rng.normal(scale=0.6, size=(base.n_joints, 3))).as_quat(scalar_first=True)
+    ch = Character("twisted", base.joint_names, base.parents, base.rest_offsets, rest)
+    store = LatestStore()
+    info = CharacterInfo(character=ch.name, joint_names=list(ch.joint_names), joint_parent=ch.parents.astype(np.int32),
+                         rest_offsets=ch.rest_offsets, rest_rotations=ch.rest_rotations)
+    store.put("character_info", "twisted", Envelope("character_info", "CharacterInfo", 2, 1, 1, 1, "t", True), info)
+    server = ViewerServer(store, {"node": "viz", "topics": {}}, port=free_port())
+    server.start()
+    try:
+        page = open_page(server.url)
+        page.page.wait_for_function("() => window.mocapgraphViewer !== undefined", timeout=15000)
+        q = Rotation.from_rotvec(rng.normal(scale=0.5, size=(ch.n_joints, 3))).as_quat(scalar_first=True)
+        root = np.array([0.4, -0.3, 1.0])
+        got = page.page.evaluate(DRIVE_JS, ["character_info|t|twisted", q.ravel().tolist(), root.tolist(), ch.n_joints])
+        assert "bones" in got, got
+        truth, _ = ch.forward_kinematics(q, root)
+        wrong, _ = ch.forward_kinematics(q[:, [0, 2, 3, 1]], root)   # axes not turned: far off
+        assert np.abs(np.array(got["bones"]) - wrong).max() > 0.05
+        worst = float(np.abs(np.array(got["bones"]) - truth).max())
+        print(f"\navatar bones vs forward kinematics, rest orientations turned: worst {worst * 1e6:.3f} um")
+        assert worst < 1e-4
+    finally:
+        server.stop()
