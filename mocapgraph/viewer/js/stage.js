@@ -35,14 +35,19 @@ function softwareRenderer() {
   return /swiftshader|llvmpipe|software/i.test(name);
 }
 
+// The sky: one triangle covering the screen, behind everything (cheaper than a background texture).
 function background() {
-  const c = document.createElement("canvas");
-  c.width = 2; c.height = 256;
-  const g = c.getContext("2d");
-  const grad = g.createLinearGradient(0, 0, 0, 256);
-  grad.addColorStop(0, "rgb(14,18,26)"); grad.addColorStop(1, "rgb(33,38,48)");
-  g.fillStyle = grad; g.fillRect(0, 0, 2, 256);
-  return new THREE.CanvasTexture(c);
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.BufferAttribute(new Float32Array([-1, -1, 0, 3, -1, 0, -1, 3, 0]), 3));
+  const material = new THREE.ShaderMaterial({
+    vertexShader: "varying float vY; void main() { vY = position.y * 0.5 + 0.5; gl_Position = vec4(position.xy, 0.9999, 1.0); }",
+    fragmentShader: `varying float vY;
+      void main() { gl_FragColor = vec4(mix(vec3(0.13, 0.15, 0.19), vec3(0.055, 0.07, 0.10), clamp(vY, 0.0, 1.0)), 1.0); }`,
+    depthWrite: false, depthTest: false });
+  const sky = new THREE.Mesh(geometry, material);
+  sky.frustumCulled = false;
+  sky.renderOrder = -2;
+  return sky;
 }
 
 // Unit solids: sphere of radius 1, cylinder of radius 1 from z = 0 to z = 1, box [-1, 1]^3.
@@ -92,7 +97,7 @@ export class Stage {
     this.rendererName = String(gl.getParameter(dbg ? dbg.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
     this.canvas = canvas;
     const scene = this.scene = new THREE.Scene();
-    scene.background = background();
+    scene.add(background());
     // white lights only: shading scales a colour, never changes its hue
     scene.add(new THREE.AmbientLight(0xffffff, 1.25));
     const key = new THREE.DirectionalLight(0xffffff, 1.6);
