@@ -51,6 +51,7 @@ from ..messages.commands import VIEWER_COMMANDS
 from ..net.async_server import AsyncServerThread, ServerStartError
 from . import ASSET_DIR
 from .avatar import SETUP_HINT, AvatarError, avatar_glb, three_files
+from .media import SourceVideo, ranged
 from .wire import EncodedRecord, build_bundle, encode_record
 
 log = logging.getLogger(__name__)
@@ -226,6 +227,7 @@ class ViewerServer(AsyncServerThread):
         if not self.three:
             log.warning("viewer: %s (the page says so too)", SETUP_HINT)
         self._avatars: dict[str, tuple[int, bytes]] = {}   # CharacterInfo key -> (version, GLB)
+        self.source_videos: dict[str, SourceVideo] = {}     # the graph's video readers' clips (by node)
         self.commands: queue.Queue[dict[str, Any]] = queue.Queue()
         self.clients: dict[int, ClientStats] = {}
         self.connects = 0
@@ -288,7 +290,7 @@ class ViewerServer(AsyncServerThread):
 
     def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
         path = request.path.split("?", 1)[0]
-        why = self.refusal(request, need_token=path in ("/ws", "/stats", "/avatar.glb"))
+        why = self.refusal(request, need_token=path in ("/ws", "/stats", "/avatar.glb", "/source_video"))
         if why:
             self.refused += 1
             if self.refused <= 5 or self.refused % 100 == 0:
@@ -304,6 +306,8 @@ class ViewerServer(AsyncServerThread):
             ctype = "application/json"
         elif path == "/avatar.glb":
             return self._avatar(request)
+        elif path == "/source_video":
+            return self._source_video(request)
         elif path in self.three:
             body, ctype = self.three[path].read_bytes(), "text/javascript"
         elif path.startswith("/three/"):
@@ -336,6 +340,28 @@ class ViewerServer(AsyncServerThread):
                 return Response(422, "Unprocessable Content", _headers("text/plain; charset=utf-8", len(body)), body)
             self._avatars[key] = cached
         return Response(200, "OK", _headers("model/gltf-binary", len(cached[1])), cached[1])
+
+    def set_source_videos(self, videos: dict[str, SourceVideo]) -> None:
+        """The clips the page may play in step with their readers' skeletons (told in the hello)."""
+        self.source_videos = dict(videos)
+        self.hello["source_videos"] = [v.hello() for v in videos.values()]
+
+    def _source_video(self, request: Request) -> Response:
+        """Byte ranges of the clip of reader ``?node=`` (only a clip the graph's reader names)."""
+        node = (parse_qs(request.path.partition("?")[2]).get("node") or [""])[0]
+        video = self.source_videos.get(node)
+        if video is None:
+            body = f"no video reader {node[:80]!r} in this graph\n".encode()
+            return Response(404, "Not Found", _headers("text/plain; charset=utf-8", len(body)), body)
+        try:
+            status, head, body = ranged(video.path, request.headers.get("Range"))
+        except OSError as exc:
+            body = f"{video.path.name}: {exc.strerror or exc}\n".encode()
+            return Response(404, "Not Found", _headers("text/plain; charset=utf-8", len(body)), body)
+        headers = _headers(head.pop("Content-Type"), len(body))
+        for k, v in head.items():
+            headers[k] = v
+        return Response(status, {200: "OK", 206: "Partial Content", 416: "Range Not Satisfiable"}[status], headers, body)
 
     async def _handle(self, ws: ServerConnection) -> None:
         self.connects += 1

@@ -36,6 +36,7 @@ let panel = null;
 const link = new Link(wsUrl, store, {
   onStatus: () => {
     if (link.hello) scene.referenceTopics = new Set(link.hello.reference_topics || []);
+    if (link.hello) video.offer(link.hello.source_videos || [], token, store);
     if (panel) panel.connection();
   },
   onCommandResult: (msg, label) => panel && panel.commandResult(msg, label),
@@ -43,6 +44,7 @@ const link = new Link(wsUrl, store, {
 const video = new VideoPanel(stage, {
   file: $("video-file"), play: $("video-play"), pause: $("video-pause"), stop: $("video-stop"), seek: $("video-seek"),
   loop: $("video-loop"), volume: $("video-volume"), mute: $("video-mute"), status: $("video-status"),
+  follow: $("video-follow"), sourceRow: $("video-source"),
 });
 panel = new Panel(link, store, scene, video);
 const viewer = { camera, stage, store, scene, link, video, panel, avatars: scene.avatars, viewProj: null, frozen: false };
