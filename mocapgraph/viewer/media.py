@@ -38,15 +38,15 @@ class SourceVideo:
 
 def source_videos(manifest: dict[str, Any]) -> dict[str, SourceVideo]:
     """The graph's video readers' clips (node name -> SourceVideo); a clip that does not open is left out."""
-    from ..nodes.source_base import resolve_data_path
-    from ..video.frames import VideoFrames
+    from ..bus.input_files import resolve_input_file
 
     out: dict[str, SourceVideo] = {}
     for node in manifest.get("nodes", []):
         if node.get("type") not in VIDEO_READERS:
             continue
         try:
-            path = resolve_data_path(str(node.get("params", {}).get("file", "")))
+            from ..video.frames import VideoFrames   # OpenCV: only for a graph with a video reader
+            path = resolve_input_file(str(node.get("params", {}).get("file", "")))
             frames = VideoFrames(path)
             fps = float(frames.info.fps)
             frames.close()
