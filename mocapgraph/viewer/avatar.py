@@ -24,6 +24,7 @@ THREE_DIR = ASSET_DIR.parents[1] / "node_modules" / "three"
 THREE_FILES = ("build/three.module.js", "build/three.core.js",
                "examples/jsm/controls/OrbitControls.js", "examples/jsm/loaders/GLTFLoader.js",
                "examples/jsm/utils/BufferGeometryUtils.js", "examples/jsm/utils/SkeletonUtils.js")
+MAX_AVATAR_JOINTS = 1024   # built in the server's thread (~0.1 s for Mixamo's 70): larger rigs stay bones
 SETUP_HINT = "three.js is not installed: run scripts/setup.sh (it runs npm ci), then restart the graph"
 
 
@@ -50,6 +51,9 @@ def avatar_glb(info: CharacterInfo) -> bytes:
     from ..formats.mannequin import mannequin
     from ..retarget.character import Character
 
+    if len(info.joint_names) > MAX_AVATAR_JOINTS:
+        raise AvatarError(f"no avatar for character {info.character!r}: {len(info.joint_names)} joints "
+                          f"(at most {MAX_AVATAR_JOINTS}); drawn as bones")
     try:
         ch = Character(info.character or "character", tuple(info.joint_names), np.asarray(info.joint_parent),
                        np.asarray(info.rest_offsets), np.asarray(info.rest_rotations), allow_zero_bones=True)

@@ -106,6 +106,7 @@ nodes:
     s = page.stats()
     rec = s["streams"]["character_pose|carol|carol"]
     assert rec["avatar"] and rec["points"] == 16 and rec["bones"] == 15 and not s["avatarErrors"]
+    assert page.page.locator("#avatar-note").is_hidden()
 
     # one frozen frame: the pixels under the pose's joints are the avatar's skin (the physics
     # bodies, a torso and thighs on the performer, drawn beside the avatar)

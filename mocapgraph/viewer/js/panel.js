@@ -91,6 +91,9 @@ export class Panel {
     this.player();
     this.topics(built, nowMs);
     this.video.sync();
+    const errors = this.scene.avatars ? this.scene.avatars.errors : [];   // an avatar that failed: its character is drawn as bones
+    $("avatar-note").hidden = !errors.length;
+    $("avatar-note").textContent = errors.length ? `${errors[errors.length - 1]} (drawn as bones)` : "";
   }
 
   connection() {
