@@ -288,7 +288,8 @@ class ViewerServer(AsyncServerThread):
         ev, self._event = self._event, asyncio.Event()
         ev.set()
 
-    def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
+    def _process_request(self, connection: ServerConnection, request: Request) -> Any:
+        """The HTTP answer (a Response, a coroutine giving one for the avatar, None for /ws)."""
         path = request.path.split("?", 1)[0]
         why = self.refusal(request, need_token=path in ("/ws", "/stats", "/avatar.glb", "/source_video"))
         if why:
@@ -323,8 +324,9 @@ class ViewerServer(AsyncServerThread):
             return Response(404, "Not Found", _headers(ctype, len(body)), body)
         return Response(200, "OK", _headers(ctype + "; charset=utf-8", len(body)), body)
 
-    def _avatar(self, request: Request) -> Response:
-        """The mannequin GLB of the CharacterInfo stream ``?key=`` (404 with one line if none)."""
+    async def _avatar(self, request: Request) -> Response:
+        """The mannequin GLB of the CharacterInfo stream ``?key=`` (404 with one line if none), built
+        in a worker thread (the connections' sends go on meanwhile) and kept per stream version."""
         key = (parse_qs(request.path.partition("?")[2]).get("key") or [""])[0]
         snap = self.store.entry(key)
         if snap is None or snap.env.type_name != "CharacterInfo":
@@ -333,7 +335,7 @@ class ViewerServer(AsyncServerThread):
         cached = self._avatars.get(key)
         if cached is None or cached[0] != snap.version:
             try:
-                cached = (snap.version, avatar_glb(snap.msg))  # type: ignore[arg-type]
+                cached = (snap.version, await asyncio.to_thread(avatar_glb, snap.msg))  # type: ignore[arg-type]
             except AvatarError as exc:
                 log.warning("viewer: %s", exc)
                 body = f"{exc}\n".encode()

@@ -46,7 +46,7 @@ def test_avatar_glb_of_a_character_and_one_line_for_a_bad_one():
         with pytest.raises(AvatarError) as err:
             avatar_glb(_info(parents, np.ones((3, 3))))
         assert "probe" in str(err.value) and "\n" not in str(err.value)
-    n = 2000                                                     # a rig too large to build in the server's thread
+    n = 2000                                                     # a rig too large for an avatar: one line
     with pytest.raises(AvatarError, match="2000 joints"):
         avatar_glb(_info(np.arange(n) - 1, np.tile([0, 0, 0.1], (n, 1))))
 
