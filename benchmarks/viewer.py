@@ -1,11 +1,13 @@
 """Viewer benchmark: a 240 Hz, 60-marker graph feeding the visualizer, drawn in headless Chromium.
 
-Prints frames drawn per second by the page, WebSocket bundles per second delivered (page and
-server side), and the bus-side cost of the visualizer node in CPU % of one core, with no browser
-and with one browser connected (target under 15 %). Also compares the wire encodings (binary
-bundle vs JSON of ``to_dict``) for one marker frame.
+Prints frames drawn per second by the page (the three.js stage), WebSocket bundles per second
+delivered (page and server side), and the bus-side cost of the visualizer node in CPU % of one
+core, with no browser and with one browser connected (target under 15 %), beside the figures of the
+hand-written WebGL page it replaced (PREVIOUS); then the same with a character added to the graph
+(a 60 Hz CharacterPose drawn as a skinned avatar). Also compares the wire encodings (binary bundle
+vs JSON of ``to_dict``) for one marker frame.
 
-    .venv/bin/python benchmarks/viewer.py [--seconds 10] [--rate 240] [--markers 60]
+    .venv/bin/python benchmarks/viewer.py [--seconds 10] [--rate 240] [--markers 60] [--no-avatar]
 
 Needs Debian's chromium (/usr/bin/chromium) and Playwright for Python.
 """
@@ -33,6 +35,15 @@ from _context import print_context  # noqa: E402
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                  "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
+
+
+PERFORMER = "mocapgraph.testing.viewer_nodes:StagePerformer"
+CHARACTER = f"""  - name: carol
+    type: {PERFORMER}
+    params: {{actor: carol, rate_hz: 60.0, publish: [character], center: [-1.0, 1.0], radius: 0.8}}
+"""
+#: the hand-written WebGL page (before three.js), this benchmark's figures then (issue 29): fps, CPU %
+PREVIOUS = (49.0, 6.8)
 
 
 def free_port() -> int:
@@ -80,6 +91,7 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=10.0, help="measuring time per phase, s")
     ap.add_argument("--rate", type=float, default=240.0, help="marker rate, Hz")
     ap.add_argument("--markers", type=int, default=60, help="markers per frame")
+    ap.add_argument("--no-avatar", action="store_true", help="skip the run with a character drawn as an avatar")
     args = ap.parse_args()
     try:
         from playwright.sync_api import sync_playwright
@@ -94,6 +106,16 @@ def main() -> int:
                   f"one generated {args.markers}-marker MarkerFrame", "the same frame, 2000 encodings each way",
                   section="wire encoding")
     encoding_figures(args.markers)
+    code = measure(args, avatar=False)
+    if code == 0 and not args.no_avatar:
+        code = measure(args, avatar=True)
+    return code
+
+
+def measure(args: argparse.Namespace, avatar: bool) -> int:
+    """One graph (with a character drawn as an avatar or not), 10 s without and with a browser."""
+    from playwright.sync_api import sync_playwright
+
     tmp = Path(tempfile.mkdtemp(prefix="viewer-bench-"))
     port = free_port()
     graph = tmp / "graph.yaml"
@@ -102,7 +124,7 @@ nodes:
   - name: pattern
     type: marker_test_pattern
     params: {{rate_hz: {args.rate}, n_markers: {args.markers}, missing_every: 10}}
-  - name: viz
+{CHARACTER if avatar else ""}  - name: viz
     type: visualizer
     params: {{port: {port}}}
 """)
@@ -126,7 +148,9 @@ nodes:
         time.sleep(1.0)
         print_context(None, f"the marker_test_pattern node (deterministic circles), {args.markers} markers at "
                       f"{args.rate:g} Hz, marker 0 missing every 10th frame", f"{args.seconds:g} s without a browser, "
-                      f"then {args.seconds:g} s with one (after its first drawn frame + 2 s)", section="graph")
+                      f"then {args.seconds:g} s with one (after its first drawn frame + 2 s)"
+                      + ("; plus a 60 Hz character (StagePerformer) drawn as a skinned avatar" if avatar else ""),
+                      section="graph with an avatar" if avatar else "graph")
         time.sleep(1.0)
         idle = cpu_percent(pid, args.seconds)
         print(f"machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f}; graph: {args.markers} markers at "
@@ -137,8 +161,8 @@ nodes:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
             page = browser.new_page(viewport={"width": 1280, "height": 720})
             page.goto(url)
-            page.wait_for_function("() => window.mocapgraphStats && window.mocapgraphStats.markersDrawn > 0",
-                                   timeout=20000)
+            page.wait_for_function("() => window.mocapgraphStats && window.mocapgraphStats.markersDrawn > 0"
+                                   + (" && window.mocapgraphStats.avatarsDrawn > 0" if avatar else ""), timeout=30000)
             time.sleep(2.0)
 
             def sample():
@@ -153,10 +177,15 @@ nodes:
             f1, b1, r1, sb1, by1, t1 = sample()
             dt = t1 - t0
             renderer = page.evaluate("mocapgraphStats.webgl")
+            revision = page.evaluate("mocapgraphStats.three")
             browser.close()
+        what = "markers + a character as a skinned avatar" if avatar else "markers only"
         print(f"visualizer CPU, one browser: {busy:5.1f} % of one core (target < 15 %): "
-              f"{'OK' if busy < 15 else 'OVER'}")
-        print(f"page frames drawn: {(f1 - f0) / dt:6.1f} /s  ({renderer})")
+              f"{'OK' if busy < 15 else 'OVER'}  [{what}]")
+        print(f"page frames drawn: {(f1 - f0) / dt:6.1f} /s  (three.js r{revision}, {renderer})")
+        if not avatar:
+            print(f"previous page (hand-written WebGL, same graph): {PREVIOUS[0]:.0f} frames/s, visualizer "
+                  f"{PREVIOUS[1]:.1f} % CPU with one browser")
         print(f"WebSocket bundles: {(b1 - b0) / dt:6.1f} /s received by the page, {(sb1 - sb0) / dt:6.1f} /s sent, "
               f"{(r1 - r0) / dt:.0f} records/s, {(by1 - by0) / dt / 1024:6.1f} KiB/s (newest state at the browser's "
               "pace, at most max_rate_hz)")

@@ -111,7 +111,22 @@ class Visualizer(stage_inputs(FRAME_QUEUE), Node):
             self.log.error("%s", exc)
             raise SystemExit(2) from None
         self.log.info("viewer at %s", self.server.url)
+        self._find_source_videos()
         self.add_timer(0.02, self._publish_commands)
+
+    def _find_source_videos(self) -> None:
+        """The video readers' clips named in the graph's manifest, for the page's video panel."""
+        from ..bus.manifest import fetch_manifest
+        from ..viewer.media import source_videos
+
+        try:
+            videos = source_videos(fetch_manifest(timeout_s=1.0))
+        except (RuntimeError, OSError, ValueError) as exc:   # no launcher (a node run on its own)
+            self.log.debug("no manifest for source videos: %s", exc)
+            return
+        self.server.set_source_videos(videos)
+        for v in videos.values():
+            self.log.info("video panel can follow %s: %s at %g fps", v.node, v.path.name, v.fps)
 
     def on_start(self) -> None:
         if self.open_browser:

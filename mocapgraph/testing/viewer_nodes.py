@@ -68,6 +68,32 @@ def performer_joints(t: float, center: tuple[float, float] = (0.0, 0.0), radius:
     return p @ rot.T + pos, heading
 
 
+_ONE_CHILD = np.array([j for j in range(len(JOINT_NAMES)) if (JOINT_PARENT == j).sum() == 1])
+_ITS_CHILD = np.array([int(np.flatnonzero(JOINT_PARENT == j)[0]) for j in _ONE_CHILD])
+
+
+def performer_local_rotations(joints: np.ndarray, heading: float) -> np.ndarray:
+    """Local rotations (J, 4) wxyz whose forward kinematics from REST (rest rotations identity, the
+    root at ``joints[0]``) give ``joints``: every joint turned by the heading, a joint with one
+    child also swung (shortest arc) onto its posed bone; the rigid torso and the leaves only turned."""
+    J = len(JOINT_NAMES)
+    yaw = Rotation.from_euler("z", heading)
+    rest = yaw.apply(REST[_ITS_CHILD] - REST[_ONE_CHILD])
+    posed = joints[_ITS_CHILD] - joints[_ONE_CHILD]
+    axis = np.cross(rest, posed)
+    sin = np.linalg.norm(axis, axis=1)
+    angle = np.arctan2(sin, np.einsum("ij,ij->i", rest, posed))
+    rotvec = np.where((sin > 1e-12)[:, None] & np.isfinite(axis), axis / np.maximum(sin, 1e-12)[:, None] * angle[:, None], 0.0)
+    world = np.tile(yaw.as_quat(), (J, 1))
+    world[_ONE_CHILD] = (Rotation.from_rotvec(rotvec) * yaw).as_quat()
+    for j in range(J):   # parents precede children: a leaf keeps its parent's orientation
+        if (JOINT_PARENT == j).sum() == 0 and JOINT_PARENT[j] >= 0:
+            world[j] = world[JOINT_PARENT[j]]
+    parent_world = Rotation.from_quat(np.where((JOINT_PARENT >= 0)[:, None], world[np.maximum(JOINT_PARENT, 0)],
+                                               [0.0, 0.0, 0.0, 1.0]))
+    return (parent_world.inv() * Rotation.from_quat(world)).as_quat(scalar_first=True)
+
+
 def marker_offsets(n: int) -> np.ndarray:
     """Offsets (n, 3) of marker i from its joint (i mod J), on a 6 cm sphere (golden-angle spiral), m."""
     i = np.arange(n) + 0.5
@@ -189,7 +215,7 @@ class StagePerformer(Node):
                 source_id=self.actor, frame_number=f, joint_positions=joints, joint_orientations=quat,
                 tracking_state=state), capture_ns=now)
         if "character" in what:
-            quat = np.tile([1.0, 0, 0, 0], (J, 1))
+            quat = performer_local_rotations(joints, heading)
             self.bound_port("character_pose").publish(CharacterPose(
                 character=self.actor, frame_number=f, root_position=joints[0], local_rotations=quat,
                 joint_positions=joints, joint_quality=np.full(J, 2, np.int8)), capture_ns=now)

@@ -50,6 +50,8 @@ from ..messages.bounded_json import loads_bounded
 from ..messages.commands import VIEWER_COMMANDS
 from ..net.async_server import AsyncServerThread, ServerStartError
 from . import ASSET_DIR
+from .avatar import SETUP_HINT, AvatarError, avatar_glb, three_files
+from .media import SourceVideo, ranged
 from .wire import EncodedRecord, build_bundle, encode_record
 
 log = logging.getLogger(__name__)
@@ -161,6 +163,12 @@ class LatestStore:
                 seen[e.key] = e.version
             return [Entry(e.topic, e.key, e.version, e.env, e.msg) for e in out] if out else []
 
+    def entry(self, key: str) -> Entry | None:
+        """A snapshot of the newest message of stream ``key`` (None if there is none)."""
+        with self._lock:
+            e = self._entries.get(key)
+            return None if e is None else Entry(e.topic, e.key, e.version, e.env, e.msg)
+
     def encoded(self, snap: Entry) -> EncodedRecord:
         """Wire form of a snapshot, encoded once per version and shared by all connections."""
         with self._lock:
@@ -214,6 +222,12 @@ class ViewerServer(AsyncServerThread):
         self.window = window
         self.assets = {"/" + p.relative_to(asset_dir).as_posix(): p for p in asset_dir.rglob("*")
                        if p.suffix in _SERVED_SUFFIXES and p.is_file()}
+        #: the allow-listed three.js modules (node_modules/three); none when three.js is missing
+        self.three = three_files()
+        if not self.three:
+            log.warning("viewer: %s (the page says so too)", SETUP_HINT)
+        self._avatars: dict[str, tuple[int, bytes]] = {}   # CharacterInfo key -> (version, GLB)
+        self.source_videos: dict[str, SourceVideo] = {}     # the graph's video readers' clips (by node)
         self.commands: queue.Queue[dict[str, Any]] = queue.Queue()
         self.clients: dict[int, ClientStats] = {}
         self.connects = 0
@@ -274,9 +288,10 @@ class ViewerServer(AsyncServerThread):
         ev, self._event = self._event, asyncio.Event()
         ev.set()
 
-    def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
+    def _process_request(self, connection: ServerConnection, request: Request) -> Any:
+        """The HTTP answer (a Response, a coroutine giving one for the avatar, None for /ws)."""
         path = request.path.split("?", 1)[0]
-        why = self.refusal(request, need_token=path in ("/ws", "/stats"))
+        why = self.refusal(request, need_token=path in ("/ws", "/stats", "/avatar.glb", "/source_video"))
         if why:
             self.refused += 1
             if self.refused <= 5 or self.refused % 100 == 0:
@@ -290,6 +305,15 @@ class ViewerServer(AsyncServerThread):
         if path == "/stats":
             body = json.dumps(self.stats()).encode()
             ctype = "application/json"
+        elif path == "/avatar.glb":
+            return self._avatar(request)
+        elif path == "/source_video":
+            return self._source_video(request)
+        elif path in self.three:
+            body, ctype = self.three[path].read_bytes(), "text/javascript"
+        elif path.startswith("/three/"):
+            body = (SETUP_HINT if not self.three else "not a served three.js file").encode() + b"\n"
+            return Response(404, "Not Found", _headers("text/plain; charset=utf-8", len(body)), body)
         elif path in self.assets:
             body = self.assets[path].read_bytes()
             ctype = mimetypes.guess_type(path)[0] or "application/octet-stream"
@@ -299,6 +323,47 @@ class ViewerServer(AsyncServerThread):
             body, ctype = b"not found\n", "text/plain"
             return Response(404, "Not Found", _headers(ctype, len(body)), body)
         return Response(200, "OK", _headers(ctype + "; charset=utf-8", len(body)), body)
+
+    async def _avatar(self, request: Request) -> Response:
+        """The mannequin GLB of the CharacterInfo stream ``?key=`` (404 with one line if none), built
+        in a worker thread (the connections' sends go on meanwhile) and kept per stream version."""
+        key = (parse_qs(request.path.partition("?")[2]).get("key") or [""])[0]
+        snap = self.store.entry(key)
+        if snap is None or snap.env.type_name != "CharacterInfo":
+            body = f"no CharacterInfo stream {key[:80]!r}\n".encode()
+            return Response(404, "Not Found", _headers("text/plain; charset=utf-8", len(body)), body)
+        cached = self._avatars.get(key)
+        if cached is None or cached[0] != snap.version:
+            try:
+                cached = (snap.version, await asyncio.to_thread(avatar_glb, snap.msg))  # type: ignore[arg-type]
+            except AvatarError as exc:
+                log.warning("viewer: %s", exc)
+                body = f"{exc}\n".encode()
+                return Response(422, "Unprocessable Content", _headers("text/plain; charset=utf-8", len(body)), body)
+            self._avatars[key] = cached
+        return Response(200, "OK", _headers("model/gltf-binary", len(cached[1])), cached[1])
+
+    def set_source_videos(self, videos: dict[str, SourceVideo]) -> None:
+        """The clips the page may play in step with their readers' skeletons (told in the hello)."""
+        self.source_videos = dict(videos)
+        self.hello["source_videos"] = [v.hello() for v in videos.values()]
+
+    def _source_video(self, request: Request) -> Response:
+        """Byte ranges of the clip of reader ``?node=`` (only a clip the graph's reader names)."""
+        node = (parse_qs(request.path.partition("?")[2]).get("node") or [""])[0]
+        video = self.source_videos.get(node)
+        if video is None:
+            body = f"no video reader {node[:80]!r} in this graph\n".encode()
+            return Response(404, "Not Found", _headers("text/plain; charset=utf-8", len(body)), body)
+        try:
+            status, head, body = ranged(video.path, request.headers.get("Range"))
+        except OSError as exc:
+            body = f"{video.path.name}: {exc.strerror or exc}\n".encode()
+            return Response(404, "Not Found", _headers("text/plain; charset=utf-8", len(body)), body)
+        headers = _headers(head.pop("Content-Type"), len(body))
+        for k, v in head.items():
+            headers[k] = v
+        return Response(status, {200: "OK", 206: "Partial Content", 416: "Range Not Satisfiable"}[status], headers, body)
 
     async def _handle(self, ws: ServerConnection) -> None:
         self.connects += 1

@@ -201,8 +201,9 @@ def test_commands_are_checked_and_published(launch_graph):
     status, ctype, html = get("/")
     assert status == 200 and ctype.startswith("text/html")
     refs = re.findall(r'(?:src|href)="([^"]+)"', html)
-    modules = ["js/main.js"]
-    seen = set()
+    imports = json.loads(re.search(r'<script type="importmap">(.*?)</script>', html, re.S).group(1))["imports"]
+    modules = ["js/boot.js", "js/main.js"]
+    seen, bare = set(), set()
     while modules:
         path = modules.pop()
         if path in seen:
@@ -212,7 +213,21 @@ def test_commands_are_checked_and_published(launch_graph):
         assert status == 200 and ctype.startswith("text/javascript"), path
         assert not re.search(r"https?://|//cdn", text), path
         modules += ["js/" + m for m in re.findall(r'from "\./([\w.]+)"', text)]
-    assert seen >= {"js/main.js", "js/gl.js", "js/net.js", "js/scene.js", "js/panel.js", "js/camera.js", "js/video.js"}
+        bare |= set(re.findall(r'from "(three[\w./]*)"', text))
+    assert seen >= {"js/main.js", "js/stage.js", "js/avatar.js", "js/net.js", "js/scene.js", "js/panel.js",
+                    "js/camera.js", "js/video.js"}
+    # three.js and the add-ons the page imports resolve (import map) to files this server serves,
+    # and the modules they import in turn too; nothing else under node_modules is served
+    assert bare == {"three", "three/addons/controls/OrbitControls.js", "three/addons/loaders/GLTFLoader.js"}
+    three = [imports["three"] if b == "three" else imports["three/addons/"] + b[len("three/addons/"):] for b in bare]
+    three += ["./three/build/three.core.js", "./three/examples/jsm/utils/BufferGeometryUtils.js",
+              "./three/examples/jsm/utils/SkeletonUtils.js"]
+    for path in three:
+        status, ctype, text = get(path[1:])
+        assert status == 200 and ctype.startswith("text/javascript") and len(text) > 1000, path
+    for path in ("/three/package.json", "/three/build/../package.json", "/three/src/Three.js", "/three/%2e%2e/three/package.json",
+                 "/three/examples/jsm/loaders/FBXLoader.js", "/node_modules/three/build/three.module.js"):
+        assert get(path)[0] == 404, path
     for ref in refs:
         assert not ref.startswith(("http", "//")), ref
         if not ref.startswith("data:"):

@@ -1,7 +1,10 @@
-// Orbit camera around a target point, Z up: drag to orbit, right-drag or shift-drag to pan, wheel to
-// zoom, preset views (front looks at the performer's face: the world's X is forward).
+// The stage's camera: three.js's perspective camera and OrbitControls around a target, Z up (drag
+// to orbit, right-drag or shift-drag to pan, wheel to zoom), preset views eased to (front looks at
+// the performer's face: the world's X is forward). `cur` reads the view back as azimuth,
+// elevation, distance and target, and `viewProj` is where a world point lands on the page.
 
-import { lookAt, multiply, perspective } from "./math.js";
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 
 export const PRESETS = {
   front: { az: 0, el: 0.12 },
@@ -9,104 +12,69 @@ export const PRESETS = {
   top: { az: 0, el: Math.PI / 2 - 0.001 },
   perspective: { az: 0.62, el: 0.36 },
 };
+const RAD_PER_PX = 0.006;   // orbit speed (OrbitControls' is per canvas height: rescaled each frame)
 
-export class OrbitCamera {
+export class StageCamera {
   constructor(canvas) {
     this.canvas = canvas;
+    this.camera = new THREE.PerspectiveCamera(45, 1, 0.05, 200);
+    this.camera.up.set(0, 0, 1);
     this.home = { dist: 7.2, target: [-0.5, 0, 0.85] };
-    this.goal = { az: PRESETS.perspective.az, el: PRESETS.perspective.el, dist: this.home.dist, target: [...this.home.target] };
-    this.cur = { ...this.goal, target: [...this.goal.target] };
-    this.fovy = 45 * Math.PI / 180;
-    this.drag = null;
-    canvas.addEventListener("pointerdown", (e) => this.onDown(e));
-    canvas.addEventListener("pointermove", (e) => this.onMove(e));
-    canvas.addEventListener("pointerup", (e) => this.onUp(e));
-    canvas.addEventListener("pointercancel", (e) => this.onUp(e));
-    canvas.addEventListener("wheel", (e) => this.onWheel(e), { passive: false });
-    canvas.addEventListener("contextmenu", (e) => e.preventDefault());
+    const c = new OrbitControls(this.camera, canvas);
+    c.minPolarAngle = 0.001;                      // el below the zenith
+    c.maxPolarAngle = Math.PI / 2 + 0.2;          // and down to 0.2 rad under the horizon
+    c.minDistance = 0.3; c.maxDistance = 80;
+    c.zoomSpeed = 1.5;
+    c.addEventListener("start", () => { this.goal = null; });   // the pointer wins over an easing preset
+    this.controls = c;
+    this.viewProj = new THREE.Matrix4();
+    this._place({ ...PRESETS.perspective, dist: this.home.dist, target: this.home.target });
+    this.goal = null;
   }
 
-  onDown(e) {
-    this.canvas.setPointerCapture(e.pointerId);
-    this.drag = { x: e.clientX, y: e.clientY, pan: e.button !== 0 || e.shiftKey };
+  _place(v) {
+    const t = v.target;
+    this.controls.target.set(t[0], t[1], t[2]);
+    this.camera.position.set(t[0] + v.dist * Math.cos(v.el) * Math.cos(v.az), t[1] + v.dist * Math.cos(v.el) * Math.sin(v.az),
+      t[2] + v.dist * Math.sin(v.el));
+    this.controls.update();
   }
 
-  onMove(e) {
-    if (!this.drag) return;
-    const dx = e.clientX - this.drag.x, dy = e.clientY - this.drag.y;
-    this.drag.x = e.clientX; this.drag.y = e.clientY;
-    if (this.drag.pan) this.pan(dx, dy);
-    else this.orbit(dx, dy);
+  // The current view: {az, el, dist, target}.
+  get cur() {
+    const t = this.controls.target, p = this.camera.position;
+    const d = [p.x - t.x, p.y - t.y, p.z - t.z];
+    const dist = Math.hypot(d[0], d[1], d[2]);
+    return { az: Math.atan2(d[1], d[0]), el: Math.asin(Math.max(-1, Math.min(1, d[2] / dist))), dist, target: [t.x, t.y, t.z] };
   }
 
-  onUp(e) {
-    this.drag = null;
-    if (this.canvas.hasPointerCapture(e.pointerId)) this.canvas.releasePointerCapture(e.pointerId);
-  }
-
-  onWheel(e) {
-    e.preventDefault();
-    this.zoom(Math.exp(e.deltaY * 0.0012));
-  }
-
-  orbit(dx, dy) {
-    this.goal.az -= dx * 0.006;
-    this.goal.el = Math.max(-0.2, Math.min(Math.PI / 2 - 0.001, this.goal.el + dy * 0.006));
-    this.snap();
-  }
-
-  pan(dx, dy) {
-    const g = this.goal;
-    const k = g.dist * Math.tan(this.fovy / 2) * 2 / Math.max(1, this.canvas.clientHeight);
-    const right = [-Math.sin(g.az), Math.cos(g.az), 0];
-    const up = [-Math.sin(g.el) * Math.cos(g.az), -Math.sin(g.el) * Math.sin(g.az), Math.cos(g.el)];
-    for (let i = 0; i < 3; i++) g.target[i] += (-dx * right[i] + dy * up[i]) * k;
-    this.snap();
-  }
-
-  zoom(factor) {
-    this.goal.dist = Math.max(0.3, Math.min(80, this.goal.dist * factor));
-    this.snap();
-  }
-
-  // Direct manipulation follows the pointer without easing.
-  snap() { this.cur = { ...this.goal, target: [...this.goal.target] }; }
-
-  preset(name, bounds) {
-    const p = PRESETS[name];
-    this.goal.az = p.az;
-    this.goal.el = p.el;
-    if (bounds) this.fit(bounds);
-    else if (name === "perspective") { this.goal.dist = this.home.dist; this.goal.target = [...this.home.target]; }
-    // Turn the short way round.
-    while (this.goal.az - this.cur.az > Math.PI) this.cur.az += 2 * Math.PI;
-    while (this.cur.az - this.goal.az > Math.PI) this.cur.az -= 2 * Math.PI;
+  preset(name) {
+    const p = PRESETS[name], c = this.cur;
+    this.goal = { ...c, az: p.az, el: p.el };
+    if (name === "perspective") { this.goal.dist = this.home.dist; this.goal.target = [...this.home.target]; }
+    while (this.goal.az - c.az > Math.PI) this.goal.az -= 2 * Math.PI;   // turn the short way round
+    while (c.az - this.goal.az > Math.PI) this.goal.az += 2 * Math.PI;
   }
 
   fit(b) {
     const c = [(b[0] + b[3]) / 2, (b[1] + b[4]) / 2, (b[2] + b[5]) / 2];
     const r = Math.max(0.8, Math.hypot(b[3] - b[0], b[4] - b[1], b[5] - b[2]) / 2);
-    this.goal.target = c;
-    this.goal.dist = Math.min(40, r / Math.sin(this.fovy / 2) * 1.1);
+    this.goal = { ...(this.goal || this.cur), target: c, dist: Math.min(40, r / Math.sin(this.camera.fov * Math.PI / 360) * 1.1) };
   }
 
-  // Ease toward the goal; returns {viewProj, eye}.
-  update(dt, aspect) {
-    const k = 1 - Math.exp(-dt * 10);
-    const c = this.cur, g = this.goal;
-    c.az += (g.az - c.az) * k;
-    c.el += (g.el - c.el) * k;
-    c.dist += (g.dist - c.dist) * k;
-    for (let i = 0; i < 3; i++) c.target[i] += (g.target[i] - c.target[i]) * k;
-    const eye = [
-      c.target[0] + c.dist * Math.cos(c.el) * Math.cos(c.az),
-      c.target[1] + c.dist * Math.cos(c.el) * Math.sin(c.az),
-      c.target[2] + c.dist * Math.sin(c.el),
-    ];
-    // Looking straight down, "up" on screen is the world's -X so that front stays at the bottom.
-    const up = c.el > 1.5 ? [-Math.cos(c.az), -Math.sin(c.az), 0] : [0, 0, 1];
-    const view = lookAt(eye, c.target, up);
-    const proj = perspective(this.fovy, aspect, 0.05, 200);
-    return { viewProj: multiply(proj, view), eye };
+  // Ease toward a preset's goal, keep the controls' speed per pixel; returns the three.js camera.
+  update(dt) {
+    this.controls.rotateSpeed = RAD_PER_PX * Math.max(1, this.canvas.clientHeight) / (2 * Math.PI);
+    if (this.goal) {
+      const k = 1 - Math.exp(-dt * 10), c = this.cur, g = this.goal;
+      const step = (a, b) => a + (b - a) * k;
+      const next = { az: step(c.az, g.az), el: step(c.el, g.el), dist: step(c.dist, g.dist), target: c.target.map((v, i) => step(v, g.target[i])) };
+      const done = Math.abs(g.az - next.az) < 1e-4 && Math.abs(g.el - next.el) < 1e-4 && Math.abs(g.dist - next.dist) < 1e-4;
+      this._place(done ? g : next);
+      if (done) this.goal = null;
+    }
+    this.camera.updateMatrixWorld();
+    this.viewProj.multiplyMatrices(this.camera.projectionMatrix, this.camera.matrixWorldInverse);
+    return this.camera;
   }
 }

@@ -46,7 +46,7 @@ export class Panel {
       this.send("player", "seek", { position_s: Number(seek.value) }, this.playerTarget, "Seek");
     });
     for (const [id, key] of [["show-markers", "markers"], ["show-bones", "bones"], ["show-labels", "labels"], ["show-axes", "axes"],
-                             ["show-characters", "characters"]]) {
+                             ["show-characters", "characters"], ["show-avatars", "avatars"], ["show-bodies-beside", "bodiesBeside"]]) {
       $(id).addEventListener("change", (e) => { this.scene.show[key] = e.target.checked; });
     }
     $("show-video").addEventListener("change", (e) => { this.video.enabled = e.target.checked; });
@@ -91,6 +91,9 @@ export class Panel {
     this.player();
     this.topics(built, nowMs);
     this.video.sync();
+    const errors = this.scene.avatars ? this.scene.avatars.errors : [];   // an avatar that failed: its character is drawn as bones
+    $("avatar-note").hidden = !errors.length;
+    $("avatar-note").textContent = errors.length ? `${errors[errors.length - 1]} (drawn as bones)` : "";
   }
 
   connection() {

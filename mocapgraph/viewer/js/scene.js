@@ -1,8 +1,37 @@
 // What the stage draws from the streams: each drawable type is drawn from its fields (positions,
 // quality arrays, parents from its latched companion), never from per-type special geometry.
 
-import { quatColumns, writeMat } from "./math.js";
-import { Batch } from "./gl.js";
+// A growable list of instances of one mesh kind: a model matrix (column-major) and a colour each.
+export class Batch {
+  constructor() { this.matrices = new Float32Array(16 * 256); this.colours = new Float32Array(3 * 256); this.count = 0; }
+  clear() { this.count = 0; }
+  // Stores the colour; returns the offset in `matrices` where the caller writes the matrix.
+  add(r, g, b) {
+    if (16 * (this.count + 1) > this.matrices.length) {
+      for (const k of ["matrices", "colours"]) { const a = new Float32Array(this[k].length * 2); a.set(this[k]); this[k] = a; }
+    }
+    const c = 3 * this.count;
+    this.colours[c] = r; this.colours[c + 1] = g; this.colours[c + 2] = b;
+    return 16 * this.count++;
+  }
+}
+
+// Rotation matrix columns of a unit quaternion (w, x, y, z).
+function quatColumns(w, x, y, z) {
+  const n = Math.hypot(w, x, y, z);
+  if (!(n > 0)) return [[1, 0, 0], [0, 1, 0], [0, 0, 1]];
+  w /= n; x /= n; y /= n; z /= n;
+  return [
+    [1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)],
+    [2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)],
+    [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)],
+  ];
+}
+
+// Write a model matrix with the given columns (3-vectors, already scaled) and translation.
+function writeMat(out, o, cx, cy, cz, t) {
+  out.set([cx[0], cx[1], cx[2], 0, cy[0], cy[1], cy[2], 0, cz[0], cz[1], cz[2], 0, t[0], t[1], t[2], 1], o);
+}
 
 export const GOOD = [0.30, 0.86, 0.46];
 export const ESTIMATED = [0.98, 0.70, 0.22];
@@ -17,6 +46,7 @@ export const DRAWN_TYPES = new Set(["MarkerFrame", "ActorPose", "SkeletonPose", 
 export const SUPPORT_TYPES = new Set(["MarkerLayout", "SkeletonModel", "SkeletonInfo", "CharacterInfo", "PhysicsScene",
   "Diagnostics", "NodeStatus", "NodeCommand"]);
 const STALE_MS = 3000;
+const BESIDE = [0, -0.9, 0];   // m: where physics bodies go when shown beside (not over) the avatars
 
 export function qualityColor(q) {
   return q >= 2 ? GOOD : q === 1 ? ESTIMATED : MISSING;
@@ -30,13 +60,15 @@ export class SceneBuilder {
   constructor() {
     this.batches = { sphere: new Batch(), cylinder: new Batch(), box: new Batch() };
     this.hidden = new Set(); // stream keys switched off in the panel
-    this.show = { markers: true, bones: true, labels: true, axes: true, characters: true };
+    this.show = { markers: true, bones: true, labels: true, axes: true, characters: true, avatars: true, bodiesBeside: false };
+    this.avatars = null;     // avatar.js Avatars: characters drawn as skinned meshes (else as bones)
+    this.poses = {};         // stream key -> the CharacterPose record drawn last (tests project its joints)
     this.referenceTopics = new Set(); // drawn as a thin neutral ghost (ground truth), not by quality
   }
 
   sphere(p, r, c, dim = 1) {
     const o = this.batches.sphere.add(c[0] * dim, c[1] * dim, c[2] * dim);
-    writeMat(this.batches.sphere.data, o, [r, 0, 0], [0, r, 0], [0, 0, r], p);
+    writeMat(this.batches.sphere.matrices, o, [r, 0, 0], [0, r, 0], [0, 0, r], p);
   }
 
   bone(a, b, r, c, dim = 1) {
@@ -50,12 +82,13 @@ export class SceneBuilder {
     x = [x[0] / lx, x[1] / lx, x[2] / lx];
     const y = [z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]];
     const o = this.batches.cylinder.add(c[0] * dim, c[1] * dim, c[2] * dim);
-    writeMat(this.batches.cylinder.data, o, [x[0] * r, x[1] * r, x[2] * r], [y[0] * r, y[1] * r, y[2] * r], d, a);
+    writeMat(this.batches.cylinder.matrices, o, [x[0] * r, x[1] * r, x[2] * r], [y[0] * r, y[1] * r, y[2] * r], d, a);
   }
 
   // Build every batch for one frame. Returns per-stream draw records, labels and totals.
   build(store, nowMs, stage) {
     for (const b of Object.values(this.batches)) b.clear();
+    if (this.avatars) this.avatars.begin();
     const out = { streams: {}, labels: [], totals: { markersDrawn: 0, markersTotal: 0, jointsDrawn: 0, bonesDrawn: 0,
       skeletonJointsDrawn: 0, characterJointsDrawn: 0, referenceJointsDrawn: 0, bodiesDrawn: 0, actorsDrawn: 0 },
       bounds: null };
@@ -81,6 +114,7 @@ export class SceneBuilder {
       else if (s.type === "PhysicsState") this._bodies(s, rec, dim, out, companion(store, s, "PhysicsScene"));
       out.totals.bonesDrawn += rec.bones;
     }
+    if (this.avatars) this.avatars.end();
     if (this.bounds[0] <= this.bounds[3]) out.bounds = this.bounds;
     return out;
   }
@@ -170,6 +204,9 @@ export class SceneBuilder {
     const parent = info && info.arrays.joint_parent && info.arrays.joint_parent.shape[0] === n
       ? info.arrays.joint_parent.data : null;
     const tint = CHARACTER[hash(s.fields.character || s.key) % CHARACTER.length];
+    // the skinned avatar when its mesh is loaded (the avatar toggle off: bones); same counts either way
+    rec.avatar = !!(this.show.avatars && this.avatars && info && this.avatars.drive(s, info, dim));
+    this.poses[s.key] = s;
     const counts = [0, 0, 0];
     let top = null;
     for (let i = 0; i < n; i++) {
@@ -177,7 +214,7 @@ export class SceneBuilder {
       const p = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
       const q = quality ? quality[i] : 2;
       counts[Math.max(0, Math.min(2, q))]++;
-      this.sphere(p, 0.026, q >= 2 ? tint : qualityColor(q), dim);
+      if (!rec.avatar) this.sphere(p, 0.026, q >= 2 ? tint : qualityColor(q), dim);
       this._grow(p);
       rec.points++;
       if (!top || p[2] > top[2]) top = p;
@@ -185,7 +222,7 @@ export class SceneBuilder {
       if (j >= 0 && j < n && finite3(pos, j)) {
         const a = [pos[3 * j], pos[3 * j + 1], pos[3 * j + 2]];
         const qb = quality ? Math.min(q, quality[j]) : 2;
-        this.bone(a, p, 0.021, qb >= 2 ? tint : qualityColor(qb), dim);   // solid: as thick as a limb
+        if (!rec.avatar) this.bone(a, p, 0.021, qb >= 2 ? tint : qualityColor(qb), dim);   // solid: as thick as a limb
         rec.bones++;
       }
     }
@@ -204,9 +241,10 @@ export class SceneBuilder {
     const sizes = shapes ? scene.arrays.sizes.data : null;
     rec.shapes = {};       // drawn bodies per shape, and how many are coloured by a tracking error
     rec.tracked = 0;
+    const side = this.show.bodiesBeside ? BESIDE : [0, 0, 0];   // over the avatar, or beside it
     for (let i = 0; i < n; i++) {
       if (!finite3(pos, i)) continue;
-      const p = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
+      const p = [pos[3 * i] + side[0], pos[3 * i + 1] + side[1], pos[3 * i + 2] + side[2]];
       const R = quatColumns(quat[4 * i], quat[4 * i + 1], quat[4 * i + 2], quat[4 * i + 3]);
       const shape = shapes ? shapes[i] : "box";
       const sz = sizes ? [sizes[3 * i], sizes[3 * i + 1], sizes[3 * i + 2]] : [0.05, 0.05, 0.05];
@@ -214,19 +252,19 @@ export class SceneBuilder {
       const sc = (v, k) => [v[0] * k, v[1] * k, v[2] * k];
       if (shape === "sphere") {
         const o = this.batches.sphere.add(c[0] * dim, c[1] * dim, c[2] * dim);
-        writeMat(this.batches.sphere.data, o, sc(R[0], sz[0]), sc(R[1], sz[0]), sc(R[2], sz[0]), p);
+        writeMat(this.batches.sphere.matrices, o, sc(R[0], sz[0]), sc(R[1], sz[0]), sc(R[2], sz[0]), p);
       } else if (shape === "capsule" || shape === "cylinder") {
         const r = sz[0], h = sz[1];
         const base = [p[0] - R[2][0] * h, p[1] - R[2][1] * h, p[2] - R[2][2] * h];
         const o = this.batches.cylinder.add(c[0] * dim, c[1] * dim, c[2] * dim);
-        writeMat(this.batches.cylinder.data, o, sc(R[0], r), sc(R[1], r), sc(R[2], 2 * h), base);
+        writeMat(this.batches.cylinder.matrices, o, sc(R[0], r), sc(R[1], r), sc(R[2], 2 * h), base);
         if (shape === "capsule") {
           this.sphere(base, r, c, dim);
           this.sphere([p[0] + R[2][0] * h, p[1] + R[2][1] * h, p[2] + R[2][2] * h], r, c, dim);
         }
       } else {
         const o = this.batches.box.add(c[0] * dim, c[1] * dim, c[2] * dim);
-        writeMat(this.batches.box.data, o, sc(R[0], sz[0]), sc(R[1], sz[1] || sz[0]), sc(R[2], sz[2] || sz[0]), p);
+        writeMat(this.batches.box.matrices, o, sc(R[0], sz[0]), sc(R[1], sz[1] || sz[0]), sc(R[2], sz[2] || sz[0]), p);
       }
       this._grow(p);
       rec.points++;

@@ -1,9 +1,15 @@
 // The video panel at the back of the stage: a local file chosen by the user plays on a plane,
-// uploaded as a WebGL texture whenever the video has a new frame.
+// uploaded as the stage's (three.js) texture whenever the video has a new frame. Or the source
+// video of a video skeleton reader (served by the viewer), played in step with its skeleton: the
+// video shows, at each moment, the frame whose media time (frame_number / fps) the reader
+// published at that moment (its publish stamp), followed by playback rate, seeking when off.
 
 const PANEL_X = -3.4;   // m: the plane stands behind the performers as seen from the front
 const PANEL_WIDTH = 4.4; // m
 const PANEL_BOTTOM = 0.45; // m
+const SEEK_S = 0.3;        // a source video farther than this from its reader's media time seeks
+const SEEK_LEAD_S = 0.1;   // and lands this far ahead (a seek takes time), at the reader's rate
+const GAIN = 4;            // playback rate added per second of media time the clip is behind
 
 export class VideoPanel {
   constructor(renderer, els) {
@@ -43,6 +49,7 @@ export class VideoPanel {
       v.addEventListener(ev, () => { this.fresh = true; this.sync(); });
     }
     els.file.addEventListener("change", () => els.file.files[0] && this.load(els.file.files[0]));
+    els.follow.addEventListener("click", () => this.offered && this.followSource(this.offered));
     els.play.addEventListener("click", () => this.play());
     els.pause.addEventListener("click", () => v.pause());
     els.stop.addEventListener("click", () => this.stop());
@@ -57,10 +64,75 @@ export class VideoPanel {
     if (this.url) URL.revokeObjectURL(this.url);
     this.url = URL.createObjectURL(file);
     this.name = file.name;
+    this.following = null;
+    clearInterval(this.followTimer);
+    this.video.playbackRate = 1;
     this.video.src = this.url;
     this.video.loop = this.els.loop.checked;
     this.video.load();
     this.sync();
+  }
+
+  // The clips the viewer offers (hello.source_videos: {node, name, fps}); the first is offered.
+  offer(videos, token, store) {
+    this.offered = videos.length ? { ...videos[0], token } : null;
+    this.store = store;
+    this.els.sourceRow.hidden = !this.offered;
+    if (this.offered) this.els.follow.textContent = `▶ Source video · ${this.offered.name} (in step with ${this.offered.node})`;
+  }
+
+  followSource(src) {
+    if (this.url) URL.revokeObjectURL(this.url);
+    this.url = null;
+    this.name = `${src.name} · source of ${src.node}`;
+    this.following = { node: src.node, fps: src.fps, pass: null, seeks: 0 };
+    this.video.loop = false;
+    this.video.muted = true;    // the skeleton sets the pace; no sound jumping at each correction
+    clearInterval(this.followTimer);
+    this.followTimer = setInterval(() => this._follow(Date.now()), 40);   // finer than a slow page's frames
+    this.video.src = `source_video?token=${encodeURIComponent(src.token)}&node=${encodeURIComponent(src.node)}`;
+    this.video.load();
+    this.sync();
+  }
+
+  // The reader's media time now: its newest pose's frame time, advanced by the wall time since its
+  // publish stamp at the rate the poses come (null when there is no pose of that reader).
+  sourceTime(nowMs) {
+    const f = this.following;
+    let pose = null;
+    for (const s of this.store.streams.values()) {
+      if (s.type === "SkeletonPose" && s.sender === f.node && (!pose || s.publish_ms > pose.publish_ms)) pose = s;
+    }
+    if (!pose) return null;
+    const t = pose.fields.frame_number / f.fps;
+    if (!f.pass || t < f.prevT || pose.publish_ms < f.pass.ms) f.pass = { t, ms: pose.publish_ms };  // a new pass (loop, restart)
+    f.prevT = t;
+    const span = (pose.publish_ms - f.pass.ms) / 1000;
+    f.rate = span > 0.2 ? Math.max(0, (t - f.pass.t) / span) : (f.rate ?? 1);
+    const fresh = nowMs - pose.publish_ms < 500;
+    const ahead = fresh ? Math.min((nowMs - pose.publish_ms) / 1000 * f.rate, 0.5) : 0;
+    return { t: Math.min(t + ahead, this.video.duration || Infinity), frame: pose.fields.frame_number, fresh, rate: f.rate };
+  }
+
+  // Keep the clip on the reader's media time: playback rate for small offsets, a seek for large.
+  _follow(nowMs) {
+    const v = this.video, f = this.following;
+    if (!f || v.readyState < 1 || v.seeking) return;
+    const at = this.sourceTime(nowMs);
+    if (!at) return;
+    const off = at.t - v.currentTime;
+    f.last = { mediaTime: at.t, videoTime: v.currentTime, frame: at.frame, offFrames: off * f.fps, rate: at.rate };
+    if (!at.fresh || !(at.rate > 0.05)) {                         // the reader paused or stopped: hold its frame
+      if (!v.paused) v.pause();
+      if (Math.abs(off) > 0.5 / f.fps) { v.currentTime = at.t; f.seeks++; }
+      return;
+    }
+    if (Math.abs(off) > SEEK_S) {
+      v.currentTime = Math.min(at.t + at.rate * SEEK_LEAD_S, (v.duration || Infinity) - 1e-3);
+      f.seeks++;
+    }
+    v.playbackRate = Math.max(0.0625, Math.min(4, at.rate + GAIN * off));   // catches up 1 / GAIN s of a lag a second
+    if (v.paused && !v.ended) this.play();
   }
 
   play() {
@@ -122,6 +194,7 @@ export class VideoPanel {
     const v = this.video;
     return { loaded: !!v.src, ready: !!v.src && !this.probing && Number.isFinite(v.duration) && v.readyState >= 2, playing: !v.paused && !v.ended, currentTime: v.currentTime, duration: v.duration || 0,
       loop: v.loop, muted: v.muted, volume: v.volume, framesUploaded: this.framesUploaded, width: v.videoWidth,
-      height: v.videoHeight };
+      height: v.videoHeight, following: this.following ? this.following.node : null,
+      sync: this.following ? this.following.last || null : null, seeks: this.following ? this.following.seeks : 0 };
   }
 }
