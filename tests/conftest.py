@@ -126,6 +126,20 @@ def launch_module_graph(tmp_path_factory):
         g.stop()
 
 
+@pytest.fixture(scope="session")
+def browser():
+    """Headless Debian Chromium driven by Playwright, one per test process (Playwright's sync API
+    allows one session a process); skipped when either is missing."""
+    from browser_support import CHROMIUM, CHROMIUM_ARGS
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
+    if not Path(CHROMIUM).exists():
+        pytest.skip(f"chromium is not installed at {CHROMIUM} (apt-get install chromium)")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+        yield b
+        b.close()
+
+
 # The fast subset (``pytest -m "not slow"``, a few minutes) leaves out what starts processes or a
 # browser, or is judged on time: a test asking for one of these fixtures or marked ``timing`` is
 # slow by itself; modules slow for other reasons (CLIs as processes, compiles) say so with

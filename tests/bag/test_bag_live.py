@@ -268,6 +268,7 @@ nodes:
     assert len(envs) >= RATE * (1.0 - FLUSH_S - FLUSH_SLACK_S)
 
 
+@pytest.mark.timing  # a rate: over 100 frames of a 240 Hz stream in its one second
 def test_bag_record_cli_against_a_running_graph(tmp_path, launch_graph):
     g = launch_graph(f"""
 nodes:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import functools
 import http.server
 import json
-import shutil
 import threading
 from pathlib import Path
 
@@ -23,7 +22,6 @@ from mocapgraph.formats.mannequin import mannequin
 pytestmark = pytest.mark.slow   # a browser
 
 THREE = REPO / "node_modules" / "three"
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 OURS_FROM_GLTF = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 PAGE = """<!doctype html><html><body>
@@ -68,10 +66,9 @@ class _Quiet(http.server.SimpleHTTPRequestHandler):
         pass
 
 
-def test_threejs_gltfloader_plays_our_glb(tmp_path):
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
-    if not THREE.is_dir() or not Path(CHROMIUM).exists():
-        pytest.skip("three.js (scripts/setup.sh: npm ci) or chromium is not installed")
+def test_threejs_gltfloader_plays_our_glb(tmp_path, browser):
+    if not THREE.is_dir():
+        pytest.skip("three.js is not installed (scripts/setup.sh: npm ci)")
     ch = load_character("mixamo")
     F = 12
     rng = np.random.default_rng(4)
@@ -87,16 +84,13 @@ def test_threejs_gltfloader_plays_our_glb(tmp_path):
                                                  "verts": json.dumps(verts)})
     server = _serve(tmp_path)
     try:
-        with sync_api.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, headless=True,
-                                        args=["--no-sandbox", "--disable-gpu", "--disable-background-networking"])
-            page = browser.new_page()
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://127.0.0.1:{server.server_address[1]}/index.html")
-            page.wait_for_function("window.result !== undefined", timeout=30_000)
-            result = page.evaluate("window.result")
-            browser.close()
+        page = browser.new_page()
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(f"http://127.0.0.1:{server.server_address[1]}/index.html")
+        page.wait_for_function("window.result !== undefined", timeout=30_000)
+        result = page.evaluate("window.result")
+        page.close()
     finally:
         server.shutdown()
     assert "error" not in result and not errors, (result.get("error"), errors)

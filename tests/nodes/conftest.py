@@ -96,7 +96,15 @@ class RunningNode:
             code = self.proc.wait(timeout)
         except subprocess.TimeoutExpired:
             raise AssertionError(f"node did not stop; it logged:\n{self.log()}") from None
-        time.sleep(0.05)  # let the receiver drain what was sent last
+        # let the receiver drain what was sent last: until nothing new came for 0.2 s (a loaded
+        # machine can hold the receiving thread back for longer than the node took to finish)
+        t_end, n, quiet_since = time.monotonic() + 5.0, -1, time.monotonic()
+        while time.monotonic() < t_end:
+            if len(self.got) != n:
+                n, quiet_since = len(self.got), time.monotonic()
+            elif time.monotonic() - quiet_since > 0.2:
+                break
+            time.sleep(0.01)
         return code
 
     def stop(self) -> int | None:

@@ -59,7 +59,9 @@ def test_lab_natnet_runs_from_the_natnet_simulator(launch_graph, tmp_path: Path)
     sk = SkeletonDefinition.from_layout_file("plug_in_gait")
     assert lay["labels"] == list(sk.marker_labels) and not lay["unplaced"]
     pos = np.array([r["msg"]["positions"] for r in recs if r["topic"] == "markers"][:60], dtype=float)
-    z = np.nanmedian(pos[..., 2], axis=0)
     head = [i for i, m in enumerate(sk.marker_labels) if m in ("LFHD", "RFHD")]
     toes = [i for i, m in enumerate(sk.marker_labels) if m in ("LTOE", "RTOE")]
-    assert z[head].min() > z[toes].max() + 1.0                  # Motive's Y up made Z up
+    # Motive's Y up made Z up: the head well above the higher toe in each frame (whatever the
+    # performer does in the frames a loaded machine happens to log first)
+    above = np.nanmean(pos[:, head, 2], axis=1) - np.nanmax(pos[:, toes, 2], axis=1)
+    assert np.nanmedian(above) > 1.0, above

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -17,12 +16,9 @@ from mocapgraph.kinematics.model import load_model
 pytestmark = pytest.mark.slow  # a browser and the report command
 
 ROOT = Path(__file__).resolve().parents[2]
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-        "--no-first-run"]
 
 
-def test_report_numbers_match_the_model_file_in_chromium(capture, tmp_path, capsys):
+def test_report_numbers_match_the_model_file_in_chromium(capture, tmp_path, capsys, browser):
     out = tmp_path / "session"
     out.mkdir()
     code = main(["calibrate", str(capture.rom), "--layout", "kiip_full_body", "-o", str(out / "model.json"),
@@ -32,28 +28,23 @@ def test_report_numbers_match_the_model_file_in_chromium(capture, tmp_path, caps
     assert f"wrote {report}" in capsys.readouterr().out
     doc = json.loads((out / "model.json").read_text())
 
-    sync_api = pytest.importorskip("playwright.sync_api")
-    if not Path(CHROMIUM).exists():
-        pytest.skip(f"chromium is not installed at {CHROMIUM}")
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True)
-        try:
-            page = browser.new_page(viewport={"width": 1200, "height": 900})
-            page.goto(report.as_uri())
-            rows = page.eval_on_selector_all("#joints tbody tr", """rows => rows.map(r => ({
-                joint: r.querySelector('.joint').textContent, residual: r.querySelector('.residual_mm').textContent,
-                rom: r.querySelector('.rom_deg').textContent, reliable: r.querySelector('.reliable').textContent,
-                se: r.querySelector('.se_mm').textContent,
-                frames: r.querySelector('.frames').textContent}))""")
-            images = page.eval_on_selector_all(
-                "figure img", "imgs => imgs.map(i => [i.alt, i.naturalWidth, i.naturalHeight])")
-            layout = page.text_content("#layout")
-            gym = page.text_content("#gym-frames")
-            ARTIFACTS = ROOT / "artifacts"
-            ARTIFACTS.mkdir(exist_ok=True)
-            page.screenshot(path=str(ARTIFACTS / "calibration_report.png"), full_page=True)
-        finally:
-            browser.close()
+    page = browser.new_page(viewport={"width": 1200, "height": 900})
+    try:
+        page.goto(report.as_uri())
+        rows = page.eval_on_selector_all("#joints tbody tr", """rows => rows.map(r => ({
+            joint: r.querySelector('.joint').textContent, residual: r.querySelector('.residual_mm').textContent,
+            rom: r.querySelector('.rom_deg').textContent, reliable: r.querySelector('.reliable').textContent,
+            se: r.querySelector('.se_mm').textContent,
+            frames: r.querySelector('.frames').textContent}))""")
+        images = page.eval_on_selector_all(
+            "figure img", "imgs => imgs.map(i => [i.alt, i.naturalWidth, i.naturalHeight])")
+        layout = page.text_content("#layout")
+        gym = page.text_content("#gym-frames")
+        ARTIFACTS = ROOT / "artifacts"
+        ARTIFACTS.mkdir(exist_ok=True)
+        page.screenshot(path=str(ARTIFACTS / "calibration_report.png"), full_page=True)
+    finally:
+        page.close()
     assert layout == doc["layout"] and int(gym) == doc["n_gym_frames"]
     assert [r["joint"] for r in rows] == [j["name"] for j in doc["joints"]]
     for r, j in zip(rows, doc["joints"]):

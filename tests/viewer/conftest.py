@@ -7,18 +7,6 @@ import pytest
 from viewer_support import CHROMIUM, CHROMIUM_ARGS, PageProbe
 
 
-@pytest.fixture(scope="session")
-def browser():
-    """Headless Debian Chromium driven by Playwright; skipped when either is missing."""
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
-    if not Path(CHROMIUM).exists():
-        pytest.skip(f"chromium is not installed at {CHROMIUM} (apt-get install chromium)")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
-        yield b
-        b.close()
-
-
 @pytest.fixture
 def open_page(browser):
     """Factory: ``open_page(url)`` -> PageProbe of a new page (closed at teardown)."""

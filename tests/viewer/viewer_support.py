@@ -15,12 +15,10 @@ try:
 except ImportError:   # the browser tests skip (conftest); the socket-level helpers here still serve
     PlaywrightTimeout = TimeoutError
 
+from browser_support import CHROMIUM, CHROMIUM_ARGS  # noqa: E402,F401 - the viewer tests' names
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO_ROOT / "artifacts"
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                 "--no-first-run", "--autoplay-policy=no-user-gesture-required"]
 TESTING = "mocapgraph.testing.viewer_nodes"
 
 # Connection failures while a graph is down are logged by the browser itself, not by the page.
