@@ -1,8 +1,7 @@
 """One headless Chromium per test process: where Debian's browser is and the flags every browser test uses.
 
 Playwright's sync API allows one session per process, so every test that needs a browser takes the
-session-scoped ``browser`` fixture (tests/conftest.py) instead of starting its own: a test run in a
-worker after the viewer tests would otherwise fail to start a second one.
+module-scoped ``browser`` fixture (tests/conftest.py) instead of starting its own.
 """
 from __future__ import annotations
 

@@ -126,10 +126,12 @@ def launch_module_graph(tmp_path_factory):
         g.stop()
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser():
-    """Headless Debian Chromium driven by Playwright, one per test process (Playwright's sync API
-    allows one session a process); skipped when either is missing."""
+    """Headless Debian Chromium driven by Playwright, one per test module: Playwright's sync API
+    allows one session a process and runs an event loop on the main thread while it lives, so it
+    must end before a test of another module (a worker runs modules in any order) calls
+    ``asyncio.run``; skipped when either is missing."""
     from browser_support import CHROMIUM, CHROMIUM_ARGS
     sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
     if not Path(CHROMIUM).exists():
