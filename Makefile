@@ -11,12 +11,10 @@ setup:
 demo: setup
 	.venv/bin/mocapgraph launch graph_configs/demo.yaml $(ARGS)
 
-# the suite in two parts: everything not judged on time on two workers (pytest-xdist; most tests
-# wait on processes, sockets or a browser), then the `timing` tests alone, so no rate or latency
-# is judged while another test loads the cores
+# the suite in two parts (scripts/test.sh): the tests not judged on time on two workers, then the
+# `timing` tests alone
 test: setup
-	.venv/bin/python -m pytest -n 2 -m "not timing" $(PYTEST_ARGS)
-	.venv/bin/python -m pytest -m timing $(PYTEST_ARGS)
+	bash scripts/test.sh $(PYTEST_ARGS)
 
 test-fast: setup
 	.venv/bin/python -m pytest -m "not slow" $(PYTEST_ARGS)

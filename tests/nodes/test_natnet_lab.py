@@ -61,7 +61,8 @@ def test_lab_natnet_runs_from_the_natnet_simulator(launch_graph, tmp_path: Path)
     pos = np.array([r["msg"]["positions"] for r in recs if r["topic"] == "markers"][:60], dtype=float)
     head = [i for i, m in enumerate(sk.marker_labels) if m in ("LFHD", "RFHD")]
     toes = [i for i, m in enumerate(sk.marker_labels) if m in ("LTOE", "RTOE")]
-    # Motive's Y up made Z up: the head well above the higher toe in each frame (whatever the
-    # performer does in the frames a loaded machine happens to log first)
+    # Motive's Y up made Z up: the head well above the higher toe in every frame, whatever the
+    # performer does in the frames logged first (a bend takes the head to 0.75 m above the toes;
+    # Y left as Z would put them level, within the body's depth)
     above = np.nanmean(pos[:, head, 2], axis=1) - np.nanmax(pos[:, toes, 2], axis=1)
-    assert np.nanmedian(above) > 1.0, above
+    assert np.nanmin(above) > 0.5, above

@@ -28,6 +28,7 @@ def _get(url: str, **headers) -> tuple[int, dict, bytes]:
         return exc.code, dict(exc.headers), exc.read()
 
 
+@pytest.mark.timing  # the page follows the reader in real time
 def test_the_source_video_follows_the_skeleton_within_a_frame(launch_graph, open_page, shared_data):
     pytest.importorskip("mediapipe", reason="the video extra is not installed")
     clip = shared_data / "video" / "pose2sim_demo" / "cam01.mp4"
