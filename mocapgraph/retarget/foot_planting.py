@@ -1,14 +1,15 @@
 """Foot planting (Kiip 3.5.6): contact from height and speed, planted targets, two-bone leg IK.
 
 World frame, metres, seconds. A foot is in contact while its ankle is within ``height_m`` of its
-rest height above the floor (or of the lowest it has been, when it never came down that far) and moves
-slower than ``speed_mps`` horizontally. While in contact the ankle's horizontal position starts where
-the contact began and then moves only as the source's own ankle does (its xy, scaled by the root
-ratio): planting removes the sliding the source lacks (skating) and keeps the foot's real motion (a
-heel roll, a pivot), so a source onto its own skeleton is left as it is. Without a source ankle the
-plant is held still. At every frame the ankle and toe stay at or above their rest heights (the sole
-on the floor); after a contact ends the planted offset fades out over ``release_s``. The hip-knee-ankle chain reaches the target by two-bone IK in the leg's
-current bend plane; the foot keeps its world orientation.
+rest height above the floor (or of the lowest it has been, when it never came down that far) and
+moves slower than ``speed_mps`` horizontally. While in contact the ankle's horizontal position
+starts where the contact began and then moves only as the source's own ankle does (its xy, scaled
+by the root ratio): planting removes the sliding the source lacks (skating) and keeps the foot's
+real motion (a heel roll, a pivot), so a source onto its own skeleton is left as it is. Without a
+source ankle the plant is held still. At every frame the ankle and toe stay at or above their rest
+heights (the sole on the floor); after a contact ends the planted offset fades out over
+``release_s``. The hip-knee-ankle chain reaches the target by two-bone IK in the leg's current bend
+plane; the foot keeps its world orientation.
 """
 from __future__ import annotations
 
