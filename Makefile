@@ -11,10 +11,8 @@ setup:
 demo: setup
 	.venv/bin/mocapgraph launch graph_configs/demo.yaml $(ARGS)
 
-# the suite in two parts (scripts/test.sh): the tests not judged on time on two workers, then the
-# `timing` tests alone
 test: setup
-	bash scripts/test.sh $(PYTEST_ARGS)
+	.venv/bin/python -m pytest $(PYTEST_ARGS)
 
 test-fast: setup
 	.venv/bin/python -m pytest -m "not slow" $(PYTEST_ARGS)
