@@ -89,16 +89,23 @@ N_FOLDS = 8
 GAP_S = 1.0
 
 
+def match_errors(db: PostureDB, qn: np.ndarray, dims=DIMS) -> dict[int, np.ndarray]:
+    """Eq 5 per normalised query qn [N, 3J]: the squared full-space distance to the posture the
+    search at r dimensions finds, for each r of ``dims`` and for the full space (its last key)."""
+    full = db.positions.reshape(len(db), -1)
+    per = {}
+    for r in tuple(dims) + (db.components.shape[0],):
+        db.set_k(int(r))
+        per[r] = ((qn - full[db.nearest(db.project(qn))]) ** 2).sum(1)
+    return per
+
+
 def extra_error(db: PostureDB, qn: np.ndarray, dims=DIMS) -> tuple[dict[int, float], np.ndarray]:
     """Eq 6 at each r of ``dims`` for normalised queries qn [N, 3J] (summed over the queries),
     and each query's share of the extra error at r = 7 (sorted, largest first)."""
     full = db.positions.reshape(len(db), -1)
-    err = {}
-    per = {}
-    for r in tuple(dims) + (db.components.shape[0],):
-        db.set_k(int(r))
-        e = ((qn - full[db.nearest(db.project(qn))]) ** 2).sum(1)
-        err[r], per[r] = e.sum(), e
+    per = match_errors(db, qn, dims)
+    err = {r: e.sum() for r, e in per.items()}
     top = db.components.shape[0]
     extra7 = np.sort(np.maximum(per[7] - per[top], 0.0))[::-1]
     out = {r: 100.0 * (err[r] - err[top]) / err[top] for r in dims}
@@ -193,11 +200,7 @@ def paper_conditions(ch, cmu) -> None:
             for db, (a, b) in zip(dbs, zip(edges[:-1], edges[1:])):
                 q = sess.positions[a:b] + rng.normal(0.0, sigma / 1000.0, sess.positions[a:b].shape)
                 qn = normalise(db.frame, q)[0].reshape(b - a, -1)
-                full = db.positions.reshape(len(db), -1)
-                e = {}
-                for r in (7, db.components.shape[0]):
-                    db.set_k(int(r))
-                    e[r] = ((qn - full[db.nearest(db.project(qn))]) ** 2).sum(1)
+                e = match_errors(db, qn, (7,))
                 top = db.components.shape[0]
                 pct.append(100.0 * (e[7].sum() - e[top].sum()) / e[top].sum())
                 near.append(np.sqrt(e[top] / J))
@@ -215,11 +218,7 @@ def paper_conditions(ch, cmu) -> None:
             db = PostureDB.build(ch.joint_names, ch.parents, sess.positions[sel], sess.local_rotations[sel], k=7,
                                  min_ssd=0.005)
             qn = normalise(db.frame, sess.positions[a:b])[0].reshape(b - a, -1)
-            full = db.positions.reshape(len(db), -1)
-            e = {}
-            for r in (7, db.components.shape[0]):
-                db.set_k(int(r))
-                e[r] = ((qn - full[db.nearest(db.project(qn))]) ** 2).sum(1)
+            e = match_errors(db, qn, (7,))
             top = db.components.shape[0]
             pct.append(100.0 * (e[7].sum() - e[top].sum()) / e[top].sum())
             near.append(np.sqrt(e[top] / J))
