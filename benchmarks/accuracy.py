@@ -22,6 +22,10 @@ on the five held test poses and on a fresh 240-frame 60-degree trial, against th
 <= 1.5 mm, max <= 5 mm); beside it, the same frames solved by the TRUE model (the jig's own
 geometry) with every marker weighted by the true noise: the maximum-likelihood fit, a floor no
 per-frame solver goes under (what is left above the target there is the noise, not the solver).
+Last, the same arms with their markers low-passed first (``kinematics.solving.lowpass``: zero-lag
+Butterworth, cutoff by cross-validation): each test pose held 0.5 s (60 frames) and low-passed per
+hold, and the trial, with the cutoffs chosen; this uses the frames around each one, so it can go
+under the one-frame floor.
 
 Run: .venv/bin/python benchmarks/accuracy.py [--seeds N] [--arms N]
 """
@@ -81,17 +85,22 @@ def run(seed: int, kwargs: dict, rom: float, noise: float) -> dict:
 def issue_arms(n: int) -> None:
     print(f"\nissue 27's arm, 1 mm noise, global fit; {n} fresh seeds (6000..{6000 + n - 1}) per row; "
           "per-frame joint error mean / max mm; * = over the target (mean 1.5, max 5)")
-    head = f"{'arm':<28} | {'calibrated: poses':>18}{'trial':>13} | {'true model, ML: poses':>22}{'trial':>13}"
+    head = (f"{'arm':<28} | {'calibrated: poses':>18}{'trial':>13} | {'true model, ML: poses':>22}{'trial':>13} | "
+            f"{'low-passed: held poses':>23}{'trial':>13}{'cutoffs Hz':>12}")
     print(head)
     print("-" * len(head))
     for name, coll in (("3 markers a segment", None), ("hand's three in a line", 3)):
-        rows = np.array([[(e.mean(), e.max()) for e in issue_arm(6000 + s, coll)] for s in range(n)])  # [n,4,2]
-        bad = (rows[..., 0] > 0.0015) | (rows[..., 1] > 0.005)                                        # [n,4]
-        for s in range(n):
-            cells = [f"{1e3 * rows[s, k, 0]:.2f}/{1e3 * rows[s, k, 1]:.2f}{'*' if bad[s, k] else ' '}" for k in range(4)]
-            print(f"{name + ' ' + str(6000 + s):<28} | {cells[0]:>18}{cells[1]:>13} | {cells[2]:>22}{cells[3]:>13}")
-        print(f"{name + ': met':<28} | {n - bad[:, 0].sum():>15d}/{n}{n - bad[:, 1].sum():>10d}/{n} | "
-              f"{n - bad[:, 2].sum():>19d}/{n}{n - bad[:, 3].sum():>10d}/{n}", flush=True)
+        arms = [issue_arm(6000 + s, coll) for s in range(n)]
+        kinds = ("poses", "trial", "poses_ml", "trial_ml", "held_lowpass", "trial_lowpass")
+        rows = np.array([[(getattr(a, k).mean(), getattr(a, k).max()) for k in kinds] for a in arms])  # [n,6,2]
+        bad = (rows[..., 0] > 0.0015) | (rows[..., 1] > 0.005)                                        # [n,6]
+        for s, a in enumerate(arms):
+            cells = [f"{1e3 * rows[s, k, 0]:.2f}/{1e3 * rows[s, k, 1]:.2f}{'*' if bad[s, k] else ' '}" for k in range(6)]
+            print(f"{name + ' ' + str(6000 + s):<28} | {cells[0]:>18}{cells[1]:>13} | {cells[2]:>22}{cells[3]:>13} | "
+                  f"{cells[4]:>23}{cells[5]:>13}{a.cutoff_hz[0]:>6.1f}{a.cutoff_hz[1]:>6.1f}")
+        met = [f"{n - bad[:, k].sum()}/{n}" for k in range(6)]
+        print(f"{name + ': met':<28} | {met[0]:>18}{met[1]:>13} | {met[2]:>22}{met[3]:>13} | {met[4]:>23}{met[5]:>13}",
+              flush=True)
 
 
 def main() -> None:

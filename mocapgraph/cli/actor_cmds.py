@@ -258,10 +258,13 @@ def cmd_solve(args: argparse.Namespace) -> int:
         raise UserError(f"{inp.path.name}: no model marker is visible in any frame (all NaN)")
     if missing:
         print(f"note: {len(missing)} model markers absent from {inp.path.name} (always missing): {', '.join(missing)}")
+    noise_scale = 1.0
+    if args.lowpass != "off":
+        x, noise_scale = _lowpass(x, inp.rate_hz, args.lowpass)
     try:
         solver = FrameSolver(model, rate_hz=inp.rate_hz, max_gap_s=args.max_gap_s,
                              enforce_lengths=not args.no_enforce_lengths, filter=args.filter or None,
-                             fit=args.fit)
+                             fit=args.fit, noise_scale=noise_scale)
     except ValueError as exc:
         raise UserError(str(exc)) from None
     res = _solve_chunks(solver, x, times)
@@ -292,6 +295,34 @@ def cmd_solve(args: argparse.Namespace) -> int:
         raise UserError(f"{out}: cannot write ({exc.strerror or exc})") from None
     print(f"wrote {out}")
     return 0
+
+
+def _lowpass_spec(text: str) -> str:
+    """argparse type of --lowpass: off, auto or a positive number (Hz)."""
+    if text in ("off", "auto"):
+        return text
+    try:
+        if float(text) > 0:
+            return text
+    except ValueError:
+        pass
+    raise argparse.ArgumentTypeError(f"expected off, auto or a cutoff in Hz, got {text!r}")
+
+
+def _lowpass(x: np.ndarray, rate_hz: float, spec: str) -> tuple[np.ndarray, float]:
+    """Markers low-passed before the solve (``kinematics.solving.lowpass``) and their noise gain."""
+    from ..kinematics.solving.lowpass import lowpass_markers
+
+    try:
+        out, rep = lowpass_markers(x, rate_hz, spec if spec == "auto" else float(spec))
+    except ValueError as exc:
+        raise UserError(f"--lowpass {spec}: {exc}") from None
+    if rep.cutoff_hz is None:
+        print("note: --lowpass left the markers raw (no marker seen for 16 frames in a row)")
+    else:
+        how = "chosen by cross-validation" if spec == "auto" else "as given"
+        print(f"low-pass: zero-lag Butterworth at {rep.cutoff_hz:g} Hz ({how}); marker noise x{rep.noise_gain:.2f}")
+    return out, rep.noise_gain
 
 
 SOLVE_CHUNK = 500  # frames per solver call: a bar that moves, same result as one call
@@ -399,6 +430,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", metavar="A:B", help="frames to solve (0-based, end excluded)")
     p.add_argument("--max-gap-s", type=float, default=0.1, help="longest gap predicted over, s (0: none)")
     p.add_argument("--filter", default="", choices=("", "one_euro", "constant_velocity"), help="joint filter")
+    p.add_argument("--lowpass", default="off", type=_lowpass_spec, metavar="off|auto|HZ",
+                   help="zero-lag low-pass of the markers before solving: a cutoff in Hz, or auto "
+                        "(chosen by cross-validation); off by default")
     p.add_argument("--no-enforce-lengths", action="store_true", help="do not keep calibrated bone lengths")
     p.add_argument("--fit", default="segment", choices=("segment", "global"),
                    help="limb poses one by one (segment) or all together under the joint constraints (global)")

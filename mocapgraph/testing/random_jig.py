@@ -171,15 +171,28 @@ def true_model(model, base_markers: np.ndarray, base_joints: np.ndarray, noise: 
                                limb_rms=np.full(len(idx), float(noise)))
 
 
-def issue_arm(seed: int, collinear: int | None = None) -> list[np.ndarray]:
-    """Per-frame joint errors (m) of the global fit on one of issue 27's arms (1 mm noise,
-    calibrated on a 1440-frame 70-degree gym): [held poses [5,J], a fresh 240-frame 60-degree
-    trial [240,J]] by the calibrated model, then the same by the true model at maximum-likelihood
-    weights (every marker 1 / (1 mm)^2)."""
+@dataclass
+class ArmErrors:
+    """Per-frame joint errors (m) on one of issue 27's arms, global fit, each float[frames,J]."""
+
+    poses: np.ndarray          # five held poses, one frame each, calibrated model
+    trial: np.ndarray          # a fresh 240-frame 60-degree trial, calibrated model
+    poses_ml: np.ndarray       # the same five frames by the true model at maximum-likelihood weights
+    trial_ml: np.ndarray       # the same trial by the true model: the floor of any one-frame fit
+    held_lowpass: np.ndarray   # each pose held 0.5 s (60 frames), low-passed per hold, calibrated model
+    trial_lowpass: np.ndarray  # the trial low-passed (cutoff by cross-validation), calibrated model
+    trial_lowpass_unc: np.ndarray  # the uncertainty the solver reported on the low-passed trial (m)
+    cutoff_hz: tuple[float, float]  # the cutoffs chosen: held poses (median), trial
+
+
+def issue_arm(seed: int, collinear: int | None = None, hold_frames: int = 60) -> ArmErrors:
+    """Issue 27's arm (1 mm noise, calibrated on a 1440-frame 70-degree gym) solved frame by frame
+    and after a zero-lag low-pass of its markers (:mod:`mocapgraph.kinematics.solving.lowpass`)."""
     import warnings
 
     from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, calibrate
     from mocapgraph.kinematics.skeleton import SkeletonDefinition
+    from mocapgraph.kinematics.solving.lowpass import lowpass_markers
     from mocapgraph.kinematics.solving.solver import FrameSolver
 
     rng = np.random.default_rng(seed)
@@ -189,12 +202,25 @@ def issue_arm(seed: int, collinear: int | None = None) -> list[np.ndarray]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CalibrationWarning)
         model = calibrate(definition, clean + rng.normal(scale=0.001, size=clean.shape), rate_hz=120.0)
-    pose_m, pose_j = jig.forward(jig.test_poses(rng, 5), origin=np.array([0.3, -0.1, 1.2]))
-    pose_m = pose_m + rng.normal(scale=0.001, size=pose_m.shape)
+    pose_clean, pose_j = jig.forward(jig.test_poses(rng, 5), origin=np.array([0.3, -0.1, 1.2]))
+    pose_m = pose_clean + rng.normal(scale=0.001, size=pose_clean.shape)
     c2, j2 = jig.forward(jig.rom_trial(rng, 240, 60.0))
     c2 = c2 + rng.normal(scale=0.001, size=c2.shape)
-    out = []
-    for m in (model, true_model(model, clean[0], joints[0], 0.001)):
-        for x, j in ((pose_m, pose_j), (c2, j2)):
-            out.append(np.linalg.norm(FrameSolver(m, max_gap_s=0, fit="global").solve(x).joints - j, axis=-1))
-    return out
+    held = np.repeat(pose_clean, hold_frames, axis=0)
+    held = held + rng.normal(scale=0.001, size=held.shape)
+
+    def errors(m, x, j, noise_scale=1.0):
+        res = FrameSolver(m, max_gap_s=0, fit="global", noise_scale=noise_scale).solve(x)
+        return np.linalg.norm(res.joints - j, axis=-1), res.joint_uncertainty
+
+    ml = true_model(model, clean[0], joints[0], 0.001)
+    holds = [lowpass_markers(h, 120.0) for h in np.split(held, len(pose_clean))]
+    trial_lp, report = lowpass_markers(c2, 120.0)
+    trial_lp_err, trial_lp_unc = errors(model, trial_lp, j2, report.noise_gain)
+    return ArmErrors(
+        poses=errors(model, pose_m, pose_j)[0], trial=errors(model, c2, j2)[0],
+        poses_ml=errors(ml, pose_m, pose_j)[0], trial_ml=errors(ml, c2, j2)[0],
+        held_lowpass=np.concatenate([errors(model, h, np.repeat(pose_j[k:k + 1], hold_frames, axis=0), r.noise_gain)[0]
+                                     for k, (h, r) in enumerate(holds)]),
+        trial_lowpass=trial_lp_err, trial_lowpass_unc=trial_lp_unc,
+        cutoff_hz=(float(np.median([r.cutoff_hz for _, r in holds])), float(report.cutoff_hz)))

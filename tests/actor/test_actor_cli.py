@@ -79,6 +79,24 @@ def test_calibrate_then_solve_to_csv_trc_and_bag(files, capsys, tmp_path):
     err = np.linalg.norm(csv[..., :3] - truth, axis=-1)
     print(f"\nbatch TRC gym -> C3D trial: joint error mean {1000 * err.mean():.2f} mm, max {1000 * err.max():.2f} mm")
     assert err.mean() < 0.005 and err.max() < 0.02
+    # The markers low-passed first (cutoff by cross-validation): closer to the truth, and the
+    # uncertainty in the bag scaled down with the noise, still covering the error.
+    code, out, _ = run(capsys, "solve", d / "trial.c3d", "--model", tmp_path / "m.json", "--lowpass", "auto",
+                       "-o", tmp_path / "lp.mcap")
+    assert code == 0 and "low-pass: zero-lag Butterworth at" in out, out
+    with BagReader(tmp_path / "lp.mcap") as bag:
+        lp = [m for _, m in bag.decoded("actor_pose")]
+    lp_err = np.linalg.norm(np.array([p.joint_positions for p in lp]) - truth, axis=-1)
+    unc = np.array([p.joint_uncertainty for p in lp])
+    with capsys.disabled():
+        print(f"\n{next(l for l in out.splitlines() if l.startswith('low-pass'))} -> joint error mean {1000 * lp_err.mean():.2f} mm, max {1000 * lp_err.max():.2f} mm "
+              f"(raw {1000 * err.mean():.2f} / {1000 * err.max():.2f}); within 3 reported uncertainties: "
+              f"{100 * (lp_err <= 3 * unc).mean():.1f} % of joint-frames")
+    assert lp_err.mean() < 0.9 * err.mean() and lp_err.max() <= err.max()
+    assert (lp_err <= 3 * unc).mean() >= 0.95
+    code, out, err_text = run(capsys, "solve", d / "trial.c3d", "--model", tmp_path / "m.json", "--lowpass", "70",
+                              "-o", tmp_path / "bad.csv")
+    assert code != 0 and "--lowpass 70: low-pass cutoff 70 Hz must be between 0 and half the rate" in out + err_text
     trc = read_trc(tmp_path / "o.trc")
     assert trc.labels == list(model.joint_names)
     np.testing.assert_allclose(trc.positions, csv[..., :3], atol=2e-6)

@@ -21,9 +21,10 @@ class JointUncertainty:
     """Callable: (valid bool[T,L], rms float[T,L] m, fitted markers int[T,L]) -> float[T,J] m."""
 
     def __init__(self, model: ActorModel, ref: np.ndarray, w0: np.ndarray, labs: np.ndarray,
-                 points: np.ndarray, has: np.ndarray) -> None:
+                 points: np.ndarray, has: np.ndarray, noise_scale: float = 1.0) -> None:
         """ref [L,K,3] base-pose markers, w0 [L,K] weights, labs [2J] limb of each estimate,
-        points [2J,3] the estimates' base-pose points, has [2J] which estimates exist."""
+        points [2J,3] the estimates' base-pose points, has [2J] which estimates exist;
+        noise_scale: this input's marker noise as a fraction of the model's (filtered markers)."""
         J = len(model.joint_names)
         d = np.where((w0 > 0)[..., None], ref - model.limb_centroid[:, None], 0.0)
         inertia = (d * d).sum((1, 2))[:, None, None] * np.eye(3) - np.einsum("lki,lkj->lij", d, d)
@@ -37,7 +38,7 @@ class JointUncertainty:
         self._labs, self._has, self._J = labs, has, J
         se = np.asarray(model.quality.centre_se, dtype=float).reshape(-1)
         self._centre_var = se * se if se.shape == (J,) else np.full(J, np.nan)
-        noise = float(getattr(model, "marker_noise", np.nan))
+        noise = float(getattr(model, "marker_noise", np.nan)) * float(noise_scale)
         self._noise2 = noise * noise if np.isfinite(noise) else np.nan
 
     def __call__(self, valid: np.ndarray, rms: np.ndarray, nfit: np.ndarray) -> np.ndarray:

@@ -84,6 +84,8 @@ class FrameSolver:
     compiled: a live frame's limb fits (:mod:`rigid_kernels`; global: :mod:`global_fit_kernels`)
     and joint centres (:mod:`joint_kernels`) run as compiled kernels; False keeps the numpy
     reference (the same results to rounding; batches always use numpy).
+    noise_scale: the markers' noise as a fraction of the calibration's (a low-pass filter's
+    ``LowpassReport.noise_gain``), so the per-frame uncertainty stays honest on filtered markers.
     """
 
     def __init__(
@@ -98,6 +100,7 @@ class FrameSolver:
         fit: str = "segment",
         global_options: GlobalFitOptions | None = None,
         compiled: bool = True,
+        noise_scale: float = 1.0,
     ) -> None:
         if fit not in FITS:
             raise ValueError(f"unknown fit {fit!r} (expected one of {', '.join(FITS)})")
@@ -158,7 +161,8 @@ class FrameSolver:
             if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
         ]
         self._setup_joint_points(model)
-        self._uncertainty = JointUncertainty(model, self._ref, self._w0, self._labs, self._pt[..., 0], self._has)
+        self._uncertainty = JointUncertainty(model, self._ref, self._w0, self._labs, self._pt[..., 0], self._has,
+                                             noise_scale)
         # The compiled live limb fit (one frame's Kabsch fits) and its scratch.
         self._kernel_fit = compiled
         if compiled:
