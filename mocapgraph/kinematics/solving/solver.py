@@ -69,6 +69,23 @@ class SolverResult:
                             self.limb_quality[i], self.limb_visible[i], self.limb_rms[i], self.joint_uncertainty[i])
 
 
+def length_levels(model: ActorModel, free: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Bone-length correction order: (children, parents, lengths m) per depth from the root, so each
+    level is one vector operation; joints in ``free`` (and bones without a length) are left out."""
+    parent = np.asarray(model.joint_parent)
+    J = parent.size
+    depth = np.zeros(J, dtype=int)
+    for j in range(J):
+        d, p = 0, parent[j]
+        while p >= 0 and d <= J:
+            d, p = d + 1, parent[p]
+        depth[j] = d
+    blen = np.asarray(model.bone_length, dtype=float).copy()
+    blen[free] = np.nan
+    return [(c, parent[c], blen[c]) for lvl in range(1, depth.max(initial=0) + 1)
+            if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size]
+
+
 class FrameSolver:
     """Solve frames of markers (in ``model.marker_labels`` order, metres, NaN = unseen).
 
@@ -142,24 +159,10 @@ class FrameSolver:
         # Qualities when every limb is seen and fits well (None: some joint has no limb at all).
         self._jq_all_seen = (np.where(self._may_be_good, _GOOD, _EST).astype(np.int8)
                              if (self._n_need > 0).all() else None)
-        # Bone-length correction order: joints grouped by depth so each level is one vector op.
-        parent = np.asarray(model.joint_parent)
-        depth = np.zeros(self._J, dtype=int)
-        for j in range(self._J):
-            d, p = 0, parent[j]
-            while p >= 0 and d <= self._J:
-                d, p = d + 1, parent[p]
-            depth[j] = d
-        blen = np.asarray(model.bone_length).copy()
         # Regression joints are recomputed from the markers each frame (as Plug-in Gait does):
         # their distances to the parent follow the markers, not a calibrated length.
         self._regression = RegressionStage(model)
-        blen[self._regression.joints] = np.nan
-        self._levels = [
-            (c, parent[c], blen[c])
-            for lvl in range(1, depth.max(initial=0) + 1)
-            if (c := np.flatnonzero((depth == lvl) & np.isfinite(blen))).size
-        ]
+        self._levels = length_levels(model, self._regression.joints)
         self._setup_joint_points(model)
         self._uncertainty = JointUncertainty(model, self._ref, self._w0, self._labs, self._pt[..., 0], self._has,
                                              noise_scale)
