@@ -143,9 +143,9 @@ def test_four_cameras_reprojection_and_bone_lengths(four) -> None:
     assert good[:, body].mean() > 0.8
     # over the frames whose two ends are good (>= 3 cameras agree): measured thigh 2.8-3.2 %, shank
     # 1.7-4.2 %, upper arm 2.4-4.3 %; the forearm misses the issue's 5 % (5.3-5.5 %: the estimator's
-    # wrist drifts along the forearm alike in every view; weighting, rejection, filtering, camera
-    # choice and mirrored estimates tried, none under 5 % on both sides: docs/video.md, "The
-    # forearm"): bound 6 % for it, stated
+    # wrist drifts along the forearm alike in every view; 25 remedies measured (weighting, rejection,
+    # filtering, camera choice, mirrored estimates, sub-frame sync, the hand model's wrist, per-camera
+    # temporal consistency...), none under 5 % on both sides: docs/video.md, "The forearm"): bound 6 %
     for bone, bound in (("thigh", 0.05), ("shank", 0.05), ("upper arm", 0.05), ("forearm", 0.06)):
         for side in ("left", "right"):
             length = _bone(tri.points, side, bone)
