@@ -10,6 +10,9 @@ nothing is published until a matching model arrives. Frames with NaN or invalid 
 joints marked missing (or estimated over gaps up to ``max_gap_s``), never garbage; a frame of the
 wrong size gives an all-missing pose. Time is the capture stamp of each frame (readers keep the
 file's spacing whatever the replay speed); when it goes backwards the temporal state starts afresh.
+With ``lowpass_hz`` the markers are low-passed with no phase lag at a fixed delay
+(:class:`~mocapgraph.kinematics.solving.lowpass.FixedLagLowpass`): each pose comes out
+``lowpass_lag_s`` late, with its own frame number and capture stamp.
 """
 from __future__ import annotations
 
@@ -52,6 +55,12 @@ class FrameSolverNode(Node):
     fit = Param("segment", "limb poses: segment (each by itself) or global (together under the joints)",
                 choices=("segment", "global"))
     model_file = Param("", "model JSON loaded at start instead of waiting for skeleton_model")
+    lowpass_hz = Param(0.0, "zero-lag low-pass of the markers at this cutoff, Hz, at a delay of lowpass_lag_s "
+                            "(kinematics.solving.lowpass); 0: off", minimum=0.0)
+    lowpass_lag_s = Param(0.1, "delay of the low-pass: each pose comes out this late, s (at least 8 frames)",
+                          minimum=0.0)
+    lowpass_rate_hz = Param(0.0, "the marker stream's rate for the low-pass, Hz; 0: the model's capture rate",
+                            minimum=0.0)
 
     def __init__(self, name: str, params: dict | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
@@ -59,6 +68,7 @@ class FrameSolverNode(Node):
         self.model: ActorModel | None = None
         self.model_source = ""
         self.solver: FrameSolver | None = None
+        self._lowpass = None
         self.where: np.ndarray | None = None
         self.n_stream = 0
         self.identity = False
@@ -128,11 +138,34 @@ class FrameSolverNode(Node):
         self.absent = where < 0  # static-only markers the stream does not carry
         self.n_stream = len(layout.labels)
         self.identity = bool(len(where) == self.n_stream and (where == np.arange(len(where))).all())
+        self._lowpass = self._new_lowpass(len(where))
         self.solver = self._new_solver(self.model, max_gap_s=self.max_gap_s, enforce_lengths=self.enforce_lengths,
-                                       filter=self.filter or None, fit=self.fit)
+                                       filter=self.filter or None, fit=self.fit,
+                                       noise_scale=self._lowpass.noise_gain if self._lowpass else 1.0)
         self._last_t = -np.inf
         self.log.info("solving %d joints of layout '%s' (%s) from %d markers", len(self.model.joint_names),
                       self.model.layout, self.model_source, len(where))
+
+    def _new_lowpass(self, n_markers: int):
+        """The fixed-lag marker low-pass the params ask for, or None (off, or refused with a line)."""
+        if self.lowpass_hz <= 0:
+            return None
+        from ..kinematics.solving.lowpass import FixedLagLowpass
+
+        rate = float(self.lowpass_rate_hz or self.model.rate_hz or 0.0)
+        if rate <= 0:
+            self.log.error("lowpass needs the stream's rate: the model carries none, so set lowpass_rate_hz; "
+                           "solving unfiltered frames")
+            return None
+        try:
+            lp = FixedLagLowpass(n_markers, rate, self.lowpass_hz, round(self.lowpass_lag_s * rate))
+        except ValueError as exc:
+            self.log.error("lowpass at %g Hz with a %g s lag on a %g Hz stream: %s; solving unfiltered frames",
+                           self.lowpass_hz, self.lowpass_lag_s, rate, exc)
+            return None
+        self.log.info("markers low-passed at %g Hz, poses %d frames (%.3f s) late", self.lowpass_hz, lp.lag,
+                      lp.lag / rate)
+        return lp
 
     # ----- frames -------------------------------------------------------------------------------
     def on_markers(self, frame: MarkerFrame) -> None:
@@ -141,6 +174,38 @@ class FrameSolverNode(Node):
             self._skipped += 1
             return
         env = self.markers.envelope
+        number, capture_ns = frame.frame_number, env.capture_ns
+        x = self._placed(frame)
+        if x is None:
+            if self._lowpass is None:
+                self.actor_pose.publish(missing_pose(self.model, self.actor, number), capture_ns)
+                return
+            x = np.full((len(self.where), 3), np.nan)   # keeps its place in the delayed stream
+        if self._t0_ns is None:
+            self._t0_ns = capture_ns
+        t = (capture_ns - self._t0_ns) * 1e-9
+        if t < self._last_t:
+            solver.reset()  # a replay looped: old velocities and filter state do not apply
+            if self._lowpass is not None:
+                self._lowpass.reset()
+        self._last_t = t
+        if self._lowpass is not None:
+            got = self._lowpass.push(x, (number, capture_ns, t))
+            if got is None:
+                return
+            x, (number, capture_ns, t) = got
+        try:
+            res = solver.step(x, t)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            self._failures += 1
+            if self._failures <= 5 or self._failures % 1000 == 0:
+                self.log.error("frame %d could not be solved (%s): joints marked missing", number, exc)
+            self.actor_pose.publish(missing_pose(self.model, self.actor, number), capture_ns)
+            return
+        self.actor_pose.publish(pose_message(res, self.actor, number), capture_ns)
+
+    def _placed(self, frame: MarkerFrame) -> np.ndarray | None:
+        """float[M,3] in the model's marker order (NaN unseen or invalid); None: a frame of the wrong size."""
         pos = frame.positions
         if pos.shape[0] != self.n_stream:
             self._bad_frames += 1
@@ -148,26 +213,11 @@ class FrameSolverNode(Node):
                 self.log.warning("frame %d has %d markers, the marker layout %d: joints marked missing "
                                  "(%d such frames)", frame.frame_number, pos.shape[0], self.n_stream,
                                  self._bad_frames)
-            self.actor_pose.publish(missing_pose(self.model, self.actor, frame.frame_number), env.capture_ns)
-            return
+            return None
         x = pos if self.identity else pos[self.where]
         seen = np.isfinite(x).all(1) & ~self.absent
         if frame.valid.shape == (pos.shape[0],):
             seen &= frame.valid if self.identity else frame.valid[self.where]
         if not seen.all():
             x = np.where(seen[:, None], x, np.nan)
-        if self._t0_ns is None:
-            self._t0_ns = env.capture_ns
-        t = (env.capture_ns - self._t0_ns) * 1e-9
-        if t < self._last_t:
-            solver.reset()  # a replay looped: old velocities and filter state do not apply
-        self._last_t = t
-        try:
-            res = solver.step(x, t)
-        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-            self._failures += 1
-            if self._failures <= 5 or self._failures % 1000 == 0:
-                self.log.error("frame %d could not be solved (%s): joints marked missing", frame.frame_number, exc)
-            self.actor_pose.publish(missing_pose(self.model, self.actor, frame.frame_number), env.capture_ns)
-            return
-        self.actor_pose.publish(pose_message(res, self.actor, frame.frame_number), env.capture_ns)
+        return x

@@ -139,3 +139,57 @@ def lowpass_markers(markers: np.ndarray, rate_hz: float, cutoff_hz: float | str 
             out[a:b, m] = filter_columns(x[a:b, m], rate_hz, cutoff)
     out[~seen] = np.nan
     return out, LowpassReport(cutoff, noise_gain(rate_hz, cutoff))
+
+
+class FixedLagLowpass:
+    """The same filter live, at a fixed delay: each frame comes out ``lag_frames`` frames late,
+    filtered over the frames either side of it (a window of 2 lag + 1, its ends reflected as above).
+
+    ``push(x, tag)`` takes float[M,3] (m, NaN unseen) and any tag (frame number, stamps) and gives
+    back the frame ``lag_frames`` earlier with its tag, or None while the window fills. A marker
+    missing anywhere in the window comes out as it was measured (raw, or NaN). The last
+    ``lag_frames`` frames of a stream wait for frames after them.
+    """
+
+    def __init__(self, n_markers: int, rate_hz: float, cutoff_hz: float, lag_frames: int) -> None:
+        if not 0.0 < cutoff_hz < 0.5 * rate_hz:
+            raise ValueError(f"low-pass cutoff {cutoff_hz:g} Hz must be between 0 and half the rate ({0.5 * rate_hz:g} Hz)")
+        if 2 * lag_frames + 1 < MIN_FRAMES:
+            raise ValueError(f"a fixed-lag low-pass needs a lag of {MIN_FRAMES // 2} frames or more, got {lag_frames}")
+        self.rate_hz, self.cutoff_hz, self.lag = float(rate_hz), float(cutoff_hz), int(lag_frames)
+        self._win = np.full((2 * self.lag + 1, n_markers, 3), np.nan)
+        self._tags: list = [None] * (2 * self.lag + 1)
+        self._n = 0
+        self.noise_gain = noise_gain(rate_hz, cutoff_hz)
+        # The filter is linear: on a full window its centre is one fixed weighting of the samples.
+        size = 2 * self.lag + 1
+        self._weights = filter_columns(np.eye(size), rate_hz, cutoff_hz)[self.lag]
+
+    def reset(self) -> None:
+        """Forget the window (a replay looped, a new stream)."""
+        self._win[:] = np.nan
+        self._tags = [None] * len(self._tags)
+        self._n = 0
+
+    def push(self, x: np.ndarray, tag=None) -> tuple[np.ndarray, object] | None:
+        self._win[:-1] = self._win[1:]
+        self._win[-1] = x
+        self._tags = self._tags[1:] + [tag]
+        self._n += 1
+        if self._n <= self.lag:
+            return None
+        if self._n < self._win.shape[0]:           # the stream's first frames: what came so far
+            win = self._win[self._win.shape[0] - self._n:]
+        else:
+            win = self._win
+        centre = win.shape[0] - 1 - self.lag
+        out = win[centre].copy()
+        ok = np.isfinite(win).all((0, 2))
+        if not ok.any() or win.shape[0] < MIN_FRAMES:
+            pass
+        elif win is self._win:
+            out[ok] = np.einsum("w,wmc->mc", self._weights, win[:, ok])
+        else:
+            cols = win[:, ok].reshape(win.shape[0], -1)
+            out[ok] = filter_columns(cols, self.rate_hz, self.cutoff_hz)[centre].reshape(-1, 3)
+        return out, self._tags[-1 - self.lag]
