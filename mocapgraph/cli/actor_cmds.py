@@ -313,6 +313,8 @@ def _lowpass(x: np.ndarray, rate_hz: float, spec: str) -> tuple[np.ndarray, floa
     """Markers low-passed before the solve (``kinematics.solving.lowpass``) and their noise gain."""
     from ..kinematics.solving.lowpass import lowpass_markers
 
+    if not rate_hz or not math.isfinite(rate_hz) or rate_hz <= 0:
+        raise UserError(f"--lowpass {spec}: the trial gives no capture rate to filter at")
     try:
         out, rep = lowpass_markers(x, rate_hz, spec if spec == "auto" else float(spec))
     except ValueError as exc:
