@@ -58,9 +58,9 @@ def _frames(path: Path, n: int, size: tuple[int, int] | None):
     return out, decode_ms
 
 
-def estimator_rate(frames) -> tuple[float, int]:
+def estimator_rate(frames, model: str = "full") -> tuple[float, int]:
     from mocapgraph.video.estimator import PoseEstimator
-    est = PoseEstimator()
+    est = PoseEstimator(model=model)
     est.process(frames[0])                      # graph start and first detection outside the timing
     found, t0 = 0, time.perf_counter()
     for f in frames[1:]:
@@ -149,6 +149,19 @@ nodes:
           + ", ".join(f"{n} {v['grouped']}/{v['missed']}/{v['lagging']}" for n, v in r.get("cameras", {}).items()))
 
 
+def heavy_against_full(n: int) -> None:
+    """The heavy model's cost beside the full one's, same frames, same run (cam01 at the demo's size)."""
+    from mocapgraph.video.pose_models import installed
+    if not installed("heavy"):
+        print("heavy model: not installed (scripts/setup.sh installs it from npm); not measured")
+        return
+    frames, _ = _frames(DEMO / f"{CAMS[0]}.mp4", n, None)
+    full, _ = estimator_rate(frames, "full")
+    heavy, found = estimator_rate(frames, "heavy")
+    print(f"heavy model, {CAMS[0]} 1088x1920: estimator {heavy:.1f} ms a frame against the full model's {full:.1f} ms "
+          f"in the same run (x{heavy / full:.2f}; person in {found}/{len(frames) - 1}): {1000 / heavy:.1f} fps on one core")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60, help="frames per camera (default 60)")
@@ -182,6 +195,7 @@ def main() -> int:
         worst = min(rates)
         verdict = "keeps up with" if worst >= 30 else f"reaches {worst / 30:.0%} of"
         print(f"{label}: slowest camera {worst:.1f} fps: one core {verdict} a live 30 fps camera")
+    heavy_against_full(a.frames)
     triangulation_cost()
     return 0
 

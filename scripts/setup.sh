@@ -21,12 +21,15 @@ fi
 # Compile the per-frame kernels once (cached on disk), so no node or test pays for it.
 .venv/bin/python -m mocapgraph.jit
 
-# npm tools of the tests (package.json, pinned by package-lock.json: the Khronos glTF validator,
-# three.js) into node_modules/; without npm the tests that need them are skipped.
+# npm packages (package.json, pinned by package-lock.json: the Khronos glTF validator, three.js,
+# @mediapipe/pose) into node_modules/; without npm the tests that need them are skipped.
 if command -v npm >/dev/null 2>&1; then
   if [ ! -f node_modules/.package-lock.json ] || [ package-lock.json -nt node_modules/.package-lock.json ]; then
     npm ci --no-audit --no-fund --silent || echo "setup: npm ci failed; the glTF validator and three.js tests will be skipped"
   fi
+  # the estimator's heavy pose model, from @mediapipe/pose to where mediapipe looks (SHA-256 checked;
+  # mediapipe's wheel lacks it and would otherwise download it from the web)
+  .venv/bin/python -m mocapgraph.video.pose_models || true
 else
   echo "setup: npm missing (sudo apt-get install npm); the glTF validator tests will be skipped"
 fi

@@ -57,6 +57,9 @@ class VideoCameraReader(SourceNode):
                    choices=("feet", "hips"))
     calibrate_s = Param(1.0, "seconds of frames whose bone lengths make skeleton_info's rest offsets", minimum=0.0)
     source_id = Param("body0", "performer / body id carried in every SkeletonPose")
+    pose_model = Param("full", "estimator model: full (in mediapipe's wheel; the live default for speed) or heavy "
+                               "(more accurate, ~2.5x the cost; installed by scripts/setup.sh)",
+                       choices=("full", "heavy"))
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:
         super().__init__(name, params, wiring)
@@ -102,7 +105,7 @@ class VideoCameraReader(SourceNode):
         try:
             _video()                                # the extra installed (imported here: on_start stays quick)
             frames = VideoFrames(self._source, width=self.width, height=self.height)
-            est = PoseEstimator()
+            est = PoseEstimator(model=self.pose_model)
         except Exception as exc:  # noqa: BLE001 - a VideoError, or the estimator failing: one line via the loop
             self._results.put(exc)
             return

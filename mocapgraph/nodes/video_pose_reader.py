@@ -20,6 +20,9 @@ from ..formats import SkeletonTrial
 from .skeleton_source import SkeletonFilePlayer
 from .source_base import INPUT_ERRORS, FilePlayback, SourceError, resolve_data_path
 
+POSE_MODELS = ("auto", "full", "heavy")   # mocapgraph.video.pose_models.CHOICES (not imported: the launcher
+                                          # imports this module to check a graph, without the video part)
+
 
 def _video():
     """The video part, or SourceError (one line) when its extra is not installed."""
@@ -44,6 +47,13 @@ class _EstimatedPlayer(SkeletonFilePlayer):
     def load(self, path: Path) -> None:
         self._capture = _video()
         self._load_path = path
+        from ..video.pose_models import INSTALL_HINT, installed, resolve
+        model, note = resolve(self.pose_model)
+        if note:
+            self.log.warning("%s", note)
+        if not installed(model):
+            raise SourceError(f"the {model} pose model is not installed: {INSTALL_HINT}")
+        self._pose_model = model
         self.check_inputs(path)
 
     def check_inputs(self, path: Path) -> None:
@@ -95,13 +105,16 @@ class VideoPoseReader(_EstimatedPlayer):
                     minimum=0.0, maximum=1.0)
     ground = Param("feet", "'feet': each frame's lowest foot at Z = 0; 'hips': the hips at the origin",
                    choices=("feet", "hips"))
+    pose_model = Param("full", "estimator model: full (in mediapipe's wheel; its metric 3D estimate is the "
+                               "better one), heavy (installed by scripts/setup.sh) or auto (heavy when installed)",
+                       choices=POSE_MODELS)
 
     def check_inputs(self, path: Path) -> None:
         _opens(path)
 
     def read_trial(self, path: Path) -> SkeletonTrial:
         trial, det = self._capture.video_trial(path, good=self.good, missing=self.missing, ground=self.ground,
-                                               progress=self._progress)
+                                               progress=self._progress, pose_model=self._pose_model)
         self.found = int(det.found.sum())
         self.ms_per_frame = det.ms_per_frame
         return trial
@@ -112,6 +125,7 @@ class VideoPoseReader(_EstimatedPlayer):
     def status_data(self) -> dict[str, Any]:
         d = super().status_data()
         d["person_frames"] = getattr(self, "found", 0)
+        d["pose_model"] = getattr(self, "_pose_model", "")
         d["estimator_ms"] = round(float(getattr(self, "ms_per_frame", np.nan)), 1)
         return d
 
@@ -138,6 +152,9 @@ class MultiviewPose(_EstimatedPlayer):
                          minimum=0.0)
     sync = Param(False, "find each camera's time offset from the detections and undo it (videos not started "
                         "together)")
+    pose_model = Param("auto", "estimator model: heavy (its landmarks keep every bone within 5 %; installed by "
+                               "scripts/setup.sh), full (in mediapipe's wheel, ~2.5x faster) or auto (heavy when "
+                               "installed)", choices=POSE_MODELS)
 
     def check_inputs(self, path: Path) -> None:
         self._videos = [resolve_data_path(str(v)) for v in (self.videos or [])] or self._capture.videos_beside(path)
@@ -155,8 +172,8 @@ class MultiviewPose(_EstimatedPlayer):
             self._progress(video[0] * total + k, total * n)
 
         trial, tri, dets, cams = self._capture.multiview_from_files(path, self._videos, progress=progress,
-                                                                    sync=self.sync, reject_px=self.reject_px,
-                                                                    good_px=self.good_px)
+                                                                    sync=self.sync, pose_model=self._pose_model,
+                                                                    reject_px=self.reject_px, good_px=self.good_px)
         if self.hold_bones_s > 0:
             trial, _ = self._capture.hold_bone_lengths(trial, self.hold_bones_s)
         self.camera_errors = {d.info.name: round(float(np.nanmedian(tri.error_px[k])), 1) for k, d in enumerate(dets)}
@@ -173,4 +190,5 @@ class MultiviewPose(_EstimatedPlayer):
     def status_data(self) -> dict[str, Any]:
         d = super().status_data()
         d["reprojection_px"] = getattr(self, "camera_errors", {})
+        d["pose_model"] = getattr(self, "_pose_model", "")
         return d

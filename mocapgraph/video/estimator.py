@@ -2,8 +2,9 @@
 
 mediapipe 0.10.14 (the ``video`` extra) ships its full pose landmark model and the person
 detector inside the wheel (``mediapipe/modules/pose_*``), so nothing is fetched at run time: the
-legacy ``mediapipe.solutions.pose`` graph with ``model_complexity=1`` (the only one in the wheel;
-0 and 2 would download theirs) runs it. Per frame it gives 33 landmarks: image position
+legacy ``mediapipe.solutions.pose`` graph runs it with ``model_complexity=1`` (``full``, the one in
+the wheel) or 2 (``heavy``, installed from npm by scripts/setup.sh: :mod:`.pose_models`; refused
+when absent, so mediapipe never downloads it). Per frame it gives 33 landmarks: image position
 (normalised, made pixels here), a visibility in [0, 1], and a metric 3D estimate centred
 between the hips (camera-aligned axes: x right, y down, z away from the camera).
 
@@ -28,6 +29,7 @@ from ..formats.kinect_csv import KINECT_V2_JOINTS, KINECT_V2_PARENTS
 from ..formats.skeleton_trial import SkeletonTrial
 from ..messages.quality import QUALITY_ESTIMATED, QUALITY_GOOD, QUALITY_MISSING
 from .frames import VideoFrames, VideoInfo, VideoUnavailable
+from .pose_models import COMPLEXITY, INSTALL_HINT, POSE_MODELS, installed, resolve
 
 # mediapipe's C++ side logs through glog/absl on stderr: keep only errors
 os.environ.setdefault("GLOG_minloglevel", "2")
@@ -136,11 +138,22 @@ class PoseEstimator:
     """mediapipe's pose landmarker on BGR frames (model from the wheel; CPU)."""
 
     def __init__(self, *, min_detection: float = 0.5, min_tracking: float = 0.5, smooth: bool = True,
-                 static_images: bool = False) -> None:
+                 static_images: bool = False, model: str = "full") -> None:
+        """model: "full" (in mediapipe's wheel), "heavy" (more accurate, ~2.5x the cost; from npm,
+        :mod:`.pose_models`) or "auto" (heavy when installed); a model that is not installed is
+        refused, never downloaded."""
         try:
             from mediapipe.python.solutions import pose as mp_pose
         except ImportError:
             raise VideoUnavailable("mediapipe is not installed: pip install 'mocapgraph[video]'") from None
+        model, note = resolve(model)
+        if note:
+            warnings.warn(note, RuntimeWarning, stacklevel=2)
+        if model not in POSE_MODELS:
+            raise VideoUnavailable(f"unknown pose model {model!r} (expected {' or '.join(POSE_MODELS)})")
+        if not installed(model):
+            raise VideoUnavailable(f"the {model} pose model is not installed: {INSTALL_HINT}")
+        self.model = model
         from .frames import cv2_module
         self._cv2 = cv2_module()
         # mediapipe 0.10.14 calls a protobuf API that protobuf 4.25 marks deprecated, on every frame
@@ -149,7 +162,7 @@ class PoseEstimator:
         # the graph opens its calculators in threads after the constructor returns, printing as they
         # go: a blank frame run at once waits for them, inside the window where fd 2 is silenced
         with _native_stderr_silenced():
-            self._pose = mp_pose.Pose(static_image_mode=static_images, model_complexity=1, smooth_landmarks=smooth,
+            self._pose = mp_pose.Pose(static_image_mode=static_images, model_complexity=COMPLEXITY[model], smooth_landmarks=smooth,
                                       enable_segmentation=False, min_detection_confidence=min_detection,
                                       min_tracking_confidence=min_tracking)
             self._pose.process(np.zeros((64, 64, 3), np.uint8))

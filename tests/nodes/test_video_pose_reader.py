@@ -10,6 +10,7 @@ import pytest
 pytest.importorskip("mediapipe")
 
 from mocapgraph.formats import KINECT_V2_JOINTS  # noqa: E402
+from mocapgraph.video.pose_models import resolve  # noqa: E402
 
 
 def test_video_pose_reader_publishes_a_skeleton_for_every_frame(run_node, shared_data) -> None:
@@ -43,7 +44,9 @@ def test_multiview_pose_triangulates_the_four_cameras(run_node, shared_data) -> 
     assert np.nanmedian(head - feet) > 1.3          # a standing adult, metres, Z up
     thigh = np.linalg.norm(P[:, 13] - P[:, 12], axis=-1)   # KneeLeft - HipLeft: held at its first-second length
     assert np.nanstd(thigh) < 1e-9 and 0.3 < np.nanmean(thigh) < 0.5
-    assert "reprojection_px" in n.messages("reader_status")[-1].data_json
+    status = json.loads(n.messages("reader_status")[-1].data_json)
+    assert "reprojection_px" in status
+    assert status["pose_model"] == resolve("auto")[0]      # heavy, when scripts/setup.sh installed it
 
 
 def test_missing_camera_and_no_person_fail_in_one_line(run_node, shared_data, tmp_path) -> None:
