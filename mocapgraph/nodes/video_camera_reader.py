@@ -58,7 +58,7 @@ class VideoCameraReader(SourceNode):
     calibrate_s = Param(1.0, "seconds of frames whose bone lengths make skeleton_info's rest offsets", minimum=0.0)
     source_id = Param("body0", "performer / body id carried in every SkeletonPose")
     pose_model = Param("full", "estimator model: full (in mediapipe's wheel; the live default for speed) or heavy "
-                               "(more accurate, ~2.5x the cost; installed by scripts/setup.sh)",
+                               "(more accurate, ~3x the cost; installed by scripts/setup.sh)",
                        choices=("full", "heavy"))
 
     def __init__(self, name: str, params: dict[str, Any] | None = None, wiring=None) -> None:

@@ -153,7 +153,7 @@ class MultiviewPose(_EstimatedPlayer):
     sync = Param(False, "find each camera's time offset from the detections and undo it (videos not started "
                         "together)")
     pose_model = Param("auto", "estimator model: heavy (its landmarks keep every bone within 5 %; installed by "
-                               "scripts/setup.sh), full (in mediapipe's wheel, ~2.5x faster) or auto (heavy when "
+                               "scripts/setup.sh), full (in mediapipe's wheel, ~3x faster) or auto (heavy when "
                                "installed)", choices=POSE_MODELS)
 
     def check_inputs(self, path: Path) -> None:

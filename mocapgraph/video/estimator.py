@@ -139,7 +139,7 @@ class PoseEstimator:
 
     def __init__(self, *, min_detection: float = 0.5, min_tracking: float = 0.5, smooth: bool = True,
                  static_images: bool = False, model: str = "full") -> None:
-        """model: "full" (in mediapipe's wheel), "heavy" (more accurate, ~2.5x the cost; from npm,
+        """model: "full" (in mediapipe's wheel), "heavy" (more accurate, ~3x the cost; from npm,
         :mod:`.pose_models`) or "auto" (heavy when installed); a model that is not installed is
         refused, never downloaded."""
         try:

@@ -1,7 +1,7 @@
 """The estimator's two pose landmark models: where each lives, and installing the heavy one from npm.
 
 mediapipe 0.10.14's wheel ships the ``full`` landmark model. Its ``heavy`` model (BlazePose GHUM
-Heavy: more accurate landmarks, about 2.5 times the cost) is not in the wheel, and mediapipe would
+Heavy: more accurate landmarks, about 3 times the cost) is not in the wheel, and mediapipe would
 download it from Google's storage the first time it is asked for. We never let it: the npm package
 ``@mediapipe/pose`` (pinned in package.json, installed by ``npm ci`` from the npm registry) ships the
 same file, and ``python -m mocapgraph.video.pose_models`` (run by scripts/setup.sh) copies it, its
