@@ -189,7 +189,8 @@ def pytest_sessionfinish(session: pytest.Session) -> None:
 # browser, or is judged on time: a test asking for one of these fixtures or marked ``timing`` is
 # slow by itself; modules slow for other reasons (CLIs as processes, compiles) say so with
 # ``pytestmark = pytest.mark.slow``. The full suite (CI) runs everything.
-SLOW_FIXTURES = frozenset({"launch_graph", "launch_module_graph", "run_node", "browser", "open_page", "two_namespaces"})
+SLOW_FIXTURES = frozenset({"launch_graph", "launch_module_graph", "run_node", "run_module_node", "browser", "open_page",
+                           "two_namespaces"})
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
