@@ -82,10 +82,11 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
     # A second session loads the saved model at once and interprets the same frames identically.
     # It solves every frame it is sent, so its source runs at the camera's own 120 Hz: at 3x, with
     # the two cores oversubscribed twice, the solver fell behind and its queue dropped frames
-    # 2001-2639 (measured); a live capture must not lose any. Its source starts 15 s into the
-    # session (frame 1800, before the first frame solved above): the 15 s of base pose and gym
-    # before would only be waited through, in real time.
-    start = 1800
+    # 2001-2639 (measured); a live capture must not lose any. Its source starts a quarter second
+    # before the first frame solved above (that was frame 1998 here, 16.6 s into the session; at
+    # least 15 s in, frame 1800): the base pose and gym before would only be waited through, in
+    # real time.
+    start = max(1800, frames[0] - 30)
     g2 = launch_graph(_pipeline_graph(log2, model_file, rate_scale=1.0, start_s=start / 120.0))
     g2.wait_ready()
     g2.wait_for("node reader exited with code 0", timeout=60)
