@@ -105,22 +105,62 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
         assert p2[f]["limb_orientations"] == p1[f]["limb_orientations"], f
 
 
-def test_calibration_driven_by_commands_reports_every_state(launch_graph, tmp_path):
-    log = tmp_path / "status.jsonl"
-    saved = tmp_path / "commanded.json"
+@pytest.fixture(scope="module")
+def side_graphs(launch_module_graph, tmp_path_factory) -> dict:
+    """The commanded-calibration graph and the unreliable-joints graph, launched together: each
+    spends seconds starting up, neither is judged on time, and each test stops its own."""
+    import warnings
+
+    from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, calibrate
+    from mocapgraph.kinematics.model import save_model
+    from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
+    from mocapgraph.kinematics.synthetic.motion import MotionScript
+
+    commanded, unreliable = tmp_path_factory.mktemp("commanded"), tmp_path_factory.mktemp("unreliable")
     cmd = CommandSender("calibration_command", "the calibration node")
-    g = launch_graph(f"""\
+    log = commanded / "status.jsonl"
+    g_cmd = launch_module_graph(f"""\
 external:
   - {{topic: calibration_command, type: NodeCommand, endpoint: "tcp://127.0.0.1:{cmd.port}"}}
 nodes:
 {SOURCE.format(duration=60.0)}\
   - name: cal
     type: calibration
-    params: {{layout: kiip_full_body, model_file: {tmp_path / 'actor_model.json'}}}  # save/load: in its folder
+    params: {{layout: kiip_full_body, model_file: {commanded / 'actor_model.json'}}}  # save/load: in its folder
   - name: logger
     type: topic_logger
     params: {{path: {log}, topics: [calibration_status, skeleton_model]}}
 """)
+    # A model whose calibration found some joints unreliable (a 60 deg bar on a short gym), made
+    # while the first graph starts up.
+    actor = SyntheticActor("kiip_full_body", rate=120.0, seed=3, script=MotionScript(gym_block_s=1.0),
+                           options=CaptureOptions(noise_mm=1.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)
+        model = calibrate(actor.skeleton, actor.capture(0, 600).markers[::2], rate_hz=60.0, min_rom_deg=60.0)
+    save_model(model, unreliable / "m.json")
+    poses_log = unreliable / "poses.jsonl"
+    g_unreliable = launch_module_graph(f"""\
+nodes:
+{SOURCE.format(duration=3.0)}\
+  - name: solver
+    type: frame_solver
+    params: {{model_file: {unreliable / "m.json"}}}
+  - name: solver_global
+    type: frame_solver
+    params: {{model_file: {unreliable / "m.json"}, fit: global}}
+    remap: {{actor_pose: actor_pose_global}}
+  - name: logger
+    type: topic_logger
+    params: {{path: {poses_log}, topics: [actor_pose, actor_pose_global, ground_truth]}}
+""")
+    yield {"commanded": (g_cmd, cmd, log, commanded), "unreliable": (g_unreliable, model, poses_log)}
+    cmd.close()
+
+
+def test_calibration_driven_by_commands_reports_every_state(side_graphs):
+    g, cmd, log, tmp_path = side_graphs["commanded"]
+    saved = tmp_path / "commanded.json"
     g.wait_ready()
     cmd.wait_subscriber(15.0)
 
@@ -181,39 +221,12 @@ nodes:
     cmd.close()
 
 
-def test_the_solver_node_never_calls_an_unreliable_joint_good(launch_graph, tmp_path):
+def test_the_solver_node_never_calls_an_unreliable_joint_good(side_graphs):
     # A model whose calibration found some joints unreliable (a 60 deg bar on a short gym): the
     # live solver node publishes them estimated on every frame, the others good.
-    import warnings
-
-    from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, calibrate
-    from mocapgraph.kinematics.model import save_model
-    from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
-    from mocapgraph.kinematics.synthetic.motion import MotionScript
-
-    actor = SyntheticActor("kiip_full_body", rate=120.0, seed=3, script=MotionScript(gym_block_s=1.0),
-                           options=CaptureOptions(noise_mm=1.0))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", CalibrationWarning)
-        model = calibrate(actor.skeleton, actor.capture(0, 600).markers[::2], rate_hz=60.0, min_rom_deg=60.0)
+    g, model, log = side_graphs["unreliable"]
     bad = ~model.quality.reliable
     assert bad.any() and not bad.all()
-    save_model(model, tmp_path / "m.json")
-    log = tmp_path / "poses.jsonl"
-    g = launch_graph(f"""\
-nodes:
-{SOURCE.format(duration=3.0)}\
-  - name: solver
-    type: frame_solver
-    params: {{model_file: {tmp_path / "m.json"}}}
-  - name: solver_global
-    type: frame_solver
-    params: {{model_file: {tmp_path / "m.json"}, fit: global}}
-    remap: {{actor_pose: actor_pose_global}}
-  - name: logger
-    type: topic_logger
-    params: {{path: {log}, topics: [actor_pose, actor_pose_global, ground_truth]}}
-""")
     g.wait_ready()
     g.wait_for("node src exited with code 0", timeout=30)
     wait_until(lambda: len(poses(log)) > 300 and len(poses(log, "actor_pose_global")) > 300, what="poses", graph=g)
