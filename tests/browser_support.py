@@ -1,7 +1,7 @@
 """One headless Chromium per test process: where Debian's browser is and the flags every browser test uses.
 
 Playwright's sync API allows one session per process, so every test that needs a browser takes the
-module-scoped ``browser`` fixture (tests/conftest.py) instead of starting its own.
+``browser`` fixture (tests/conftest.py: one Chromium for consecutive modules using it) instead of starting its own.
 """
 from __future__ import annotations
 

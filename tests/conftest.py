@@ -126,27 +126,71 @@ def launch_module_graph(tmp_path_factory):
         g.stop()
 
 
+class _SharedBrowser:
+    """One headless Chromium for consecutive modules that use it (the viewer folder's modules run
+    one after another): launching Playwright and Chromium again for each costs about a second.
+    Playwright's sync API allows one session a process and runs an event loop on the main thread
+    while it lives, so it must end before a test of another module that does not use it (which may
+    call ``asyncio.run``): `pytest_runtest_setup` ends it there, and at the end of the session."""
+
+    def __init__(self) -> None:
+        self.playwright = None
+        self.browser = None
+        self.module = None     # the last module that asked for it
+
+    def get(self, module):
+        if self.browser is None:
+            from browser_support import CHROMIUM, CHROMIUM_ARGS
+            from playwright.sync_api import sync_playwright
+            self.playwright = sync_playwright().start()
+            self.browser = self.playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+        self.module = module
+        return self.browser
+
+    def end_unless(self, module) -> None:
+        """End it before a test of another module that does not use it."""
+        if self.browser is not None and module is not self.module:
+            self.close()
+
+    def close(self) -> None:
+        if self.browser is not None:
+            try:
+                self.browser.close()
+            finally:
+                self.playwright.stop()
+                self.browser = self.playwright = self.module = None
+
+
+_BROWSER = _SharedBrowser()
+
+
 @pytest.fixture(scope="module")
-def browser():
-    """Headless Debian Chromium driven by Playwright, one per test module: Playwright's sync API
-    allows one session a process and runs an event loop on the main thread while it lives, so it
-    must end before a test of another module (a worker runs modules in any order) calls
-    ``asyncio.run``; skipped when either is missing."""
-    from browser_support import CHROMIUM, CHROMIUM_ARGS
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
+def browser(request):
+    """Headless Debian Chromium driven by Playwright, shared by consecutive modules that use it (see
+    _SharedBrowser; each test's pages are its own: ``new_page`` opens a fresh context); skipped when
+    either is missing."""
+    from browser_support import CHROMIUM
+    pytest.importorskip("playwright.sync_api", reason="playwright (Python) is not installed")
     if not Path(CHROMIUM).exists():
         pytest.skip(f"chromium is not installed at {CHROMIUM} (apt-get install chromium)")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
-        yield b
-        b.close()
+    yield _BROWSER.get(request.module)
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    if "browser" not in getattr(item, "fixturenames", ()):
+        _BROWSER.end_unless(getattr(item, "module", None))
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    _BROWSER.close()
 
 
 # The fast subset (``pytest -m "not slow"``, a few minutes) leaves out what starts processes or a
 # browser, or is judged on time: a test asking for one of these fixtures or marked ``timing`` is
 # slow by itself; modules slow for other reasons (CLIs as processes, compiles) say so with
 # ``pytestmark = pytest.mark.slow``. The full suite (CI) runs everything.
-SLOW_FIXTURES = frozenset({"launch_graph", "launch_module_graph", "run_node", "browser", "open_page", "two_namespaces"})
+SLOW_FIXTURES = frozenset({"launch_graph", "launch_module_graph", "run_node", "run_module_node", "browser", "open_page",
+                           "two_namespaces"})
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -370,6 +370,7 @@ def _check_processes(resolved: list[ResolvedNode]) -> None:
         for key, why in (("machine", "the nodes of one process run on one machine"),
                          ("respawn", "a process is restarted as a whole"),
                          ("respawn_delay", "a process is restarted as a whole"),
+                         ("respawn_max_delay", "a process is restarted as a whole"),
                          ("nice", "a process has one scheduling priority")):
             if getattr(ns, key) != getattr(lead, key):
                 raise ns.error(key, f"{getattr(ns, key)!r} differs from {getattr(lead, key)!r} of nodes[{lead.name}] "

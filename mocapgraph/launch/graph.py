@@ -47,8 +47,9 @@ from typing import Any
 
 from ..formats.yaml_source import GraphError, LinedDict, LinedList, load_yaml_file
 
-NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "required", "host", "port", "machine",
+NODE_KEYS = ("name", "type", "params", "remap", "respawn", "respawn_delay", "respawn_max_delay", "required", "host", "port", "machine",
              "process", "nice", "doc", "if")
+SECONDS_KEYS = ("respawn_delay", "respawn_max_delay")
 TOP_KEYS = ("args", "include", "nodes", "external", "expects", "description", "security")
 SECURITY_KEYS = ("key", "authorized", "insecure")
 EXPECTS_KEYS = ("topic", "type", "doc")
@@ -69,6 +70,7 @@ class NodeSpec:
     remap: dict[str, str]
     respawn: bool = False
     respawn_delay: float = 0.5
+    respawn_max_delay: float = 10.0  # the cap of the doubling back-off, s
     required: bool = False
     host: str = ""
     port: int = 0  # fixed tcp port (needed by nodes that others on other machines connect to)
@@ -342,13 +344,14 @@ def _node_spec(path: Path, i: int, raw: Any, line: int, args: dict[str, Any]) ->
         key_lines=dict(raw.key_lines),
         param_lines=dict(getattr(params, "key_lines", {})),
     )
-    for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)), ("host", str),
+    for key, kind in (("respawn", bool), ("required", bool), ("respawn_delay", (int, float)),
+                      ("respawn_max_delay", (int, float)), ("host", str),
                       ("machine", str), ("port", int), ("process", str), ("nice", int)):
         if key in raw:
             value = _substitute(raw[key], args, str(path), raw.line_of(key), key)
             if (not isinstance(value, kind) or (kind is not bool and isinstance(value, bool))
-                    or (key == "respawn_delay" and not (math.isfinite(value) and 0 <= value <= 3600))):
-                raise node.error(key, f"wants {'a finite number of seconds in [0, 3600]' if key == 'respawn_delay' else kind.__name__}, "
+                    or (key in SECONDS_KEYS and not (math.isfinite(value) and 0 <= value <= 3600))):
+                raise node.error(key, f"wants {'a finite number of seconds in [0, 3600]' if key in SECONDS_KEYS else kind.__name__}, "
                                  f"got {value!r}")
             if key == "port" and not 1 <= value <= 65535:
                 raise node.error(key, f"wants a tcp port in 1..65535, got {value!r}")
@@ -358,7 +361,7 @@ def _node_spec(path: Path, i: int, raw: Any, line: int, args: dict[str, Any]) ->
             if key == "process" and value and not NODE_NAME.fullmatch(value):   # '' : its own process
                 raise node.error(key, f"{value[:80]!r} is not a process name (letters, digits, '_' and '-', "
                                  "at most 64, starting with a letter or '_')")
-            setattr(node, key, float(value) if key == "respawn_delay" else value)
+            setattr(node, key, float(value) if key in SECONDS_KEYS else value)
     if node.machine and not (node.host and node.port):
         raise node.error("machine", "a node on a named machine needs host: (that machine's address) and port: "
                          "so the other machines can connect to it")

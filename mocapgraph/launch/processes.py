@@ -40,6 +40,10 @@ class Process:
         return self.members[0].node.spec.respawn_delay
 
     @property
+    def respawn_max_delay(self) -> float:
+        return self.members[0].node.spec.respawn_max_delay
+
+    @property
     def nice(self) -> int:
         return self.members[0].node.spec.nice  # the same for every member (graph check)
 
@@ -87,7 +91,7 @@ class Process:
         self.finished = True
         if self.respawn and not stopping:
             self.respawn_at = now + self.backoff_s
-            self.backoff_s = min(MAX_BACKOFF_S, self.backoff_s * 2)
+            self.backoff_s = min(self.respawn_max_delay, self.backoff_s * 2)
         return code
 
 

@@ -82,10 +82,11 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
     # A second session loads the saved model at once and interprets the same frames identically.
     # It solves every frame it is sent, so its source runs at the camera's own 120 Hz: at 3x, with
     # the two cores oversubscribed twice, the solver fell behind and its queue dropped frames
-    # 2001-2639 (measured); a live capture must not lose any. Its source starts 15 s into the
-    # session (frame 1800, before the first frame solved above): the 15 s of base pose and gym
-    # before would only be waited through, in real time.
-    start = 1800
+    # 2001-2639 (measured); a live capture must not lose any. Its source starts a quarter second
+    # before the first frame solved above (that was frame 1998 here, 16.6 s into the session; at
+    # least 15 s in, frame 1800): the base pose and gym before would only be waited through, in
+    # real time.
+    start = max(1800, frames[0] - 30)
     g2 = launch_graph(_pipeline_graph(log2, model_file, rate_scale=1.0, start_s=start / 120.0))
     g2.wait_ready()
     g2.wait_for("node reader exited with code 0", timeout=60)
@@ -104,22 +105,66 @@ def test_auto_calibration_solves_like_the_ground_truth_and_a_reload_solves_ident
         assert p2[f]["limb_orientations"] == p1[f]["limb_orientations"], f
 
 
-def test_calibration_driven_by_commands_reports_every_state(launch_graph, tmp_path):
-    log = tmp_path / "status.jsonl"
-    saved = tmp_path / "commanded.json"
+@pytest.fixture(scope="module")
+def side_graphs(launch_module_graph, tmp_path_factory) -> dict:
+    """The commanded-calibration graph and the unreliable-joints graph, launched together: each
+    spends seconds starting up, neither is judged on time, and each test stops its own."""
+    import warnings
+
+    from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, calibrate
+    from mocapgraph.kinematics.model import save_model
+    from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
+    from mocapgraph.kinematics.synthetic.motion import MotionScript
+
+    commanded, unreliable = tmp_path_factory.mktemp("commanded"), tmp_path_factory.mktemp("unreliable")
     cmd = CommandSender("calibration_command", "the calibration node")
-    g = launch_graph(f"""\
+    log = commanded / "status.jsonl"
+    g_cmd = launch_module_graph(f"""\
 external:
   - {{topic: calibration_command, type: NodeCommand, endpoint: "tcp://127.0.0.1:{cmd.port}"}}
 nodes:
 {SOURCE.format(duration=60.0)}\
   - name: cal
     type: calibration
-    params: {{layout: kiip_full_body, model_file: {tmp_path / 'actor_model.json'}}}  # save/load: in its folder
+    params: {{layout: kiip_full_body, model_file: {commanded / 'actor_model.json'}}}  # save/load: in its folder
   - name: logger
     type: topic_logger
     params: {{path: {log}, topics: [calibration_status, skeleton_model]}}
 """)
+    # A model whose calibration found some joints unreliable (a 60 deg bar on a short gym), made
+    # while the first graph starts up.
+    actor = SyntheticActor("kiip_full_body", rate=120.0, seed=3, script=MotionScript(gym_block_s=1.0),
+                           options=CaptureOptions(noise_mm=1.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)
+        model = calibrate(actor.skeleton, actor.capture(0, 600).markers[::2], rate_hz=60.0, min_rom_deg=60.0)
+    save_model(model, unreliable / "m.json")
+    poses_log = unreliable / "poses.jsonl"
+    g_unreliable = launch_module_graph(f"""\
+nodes:
+{SOURCE.format(duration=3.0)}\
+  - name: solver
+    type: frame_solver
+    params: {{model_file: {unreliable / "m.json"}}}
+  - name: solver_global
+    type: frame_solver
+    params: {{model_file: {unreliable / "m.json"}, fit: global}}
+    remap: {{actor_pose: actor_pose_global}}
+  - name: solver_lowpass
+    type: frame_solver
+    params: {{model_file: {unreliable / "m.json"}, fit: global, lowpass_hz: 20.0, lowpass_lag_s: 0.1, lowpass_rate_hz: 120.0}}
+    remap: {{actor_pose: actor_pose_lowpass}}
+  - name: logger
+    type: topic_logger
+    params: {{path: {poses_log}, topics: [actor_pose, actor_pose_global, actor_pose_lowpass, ground_truth]}}
+""")
+    yield {"commanded": (g_cmd, cmd, log, commanded), "unreliable": (g_unreliable, model, poses_log)}
+    cmd.close()
+
+
+def test_calibration_driven_by_commands_reports_every_state(side_graphs):
+    g, cmd, log, tmp_path = side_graphs["commanded"]
+    saved = tmp_path / "commanded.json"
     g.wait_ready()
     cmd.wait_subscriber(15.0)
 
@@ -180,43 +225,12 @@ nodes:
     cmd.close()
 
 
-def test_the_solver_node_never_calls_an_unreliable_joint_good(launch_graph, tmp_path):
+def test_the_solver_node_never_calls_an_unreliable_joint_good(side_graphs):
     # A model whose calibration found some joints unreliable (a 60 deg bar on a short gym): the
     # live solver node publishes them estimated on every frame, the others good.
-    import warnings
-
-    from mocapgraph.kinematics.calibration.calibrate import CalibrationWarning, calibrate
-    from mocapgraph.kinematics.model import save_model
-    from mocapgraph.kinematics.synthetic.actor import CaptureOptions, SyntheticActor
-    from mocapgraph.kinematics.synthetic.motion import MotionScript
-
-    actor = SyntheticActor("kiip_full_body", rate=120.0, seed=3, script=MotionScript(gym_block_s=1.0),
-                           options=CaptureOptions(noise_mm=1.0))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", CalibrationWarning)
-        model = calibrate(actor.skeleton, actor.capture(0, 600).markers[::2], rate_hz=60.0, min_rom_deg=60.0)
+    g, model, log = side_graphs["unreliable"]
     bad = ~model.quality.reliable
     assert bad.any() and not bad.all()
-    save_model(model, tmp_path / "m.json")
-    log = tmp_path / "poses.jsonl"
-    g = launch_graph(f"""\
-nodes:
-{SOURCE.format(duration=3.0)}\
-  - name: solver
-    type: frame_solver
-    params: {{model_file: {tmp_path / "m.json"}}}
-  - name: solver_global
-    type: frame_solver
-    params: {{model_file: {tmp_path / "m.json"}, fit: global}}
-    remap: {{actor_pose: actor_pose_global}}
-  - name: solver_lowpass
-    type: frame_solver
-    params: {{model_file: {tmp_path / "m.json"}, fit: global, lowpass_hz: 20.0, lowpass_lag_s: 0.1, lowpass_rate_hz: 120.0}}
-    remap: {{actor_pose: actor_pose_lowpass}}
-  - name: logger
-    type: topic_logger
-    params: {{path: {log}, topics: [actor_pose, actor_pose_global, actor_pose_lowpass, ground_truth]}}
-""")
     g.wait_ready()
     g.wait_for("node src exited with code 0", timeout=30)
     wait_until(lambda: min(len(poses(log, t)) for t in ("actor_pose", "actor_pose_global", "actor_pose_lowpass")) > 300,

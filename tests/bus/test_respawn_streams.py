@@ -71,8 +71,9 @@ nodes:
     async def run() -> None:
         async with websockets_client.connect(url) as ws:
             json.loads(await ws.recv())   # hello
-            # the old process well ahead: 6 s at 30 Hz, so the new one starts 180 numbers below it
-            await asyncio.wait_for(_poses(ws, seen, lambda: len(seen) and seen[-1][1] > 6 * RATE_HZ), 60)
+            # the old process well ahead: 4 s at 30 Hz, so the new one starts 120 numbers below it
+            # (twice the 2 s of numbers the new one is watched for below)
+            await asyncio.wait_for(_poses(ws, seen, lambda: len(seen) and seen[-1][1] > 4 * RATE_HZ), 60)
             old_last = seen[-1][1]
             killed_ns = time.time_ns()
             os.kill(node_pids(g)["solver"], signal.SIGKILL)

@@ -6,11 +6,10 @@ a mark, a standard-library module, and a node file next to the graph (which load
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
-from graph_helpers import read_jsonl, wait_until
+from graph_helpers import CommandsRunning, read_jsonl, run_concurrently, wait_until
 
 NODE_FILE = '''
 from pathlib import Path
@@ -32,9 +31,8 @@ class Beacon(Node):
 '''
 
 
-def _check(graph: Path, env: dict) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "mocapgraph", "graph", "check", str(graph)], capture_output=True,
-                          text=True, env=env, timeout=120, cwd=graph.parent)
+def _check_command(graph: Path) -> list[str]:
+    return [sys.executable, "-m", "mocapgraph", "graph", "check", str(graph)]
 
 
 def test_a_module_type_outside_mocapgraph_is_refused_without_being_imported(tmp_path):
@@ -42,10 +40,13 @@ def test_a_module_type_outside_mocapgraph_is_refused_without_being_imported(tmp_
     lib.mkdir()
     (lib / "lab_plugin.py").write_text(NODE_FILE)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(lib), os.environ.get("PYTHONPATH", "")]))
+    graphs = []
     for i, type_name in enumerate(("lab_plugin:Beacon", "os:system", "antigravity:X")):
-        graph = tmp_path / f"g{i}.yaml"
+        graphs.append(graph := tmp_path / f"g{i}.yaml")
         graph.write_text(f"nodes:\n  - name: n\n    type: {type_name}\n")
-        r = _check(graph, env)
+    # three independent checks at once (each interpreter start costs a core's half second)
+    for graph, r in zip(graphs, run_concurrently([_check_command(g) for g in graphs], timeout=120, env=env,
+                                                 cwd=tmp_path)):
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert r.returncode != 0 and len(lines) == 1, (r.stdout, r.stderr)
         assert f"{graph}:3: nodes[n].type" in lines[0] and "only registered types" in lines[0], lines[0]
@@ -67,14 +68,16 @@ nodes:
 """
     graph = tmp_path / "graph.yaml"
     graph.write_text(text)
-    r = _check(graph, dict(os.environ))
-    assert r.returncode == 0, r.stderr
+    missing = tmp_path / "g_missing.yaml"
+    missing.write_text("nodes:\n  - name: n\n    type: nodes/nope.py:Beacon\n")
+    # the two checks at once, while the graph starts (independent processes)
+    checks = CommandsRunning([_check_command(graph), _check_command(missing)], cwd=tmp_path)
     g = launch_graph(graph)
     g.wait_ready()
     wait_until(lambda: read_jsonl(log, "beacon"), timeout=20, what="the beacon", graph=g)
     assert read_jsonl(log, "beacon")[0]["msg"]["state"] == "hi"
     assert g.stop() == 0
-    missing = tmp_path / "g_missing.yaml"
-    missing.write_text("nodes:\n  - name: n\n    type: nodes/nope.py:Beacon\n")
-    r = _check(missing, dict(os.environ))
+    r, r_missing = checks.results(timeout=120)
+    assert r.returncode == 0, r.stderr
+    r = r_missing
     assert r.returncode != 0 and "no file" in r.stderr and "g_missing.yaml:3" in r.stderr, r.stderr

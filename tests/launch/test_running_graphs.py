@@ -93,39 +93,60 @@ nodes:
     assert g.stop() == 0
 
 
-def running_pattern_and_logger(launch_graph, tmp_path) -> tuple:
-    g = launch_graph(PIPELINE + f"""\
+@pytest.fixture(scope="module")
+def graphs(launch_module_graph, tmp_path_factory) -> dict:
+    """The graphs of the stop, kill, required-death and garbage tests (none judged on time),
+    launched together: each spends a second or more starting up, and each test ends its own."""
+    tmp = tmp_path_factory.mktemp("running")
+    out = {name: launch_module_graph(PIPELINE + f"""\
   - name: logger
     type: topic_logger
-    params: {{path: {tmp_path / 'l.jsonl'}, topics: [raw_markers]}}
+    params: {{path: {tmp / (name + '.jsonl')}, topics: [raw_markers]}}
+""") for name in ("ctrl_c", "sigkill")}
+    out["required"] = launch_module_graph(PIPELINE.replace("count: \"${count}\"", "count: 0") + f"""\
+    required: true
+  - name: logger
+    type: topic_logger
+    params: {{path: {tmp / 'required.jsonl'}, topics: [raw_markers]}}
 """)
+    pub = zmq.Context.instance().socket(zmq.XPUB)
+    port = pub.bind_to_random_port("tcp://127.0.0.1")
+    log = tmp / "garbage.jsonl"
+    out["garbage"] = launch_module_graph(f"""\
+external:
+  - {{topic: markers, type: MarkerFrame, endpoint: "tcp://127.0.0.1:{port}"}}
+nodes:
+  - name: logger
+    type: topic_logger
+    params: {{path: {log}, topics: [markers]}}
+"""), pub, log
+    yield out
+    pub.close(0)
+
+
+def running_pattern_and_logger(g) -> tuple:
     g.wait_ready()
     pids = list(node_pids(g).values())
     assert len(pids) == 2 and all(pid_alive(p) for p in pids)
     return g, pids
 
 
-def test_ctrl_c_leaves_no_process_behind(launch_graph, tmp_path) -> None:
-    g, pids = running_pattern_and_logger(launch_graph, tmp_path)
+def test_ctrl_c_leaves_no_process_behind(graphs) -> None:
+    g, pids = running_pattern_and_logger(graphs["ctrl_c"])
     assert g.stop() == 0  # SIGINT, as Ctrl-C sends
     assert "stopped in" in g.output
     wait_until(lambda: not any(pid_alive(p) for p in pids), timeout=5, what="nodes to exit")
 
 
-def test_launcher_killed_with_sigkill_leaves_no_orphan(launch_graph, tmp_path) -> None:
-    g, pids = running_pattern_and_logger(launch_graph, tmp_path)
+def test_launcher_killed_with_sigkill_leaves_no_orphan(graphs) -> None:
+    g, pids = running_pattern_and_logger(graphs["sigkill"])
     g.proc.kill()
     g.proc.wait()
     wait_until(lambda: not any(pid_alive(p) for p in pids), timeout=5, what="orphans to die")
 
 
-def test_required_node_death_stops_the_graph_with_nonzero_exit(launch_graph, tmp_path) -> None:
-    g = launch_graph(PIPELINE.replace("count: \"${count}\"", "count: 0") + f"""\
-    required: true
-  - name: logger
-    type: topic_logger
-    params: {{path: {tmp_path / 'l.jsonl'}, topics: [raw_markers]}}
-""")
+def test_required_node_death_stops_the_graph_with_nonzero_exit(graphs) -> None:
+    g = graphs["required"]
     g.wait_ready()
     os.kill(node_pids(g)["pattern"], signal.SIGKILL)
     g.proc.wait(10)
@@ -133,19 +154,8 @@ def test_required_node_death_stops_the_graph_with_nonzero_exit(launch_graph, tmp
     assert "required node pattern died" in g.output
 
 
-def test_garbage_on_a_nodes_socket_is_counted_and_logged(launch_graph, tmp_path) -> None:
-    ctx = zmq.Context.instance()
-    pub = ctx.socket(zmq.XPUB)
-    port = pub.bind_to_random_port("tcp://127.0.0.1")
-    log = tmp_path / "log.jsonl"
-    g = launch_graph(f"""\
-external:
-  - {{topic: markers, type: MarkerFrame, endpoint: "tcp://127.0.0.1:{port}"}}
-nodes:
-  - name: logger
-    type: topic_logger
-    params: {{path: {log}, topics: [markers]}}
-""")
+def test_garbage_on_a_nodes_socket_is_counted_and_logged(graphs) -> None:
+    g, pub, log = graphs["garbage"]
     g.wait_ready()
     assert pub.poll(10000), "the logger never subscribed"
     assert pub.recv() == b"\x01" + topic_frame("markers")
@@ -171,7 +181,6 @@ nodes:
     assert sum(d["edge_rejected"]) == 3 and sum(d["edge_gaps"]) == 0
     assert g.proc.poll() is None  # still running
     assert g.stop() == 0
-    pub.close(0)
 
 
 def test_topic_tools_against_a_running_graph(launch_graph, tmp_path) -> None:

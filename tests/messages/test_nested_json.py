@@ -79,12 +79,16 @@ def _last(log: Path, topic: str, node: str) -> dict:
     return recs[-1] if recs else {}
 
 
-def test_nested_args_json_is_refused_by_every_commandable_node(launch_graph, tmp_path):
-    bag = tmp_path / "b.mcap"
+@pytest.fixture(scope="module")
+def graphs(launch_module_graph, tmp_path_factory) -> dict:
+    """The two graphs of this module (neither judged on time), launched together: each spends
+    seconds starting up, and each test stops its own."""
+    tmp = tmp_path_factory.mktemp("nested")
+    bag = tmp / "b.mcap"
     _small_bag(bag)
-    log = tmp_path / "log.jsonl"
+    log = tmp / "log.jsonl"
     cmd = Commands()
-    g = launch_graph(cmd.external + f"""\
+    commandable = launch_module_graph(cmd.external + f"""\
 nodes:
   - name: reader
     type: synthetic_actor
@@ -104,6 +108,23 @@ nodes:
     type: topic_logger
     params: {{path: {log}, topics: [calibration_status, player_status, physics_state]}}
 """)
+    servers = launch_module_graph(f"""\
+nodes:
+  - name: pattern
+    type: marker_test_pattern
+    params: {{rate_hz: 60.0, n_markers: 4}}
+  - name: viz
+    type: visualizer
+    params: {{port: {free_port()}}}
+  - name: fox
+    type: foxglove_bridge
+    params: {{port: 0, token: s3cret}}
+""")
+    return {"commandable": (commandable, cmd, log), "servers": servers}
+
+
+def test_nested_args_json_is_refused_by_every_commandable_node(graphs):
+    g, cmd, log = graphs["commandable"]
     g.wait_ready(timeout=120)
     cmd.wait_subscribers()
     wait_until(lambda: read_jsonl(log, "physics_state"), timeout=60, what="the physics world", graph=g)
@@ -181,20 +202,8 @@ def _raw_host(port: int, host: str) -> int:
     return status
 
 
-def test_viewer_and_foxglove_bridge_refuse_nested_json_and_a_host_of_a_bracket(launch_graph):
-    port = free_port()
-    g = launch_graph(f"""\
-nodes:
-  - name: pattern
-    type: marker_test_pattern
-    params: {{rate_hz: 60.0, n_markers: 4}}
-  - name: viz
-    type: visualizer
-    params: {{port: {port}}}
-  - name: fox
-    type: foxglove_bridge
-    params: {{port: 0, token: s3cret}}
-""")
+def test_viewer_and_foxglove_bridge_refuse_nested_json_and_a_host_of_a_bracket(graphs):
+    g = graphs["servers"]
     g.wait_ready()
     replies = asyncio.run(_viewer_session(viewer_url(g)))
     assert [r["ok"] for r in replies] == [False, False, False], replies

@@ -122,9 +122,8 @@ class RunningNode:
         return self.exit_code
 
 
-@pytest.fixture
-def run_node(tmp_path: Path):
-    """``run_node(type_name, params, topics=None)`` -> RunningNode (stopped at teardown)."""
+def _node_starter(folder: Path):
+    """(start, started): a factory of RunningNodes whose files go in ``folder``, and the list it fills."""
     started: list[RunningNode] = []
 
     def start(type_name: str, params: dict[str, Any], topics: list[str] | None = None,
@@ -135,9 +134,9 @@ def run_node(tmp_path: Path):
                    for p, o in iface.outputs.items()}
         watched = [o["topic"] for o in outputs.values() if o["subscribers"]] + [DIAGNOSTICS_TOPIC]
         tag = uuid.uuid4().hex[:8]
-        ep = f"ipc://{tmp_path / ('n' + tag)}"
+        ep = f"ipc://{folder / ('n' + tag)}"
         wiring = Wiring(node=name, pub_endpoint=ep, outputs=outputs)
-        wiring_file = tmp_path / f"{name}-{tag}.json"
+        wiring_file = folder / f"{name}-{tag}.json"
         wiring_file.write_text(json.dumps({"class": class_path, "params": params,
                                            "wiring": dataclasses.asdict(wiring)}))
         sub = zmq.Context.instance().socket(zmq.SUB)
@@ -146,7 +145,7 @@ def run_node(tmp_path: Path):
         for t in watched:
             sub.setsockopt(zmq.SUBSCRIBE, topic_frame(t))
         sub.connect(ep)
-        log_file = tmp_path / f"{name}-{tag}.log"
+        log_file = folder / f"{name}-{tag}.log"
         with open(log_file, "wb") as log:
             proc = subprocess.Popen([sys.executable, "-m", "mocapgraph.bus.runtime", str(wiring_file)],
                                     stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
@@ -167,6 +166,23 @@ def run_node(tmp_path: Path):
         started.append(rn)
         return rn
 
+    return start, started
+
+
+@pytest.fixture
+def run_node(tmp_path: Path):
+    """``run_node(type_name, params, topics=None)`` -> RunningNode (stopped at teardown)."""
+    start, started = _node_starter(tmp_path)
+    yield start
+    for rn in started:
+        rn.stop()
+
+
+@pytest.fixture(scope="module")
+def run_module_node(tmp_path_factory):
+    """Like ``run_node``, for nodes a module's tests share (stopped after its last test): e.g. runs
+    as fast as they go, started together so that each takes a core instead of queueing."""
+    start, started = _node_starter(tmp_path_factory.mktemp("nodes"))
     yield start
     for rn in started:
         rn.stop()

@@ -101,20 +101,20 @@ nodes:
     cmd.close()
 
 
-@pytest.mark.parametrize("kind", ["symlink", "fifo"])
-def test_a_log_path_param_naming_a_symlink_elsewhere_or_a_fifo_is_refused_at_start(launch_graph, tmp_path, kind):
-    outside = tmp_path / "outside"
+def _refusing_graph(tmp: Path, kind: str) -> str:
+    """A graph whose logger's path param is a symlink to a file outside (or a fifo): in ``tmp``."""
+    outside = tmp / "outside"
     outside.mkdir()
     victim = outside / "victim.jsonl"
     victim.write_bytes(b"precious")
-    out = tmp_path / "logs"
+    out = tmp / "logs"
     out.mkdir()
     target = out / "session.jsonl"
     if kind == "symlink":
         target.symlink_to(victim)
     else:
         os.mkfifo(target)
-    g = launch_graph(f"""\
+    return f"""\
 nodes:
   - name: reader
     type: synthetic_actor
@@ -123,33 +123,14 @@ nodes:
     type: topic_logger
     params: {{path: {target}, topics: [marker_layout]}}
     required: true
-""")
-    t0 = time.monotonic()
-    while g.proc.poll() is None and time.monotonic() - t0 < 60:
-        time.sleep(0.1)
-    assert g.proc.poll() not in (None, 0), g.output
-    refusal = [line for line in g.lines if "[rec]" in line and ("outside the folders" in line or "a fifo" in line)]
-    assert refusal, g.output
-    assert "Traceback" not in g.output
-    assert victim.read_bytes() == b"precious"
+"""
 
 
-def test_file_params_naming_a_fifo_or_a_device_are_refused_not_waited_on(launch_graph, tmp_path):
-    """A reader's capture, a solver's and a calibration's model file, a subject file: a fifo (whose
-    open blocks for ever) or /dev/zero (endless) is refused in one line; the graph comes up."""
-    fifo = tmp_path / "model.json"
+def _file_params_graph(tmp: Path) -> str:
+    """A graph whose solver's model file is a fifo and whose calibration's files are /dev/zero."""
+    fifo = tmp / "model.json"
     os.mkfifo(fifo)
-    capture = tmp_path / "take.c3d"
-    os.mkfifo(capture)
-    graph = tmp_path / "reader.yaml"
-    graph.write_text(f"nodes:\n  - name: r\n    type: c3d_reader\n    params: {{file: {capture}}}\n")
-    import subprocess
-    import sys
-
-    r = subprocess.run([sys.executable, "-m", "mocapgraph", "graph", "check", str(graph)], capture_output=True,
-                       text=True, timeout=60)
-    assert r.returncode != 0 and "not a regular file" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
-    g = launch_graph(f"""\
+    return f"""\
 nodes:
   - name: reader
     type: synthetic_actor
@@ -160,37 +141,27 @@ nodes:
   - name: solver
     type: frame_solver
     params: {{model_file: {fifo}}}
-""")
-    g.wait_ready(timeout=60)
-    g.wait_for("[solver]", timeout=20)
-    solver = [ln for ln in g.lines if ln.startswith("[solver]") and "ERROR" in ln]
-    assert solver and "a fifo, not a regular file" in solver[0], g.output
-    cal = g.wait_for("[cal] ERROR", timeout=20)
-    assert "a character device, not a regular file" in cal, cal
-    assert g.proc.poll() is None and "Traceback" not in g.output
-    assert g.stop() == 0
+"""
 
 
-def test_a_replayed_bag_of_save_commands_writes_nothing_outside(launch_graph, tmp_path):
-    """A bag holding ``save`` commands aimed outside (a recording of an attack, or a forged bag),
-    replayed by a real bag player into a real calibration node: every one refused and counted."""
+def _replay_graph(tmp: Path) -> str:
+    """A bag holding ``save`` commands aimed outside, replayed by a bag player into a calibration."""
     from mocapgraph.bag.writer import BagWriter
 
-    models, outside = tmp_path / "models", tmp_path / "outside"
+    models, outside = tmp / "models", tmp / "outside"
     models.mkdir()
     outside.mkdir()
     model_file = models / "actor_model.json"
     _model_file(model_file)
     victim = outside / "victim.json"
     victim.write_text("precious\n")
-    bag = tmp_path / "commands.mcap"
+    bag = tmp / "commands.mcap"
     targets = [str(victim), str(models / ".." / "outside" / "x.json"), "/dev/null"]
     with BagWriter(str(bag)) as w:
         for i, p in enumerate(targets * 3):
             w.write("calibration_command", NodeCommand(target="", command="save", args_json=json.dumps({"path": p})),
                     seq=i + 1, capture_ns=int((1 + i * 0.2) * 1e9))
-    log = tmp_path / "status.jsonl"
-    g = launch_graph(f"""\
+    return f"""\
 nodes:
   - name: reader
     type: synthetic_actor
@@ -203,8 +174,67 @@ nodes:
     params: {{file: {bag}, loop: true}}
   - name: logger
     type: topic_logger
-    params: {{path: {log}, topics: [calibration_status]}}
-""")
+    params: {{path: {tmp / "status.jsonl"}, topics: [calibration_status]}}
+"""
+
+
+@pytest.fixture(scope="module")
+def graphs(launch_module_graph, tmp_path_factory) -> dict:
+    """The graphs of the tests below (none judged on time), launched together: each spends seconds
+    starting up, and each test looks at its own. name -> (graph, its folder)."""
+    out = {}
+    for name, make in (("symlink", lambda t: _refusing_graph(t, "symlink")),
+                       ("fifo", lambda t: _refusing_graph(t, "fifo")),
+                       ("file_params", _file_params_graph), ("replay", _replay_graph)):
+        tmp = tmp_path_factory.mktemp(name)
+        out[name] = launch_module_graph(make(tmp)), tmp
+    return out
+
+
+@pytest.mark.parametrize("kind", ["symlink", "fifo"])
+def test_a_log_path_param_naming_a_symlink_elsewhere_or_a_fifo_is_refused_at_start(graphs, kind):
+    g, tmp_path = graphs[kind]
+    victim = tmp_path / "outside" / "victim.jsonl"
+    t0 = time.monotonic()
+    while g.proc.poll() is None and time.monotonic() - t0 < 60:
+        time.sleep(0.1)
+    assert g.proc.poll() not in (None, 0), g.output
+    refusal = [line for line in g.lines if "[rec]" in line and ("outside the folders" in line or "a fifo" in line)]
+    assert refusal, g.output
+    assert "Traceback" not in g.output
+    assert victim.read_bytes() == b"precious"
+
+
+def test_file_params_naming_a_fifo_or_a_device_are_refused_not_waited_on(graphs, tmp_path):
+    """A reader's capture, a solver's and a calibration's model file, a subject file: a fifo (whose
+    open blocks for ever) or /dev/zero (endless) is refused in one line; the graph comes up."""
+    capture = tmp_path / "take.c3d"
+    os.mkfifo(capture)
+    graph = tmp_path / "reader.yaml"
+    graph.write_text(f"nodes:\n  - name: r\n    type: c3d_reader\n    params: {{file: {capture}}}\n")
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "mocapgraph", "graph", "check", str(graph)], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode != 0 and "not a regular file" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    g, _ = graphs["file_params"]
+    g.wait_ready(timeout=60)
+    g.wait_for("[solver]", timeout=20)
+    solver = [ln for ln in g.lines if ln.startswith("[solver]") and "ERROR" in ln]
+    assert solver and "a fifo, not a regular file" in solver[0], g.output
+    cal = g.wait_for("[cal] ERROR", timeout=20)
+    assert "a character device, not a regular file" in cal, cal
+    assert g.proc.poll() is None and "Traceback" not in g.output
+    assert g.stop() == 0
+
+
+def test_a_replayed_bag_of_save_commands_writes_nothing_outside(graphs):
+    """A bag holding ``save`` commands aimed outside (a recording of an attack, or a forged bag),
+    replayed by a real bag player into a real calibration node: every one refused and counted."""
+    g, tmp_path = graphs["replay"]
+    log, outside = tmp_path / "status.jsonl", tmp_path / "outside"
+    victim = outside / "victim.json"
     g.wait_ready()
     wait_until(lambda: json.loads(_status(log).get("data_json") or "{}").get("commands_refused", 0) >= 12,
                timeout=60, what="the replayed saves refused", graph=g)

@@ -62,10 +62,16 @@ async def _session(url: str, frames: dict[str, int]):
 
 
 @pytest.fixture(scope="module")
-def bridge(launch_module_graph):
-    """GRAPH launched once for the tests that only read from it (connect, subscribe, inspect ports);
-    the tests that count refusals in the log or stop the graph launch their own."""
-    g = launch_module_graph(GRAPH)
+def graphs(launch_module_graph) -> dict:
+    """GRAPH three times, launched together (each spends seconds starting up): "shared" for the
+    tests that only read from it (connect, subscribe, inspect ports), and one for each test that
+    counts refusals in the log or stops the graph ("strangers", "bad_client")."""
+    return {name: launch_module_graph(GRAPH) for name in ("shared", "strangers", "bad_client")}
+
+
+@pytest.fixture(scope="module")
+def bridge(graphs):
+    g = graphs["shared"]
     g.wait_ready()
     return g
 
@@ -110,8 +116,8 @@ async def _refused(url: str, headers: dict | None = None, **kw) -> int:
         return exc.response.status_code
 
 
-def test_strangers_are_refused(launch_graph):
-    g = launch_graph(GRAPH)
+def test_strangers_are_refused(graphs):
+    g = graphs["strangers"]
     g.wait_ready()
     url = re.search(r"(ws://\S+)", g.wait_for("foxglove bridge at ")).group(1)
     bare = url.split("?")[0]
@@ -210,8 +216,8 @@ async def _bad_client(url: str) -> tuple[list[dict], int]:
         return statuses, data
 
 
-def test_unsupported_or_malformed_client_messages_get_a_status_and_the_session_goes_on(launch_graph):
-    g = launch_graph(GRAPH)
+def test_unsupported_or_malformed_client_messages_get_a_status_and_the_session_goes_on(graphs):
+    g = graphs["bad_client"]
     g.wait_ready()
     url = re.search(r"(ws://\S+)", g.wait_for("foxglove bridge at ")).group(1)
     statuses, data = asyncio.run(_bad_client(url))

@@ -3,6 +3,7 @@ publish Kinect v2 skeletons; a video with no person and a missing camera fail in
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,9 +14,23 @@ from mocapgraph.formats import KINECT_V2_JOINTS  # noqa: E402
 from mocapgraph.video.pose_models import resolve  # noqa: E402
 
 
-def test_video_pose_reader_publishes_a_skeleton_for_every_frame(run_node, shared_data) -> None:
-    path = shared_data / "video" / "pose2sim_demo" / "cam02.mp4"
-    n = run_node("video_pose_reader", {"file": str(path), "rate_scale": 0.0})
+# the shared_data fixture's folder (tests/conftest.py), here for the module-scoped runs
+DEMO = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "video" / "pose2sim_demo").resolve()
+
+
+@pytest.fixture(scope="module")
+def offline(run_module_node) -> dict:
+    """The one-camera and the four-camera estimations (``rate_scale: 0``: as fast as the estimator
+    goes), started together at the first test that needs one: each estimator uses one core, so the
+    two share both instead of queueing."""
+    if not DEMO.is_dir():
+        pytest.skip("../shared/data/video/pose2sim_demo is absent")
+    return {"one": run_module_node("video_pose_reader", {"file": str(DEMO / "cam02.mp4"), "rate_scale": 0.0}),
+            "four": run_module_node("multiview_pose", {"file": str(DEMO / "Calib.qca.txt"), "rate_scale": 0.0})}
+
+
+def test_video_pose_reader_publishes_a_skeleton_for_every_frame(offline) -> None:
+    n = offline["one"]
     assert n.wait_exit(180) == 0        # 100 frames; minutes only on a machine loaded to 250 ms a frame
     info = n.messages("skeleton_info")[0]
     assert info.source == "video_mediapipe" and info.joint_names == list(KINECT_V2_JOINTS)
@@ -31,9 +46,8 @@ def test_video_pose_reader_publishes_a_skeleton_for_every_frame(run_node, shared
     assert states.index("estimating") < states.index("playing")   # ready first, estimated after start
 
 
-def test_multiview_pose_triangulates_the_four_cameras(run_node, shared_data) -> None:
-    calib = shared_data / "video" / "pose2sim_demo" / "Calib.qca.txt"
-    n = run_node("multiview_pose", {"file": str(calib), "rate_scale": 0.0})
+def test_multiview_pose_triangulates_the_four_cameras(offline) -> None:
+    n = offline["four"]
     assert n.wait_exit(300) == 0        # 4 x 100 frames estimated after start
     info = n.messages("skeleton_info")[0]
     assert info.source == "video_multiview"
@@ -52,25 +66,29 @@ def test_multiview_pose_triangulates_the_four_cameras(run_node, shared_data) -> 
 def test_missing_camera_and_no_person_fail_in_one_line(run_node, shared_data, tmp_path) -> None:
     demo = shared_data / "video" / "pose2sim_demo"
     (tmp_path / "side.mp4").symlink_to(demo / "cam02.mp4")      # a video the calibration has no camera for
-    n = run_node("multiview_pose", {"file": str(demo / "Calib.qca.txt"),
-                                    "videos": [str(demo / "cam01.mp4"), str(tmp_path / "side.mp4")]})
-    assert n.wait_exit(30) == 1
-    detail = n.messages("reader_status")[-1].detail
-    assert detail == "Calib.qca.txt: no camera for side (its cameras: cam01, cam02, cam03, cam04)"
-    assert n.log().strip().splitlines() == [f"ERROR {detail}"]
     (tmp_path / "broken.mp4").write_bytes((demo / "cam01.mp4").read_bytes()[:3000])   # the header only
-    n = run_node("video_pose_reader", {"file": str(tmp_path / "broken.mp4")})
-    assert n.wait_exit(30) == 1
-    detail = n.messages("reader_status")[-1].detail
-    assert detail.startswith("broken.mp4: ") and n.log().strip().splitlines() == [f"ERROR {detail}"]
-    print(detail)
     import cv2
     path = tmp_path / "nobody.mp4"
     out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (320, 240))
     for _ in range(10):
         out.write(np.full((240, 320, 3), 120, np.uint8))
     out.release()
-    n = run_node("video_pose_reader", {"file": str(path)})
+    # three independent nodes, started at once (each start-up spends a core's second importing)
+    side = run_node("multiview_pose", {"file": str(demo / "Calib.qca.txt"),
+                                       "videos": [str(demo / "cam01.mp4"), str(tmp_path / "side.mp4")]})
+    broken = run_node("video_pose_reader", {"file": str(tmp_path / "broken.mp4")})
+    nobody = run_node("video_pose_reader", {"file": str(path)})
+    n = side
+    assert n.wait_exit(30) == 1
+    detail = n.messages("reader_status")[-1].detail
+    assert detail == "Calib.qca.txt: no camera for side (its cameras: cam01, cam02, cam03, cam04)"
+    assert n.log().strip().splitlines() == [f"ERROR {detail}"]
+    n = broken
+    assert n.wait_exit(30) == 1
+    detail = n.messages("reader_status")[-1].detail
+    assert detail.startswith("broken.mp4: ") and n.log().strip().splitlines() == [f"ERROR {detail}"]
+    print(detail)
+    n = nobody
     assert n.wait_exit(60) == 1
     assert n.messages("reader_status")[-1].detail == "nobody.mp4: no person found in any of its 10 frames"
     assert n.log().strip().splitlines() == ["ERROR nobody.mp4: no person found in any of its 10 frames"]

@@ -5,6 +5,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from graph_helpers import read_jsonl, wait_until
 
@@ -67,9 +68,13 @@ nodes:
     assert _status(log)["sim_time_s"] > 4.0       # behind on a loaded machine it skips steps, never stalls
 
 
-def test_absurd_gains_stay_bounded_and_finite(launch_graph, tmp_path):
-    log = tmp_path / "log.jsonl"
-    g = launch_graph(f"""\
+@pytest.fixture(scope="module")
+def side_graphs(launch_module_graph, tmp_path_factory) -> dict:
+    """The absurd-gains graph and the commands graph, launched together: each spends seconds starting
+    its physics, neither is judged on time, and each test stops its own. name -> (graph, its log)."""
+    tmp = tmp_path_factory.mktemp("tracker")
+    absurd_log, commands_log = tmp / "absurd.jsonl", tmp / "commands.jsonl"
+    absurd = launch_module_graph(f"""\
 nodes:
   - name: src
     type: synthetic_character
@@ -79,24 +84,9 @@ nodes:
     params: {{kp: 10000000.0, kd: 100000.0, kp_rot: 1000000.0, kd_rot: 100000.0}}
   - name: log
     type: topic_logger
-    params: {{path: "{log}", topics: [sim_character_pose, physics_status]}}
+    params: {{path: "{absurd_log}", topics: [sim_character_pose, physics_status]}}
 """)
-    g.wait_ready()
-    wait_until(lambda: (_status(log) or {}).get("frames", 0) > 120, timeout=90, what="120 steps", graph=g)
-    g.stop()
-    st = _status(log)
-    print(f"\nabsurd gains: max force {st['max_force_n']:.1f} N of {st['force_bound_n']}, torque "
-          f"{st['max_torque_nm']:.1f} of {st['torque_bound_nm']}, resets {st['resets']}, finite {st['finite']}")
-    assert st["finite"] and st["max_force_n"] <= st["force_bound_n"] + 1e-6
-    assert st["max_torque_nm"] <= st["torque_bound_nm"] + 1e-6
-    assert all(np.isfinite(p).all() for p in _poses(log, "sim_character_pose").values())
-
-
-def test_commands_push_and_shoot_through_the_bus(launch_graph, tmp_path):
-    """NodeCommands from another process: a ball shot at the head leaves its parking place and a
-    push moves the character; a bad command is refused in one line and changes nothing."""
-    log = tmp_path / "log.jsonl"
-    g = launch_graph(f"""\
+    commands = launch_module_graph(f"""\
 nodes:
   - name: src
     type: synthetic_character
@@ -111,8 +101,28 @@ nodes:
                        {{at_s: 1.6, command: fly, args: {{}}}}]}}
   - name: log
     type: topic_logger
-    params: {{path: "{log}", topics: [physics_state, physics_scene, sim_character_pose]}}
+    params: {{path: "{commands_log}", topics: [physics_state, physics_scene, sim_character_pose]}}
 """)
+    return {"absurd": (absurd, absurd_log), "commands": (commands, commands_log)}
+
+
+def test_absurd_gains_stay_bounded_and_finite(side_graphs):
+    g, log = side_graphs["absurd"]
+    g.wait_ready()
+    wait_until(lambda: (_status(log) or {}).get("frames", 0) > 120, timeout=90, what="120 steps", graph=g)
+    g.stop()
+    st = _status(log)
+    print(f"\nabsurd gains: max force {st['max_force_n']:.1f} N of {st['force_bound_n']}, torque "
+          f"{st['max_torque_nm']:.1f} of {st['torque_bound_nm']}, resets {st['resets']}, finite {st['finite']}")
+    assert st["finite"] and st["max_force_n"] <= st["force_bound_n"] + 1e-6
+    assert st["max_torque_nm"] <= st["torque_bound_nm"] + 1e-6
+    assert all(np.isfinite(p).all() for p in _poses(log, "sim_character_pose").values())
+
+
+def test_commands_push_and_shoot_through_the_bus(side_graphs):
+    """NodeCommands from another process: a ball shot at the head leaves its parking place and a
+    push moves the character; a bad command is refused in one line and changes nothing."""
+    g, log = side_graphs["commands"]
     g.wait_ready()
     g.wait_for("fly", timeout=60)
     wait_until(lambda: len(read_jsonl(log, "physics_state")) > 200, timeout=60, what="states", graph=g)

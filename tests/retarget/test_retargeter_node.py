@@ -44,13 +44,56 @@ def _status(tmp: Path) -> list[str]:
     return [rec["msg"]["detail"] for rec in read_jsonl(tmp / "status.jsonl", "retarget_status")]
 
 
-def test_kinect_stream_drives_standard_20_live(launch_graph, tmp_path, shared_data):
-    csv = shared_data / "kinect2" / "Ges02_balancinghands.csv"
-    reader = f"""- name: reader
+# the shared_data fixture's folder (tests/conftest.py), here for the module's graphs
+SHARED_DATA = (REPO / ".." / "shared" / "data").resolve()
+
+
+@pytest.fixture(scope="module")
+def graphs(launch_module_graph, tmp_path_factory) -> dict:
+    """The module's four graphs (none judged on time), launched together: each spends seconds
+    starting its retargeter, and each test stops its own. name -> (graph, its folder)."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip("../shared/data is absent")
+    kinect, bvh = SHARED_DATA / "kinect2", SHARED_DATA / "bvh" / "cmu" / "131_01.bvh"
+    out = {}
+    tmp = tmp_path_factory.mktemp("kinect")
+    out["kinect"] = launch_module_graph(_graph(tmp, f"""- name: reader
     type: kinect_reader
-    params: {{file: "{csv}", ground: feet, rate_scale: 4.0, loop: false}}"""
-    g = launch_graph(_graph(tmp_path, reader, {"source": "skeleton", "character": "standard_20",
-                                                "mapping": "kinect_v2_standard_20", "height_m": 1.6}))
+    params: {{file: "{kinect / 'Ges02_balancinghands.csv'}", ground: feet, rate_scale: 4.0, loop: false}}""",
+        {"source": "skeleton", "character": "standard_20", "mapping": "kinect_v2_standard_20", "height_m": 1.6})), tmp
+    tmp = tmp_path_factory.mktemp("wrong")
+    out["wrong"] = launch_module_graph(_graph(tmp, f"""- name: reader
+    type: bvh_player
+    params: {{file: "{bvh}", rate_scale: 2.0, loop: true}}""",
+        {"source": "skeleton", "character": "standard_20", "mapping": "kinect_v2_standard_20"})), tmp
+    tmp = tmp_path_factory.mktemp("rest")
+    cmd = CommandSender("retarget_command", "the retargeter")
+    external = f"""external:
+  - {{topic: retarget_command, type: NodeCommand, endpoint: "tcp://127.0.0.1:{cmd.port}"}}
+"""
+    out["rest"] = launch_module_graph(external + _graph(tmp, f"""- name: reader
+    type: bvh_player
+    params: {{file: "{bvh}", rate_scale: 1.0, loop: true}}""",
+        {"source": "skeleton", "character": "mixamo", "mapping_out": str(tmp / "captured.yaml")})), tmp, cmd
+    tmp = tmp_path_factory.mktemp("girdle")
+    out["girdle"] = launch_module_graph(f"""
+nodes:
+  - name: reader
+    type: kinect_reader
+    params: {{file: "{kinect / 'Ges01_wavehand.csv'}", ground: feet, rate_scale: 4.0, loop: false}}
+  - name: retargeter
+    type: retargeter
+    params: {{source: skeleton, character: standard_20, mapping: kinect_v2_standard_20, follow_tolerance_deg: 10}}
+  - name: rec
+    type: bag_recorder
+    params: {{path: "{tmp / 'out.mcap'}", topics: [character_pose, skeleton_pose], flush_s: 0.05}}
+"""), tmp
+    yield out
+    cmd.close()
+
+
+def test_kinect_stream_drives_standard_20_live(graphs):
+    g, tmp_path = graphs["kinect"]
     g.wait_ready(60)
     g.wait_for("finished: 161 frames played", 60)
     import time
@@ -79,14 +122,9 @@ def _poses_safe(tmp):
         return [], []
 
 
-def test_wrong_skeleton_for_the_mapping_keeps_the_node_running(launch_graph, tmp_path, shared_data):
+def test_wrong_skeleton_for_the_mapping_keeps_the_node_running(graphs):
     """A Kinect mapping on a BVH stream: one clear error, no crash, nothing published."""
-    bvh = shared_data / "bvh" / "cmu" / "131_01.bvh"
-    reader = f"""- name: reader
-    type: bvh_player
-    params: {{file: "{bvh}", rate_scale: 2.0, loop: true}}"""
-    g = launch_graph(_graph(tmp_path, reader, {"source": "skeleton", "character": "standard_20",
-                                                "mapping": "kinect_v2_standard_20"}))
+    g, tmp_path = graphs["wrong"]
     g.wait_ready(60)
     line = g.wait_for("cannot retarget", 30)
     assert "has no rotation 'SpineBase'" in line and "waiting for a stream that fits" in line
@@ -96,18 +134,9 @@ def test_wrong_skeleton_for_the_mapping_keeps_the_node_running(launch_graph, tmp
     assert sum("cannot retarget" in s for s in _status(tmp_path)) == 1     # said once, not per frame
 
 
-def test_capture_rest_pose_writes_an_editable_mapping(launch_graph, tmp_path, shared_data):
-    bvh = shared_data / "bvh" / "cmu" / "131_01.bvh"
+def test_capture_rest_pose_writes_an_editable_mapping(graphs):
+    g, tmp_path, cmd = graphs["rest"]
     out = tmp_path / "captured.yaml"
-    reader = f"""- name: reader
-    type: bvh_player
-    params: {{file: "{bvh}", rate_scale: 1.0, loop: true}}"""
-    cmd = CommandSender("retarget_command", "the retargeter")
-    external = f"""external:
-  - {{topic: retarget_command, type: NodeCommand, endpoint: "tcp://127.0.0.1:{cmd.port}"}}
-"""
-    g = launch_graph(external + _graph(tmp_path, reader, {"source": "skeleton", "character": "mixamo",
-                                                          "mapping_out": str(out)}))
     g.wait_ready(60)
     cmd.wait_subscriber()
     wait_until(lambda: out.exists(), 30, "derived mapping written", g)
@@ -123,27 +152,14 @@ def test_capture_rest_pose_writes_an_editable_mapping(launch_graph, tmp_path, sh
     assert any("unknown command 'bogus'" in s for s in _status(tmp_path))
     assert g.proc.poll() is None
     g.stop()
-    cmd.close()
 
 
-def test_the_live_node_flags_the_girdle_bones_it_cannot_follow(launch_graph, tmp_path, shared_data):
+def test_the_live_node_flags_the_girdle_bones_it_cannot_follow(graphs):
     """Kinect v2 (Ges01, shrugs) through a launched retargeter: on every published frame the chest
     and pelvis joints are estimated exactly where one of their bones, measured here from the
     published joint positions and the recorded Kinect frame, turns more than the node's
     follow_tolerance_deg (10) from the Kinect's."""
-    csv = shared_data / "kinect2" / "Ges01_wavehand.csv"
-    g = launch_graph(f"""
-nodes:
-  - name: reader
-    type: kinect_reader
-    params: {{file: "{csv}", ground: feet, rate_scale: 4.0, loop: false}}
-  - name: retargeter
-    type: retargeter
-    params: {{source: skeleton, character: standard_20, mapping: kinect_v2_standard_20, follow_tolerance_deg: 10}}
-  - name: rec
-    type: bag_recorder
-    params: {{path: "{tmp_path / 'out.mcap'}", topics: [character_pose, skeleton_pose], flush_s: 0.05}}
-""")
+    g, tmp_path = graphs["girdle"]
     g.wait_ready(60)
     g.wait_for("finished: 154 frames played", 60)
     import time

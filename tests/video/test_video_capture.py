@@ -18,6 +18,7 @@ pytestmark = pytest.mark.slow          # runs the pose estimator on 4 x 100 fram
 cv2 = pytest.importorskip("cv2")
 pytest.importorskip("mediapipe")
 
+from graph_helpers import read_jsonl, wait_until  # noqa: E402
 from mocapgraph.video.capture import (aligned, cameras_for, hold_bone_lengths, multiview_trial,  # noqa: E402
                                       require_person)
 from mocapgraph.video.estimator import LANDMARK_NAMES, detect_video, single_view_trial  # noqa: E402
@@ -30,7 +31,7 @@ from mocapgraph.video.multiview import (CalibrationError, camera_report, project
 DEMO = (Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "video" / "pose2sim_demo").resolve()
 CAMS = ["cam01", "cam02", "cam03", "cam04"]
 L = {n: i for i, n in enumerate(LANDMARK_NAMES)}
-STATUS_WAIT_S = 2.5
+STATUS_WAIT_S = 2.5      # the reader's status comes once a second: a deadline for the next one
 START_IN_S = 12.0      # the live cameras' start after the launch: its 6 processes ready and estimators warm
 BONES = {"thigh": ("hip", "knee"), "shank": ("knee", "ankle"), "upper arm": ("shoulder", "elbow"),
          "forearm": ("elbow", "wrist")}
@@ -407,8 +408,12 @@ nodes:
         g.wait_for(f"node {cam} exited with code 0", timeout=90)
     # the cameras gone, each is named once it has been silent for stall_s; the reader runs on
     stalled = g.wait_for("stalled: no frame for", timeout=10)
+    seen_ns = time.time_ns()
     assert "[reader] WARNING camera cam0" in stalled
-    time.sleep(STATUS_WAIT_S)        # the reader's status once a second: the last groups counted
+    # the reader's status once a second: the first one published after the stall line (logged by the
+    # poll that hands out the last groups, on the thread that publishes the status) counts them all
+    wait_until(lambda: [r for r in read_jsonl(tmp_path / "poses.jsonl", "reader_status") if r["publish_ns"] > seen_ns],
+               timeout=STATUS_WAIT_S + 5.0, what="the reader's status after the stall", graph=g)
     assert g.proc.poll() is None and "Traceback" not in g.output
     assert g.stop() == 0
     rows = [json.loads(line) for line in (tmp_path / "poses.jsonl").read_text().splitlines()]
