@@ -172,6 +172,7 @@ class FixedLagLowpass:
         self._n = 0
 
     def push(self, x: np.ndarray, tag=None) -> tuple[np.ndarray, object] | None:
+        """This frame in; the frame ``lag`` frames before it out, filtered, with its tag."""
         self._win[:-1] = self._win[1:]
         self._win[-1] = x
         self._tags = self._tags[1:] + [tag]
@@ -184,12 +185,10 @@ class FixedLagLowpass:
             win = self._win
         centre = win.shape[0] - 1 - self.lag
         out = win[centre].copy()
-        ok = np.isfinite(win).all((0, 2))
-        if not ok.any() or win.shape[0] < MIN_FRAMES:
-            pass
-        elif win is self._win:
+        ok = np.isfinite(win).all((0, 2))          # markers seen in every frame of the window
+        if ok.any() and win is self._win:
             out[ok] = np.einsum("w,wmc->mc", self._weights, win[:, ok])
-        else:
+        elif ok.any() and win.shape[0] >= MIN_FRAMES:
             cols = win[:, ok].reshape(win.shape[0], -1)
             out[ok] = filter_columns(cols, self.rate_hz, self.cutoff_hz)[centre].reshape(-1, 3)
         return out, self._tags[-1 - self.lag]
