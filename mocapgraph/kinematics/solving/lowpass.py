@@ -13,6 +13,7 @@ marker is seen is filtered by itself; gaps stay NaN. Positions in metres, rates 
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,7 +159,7 @@ class FixedLagLowpass:
             raise ValueError(f"a fixed-lag low-pass needs a lag of {MIN_FRAMES // 2} frames or more, got {lag_frames}")
         self.rate_hz, self.cutoff_hz, self.lag = float(rate_hz), float(cutoff_hz), int(lag_frames)
         self._win = np.full((2 * self.lag + 1, n_markers, 3), np.nan)
-        self._tags: list = [None] * (2 * self.lag + 1)
+        self._tags: deque = deque([None] * (2 * self.lag + 1), maxlen=2 * self.lag + 1)
         self._n = 0
         self.noise_gain = noise_gain(rate_hz, cutoff_hz)
         # The filter is linear: on a full window its centre is one fixed weighting of the samples.
@@ -168,14 +169,14 @@ class FixedLagLowpass:
     def reset(self) -> None:
         """Forget the window (a replay looped, a new stream)."""
         self._win[:] = np.nan
-        self._tags = [None] * len(self._tags)
+        self._tags.extend([None] * self._tags.maxlen)
         self._n = 0
 
     def push(self, x: np.ndarray, tag=None) -> tuple[np.ndarray, object] | None:
         """This frame in; the frame ``lag`` frames before it out, filtered, with its tag."""
         self._win[:-1] = self._win[1:]
         self._win[-1] = x
-        self._tags = self._tags[1:] + [tag]
+        self._tags.append(tag)                     # the oldest drops out (maxlen)
         self._n += 1
         if self._n <= self.lag:
             return None
